@@ -1,0 +1,291 @@
+"""Frozen pydantic configuration models, loaded from TOML.
+
+Every model forbids unknown keys; :func:`load_toml` turns a validation failure into a
+:class:`~gprace.errors.ConfigError` whose message names the file and the TOML path
+(``vehicle.tire.b_front``) at fault. Units are SI throughout.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import tomllib
+from pathlib import Path
+from typing import Any, Literal, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from gprace.errors import ConfigError, InputError
+
+G = 9.81
+"""Gravitational acceleration [m/s^2]."""
+
+M = TypeVar("M", bound="Frozen")
+
+
+class Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    def digest(self) -> str:
+        """Stable hash of the configuration (stored in artifacts as ``config_hash``)."""
+        return config_hash(self.model_dump(mode="json"))
+
+    def to_toml(self) -> str:
+        return dumps_toml(self.model_dump(mode="json", exclude_none=True))
+
+
+class TireConfig(Frozen):
+    """Simplified Magic Formula per axle: ``F_y = mu * F_z * sin(C * atan(B * alpha))``."""
+
+    b_front: float = Field(gt=0, description="stiffness factor B of the front axle [1/rad]")
+    c_front: float = Field(gt=0, description="shape factor C of the front axle [-]")
+    b_rear: float = Field(gt=0, description="stiffness factor B of the rear axle [1/rad]")
+    c_rear: float = Field(gt=0, description="shape factor C of the rear axle [-]")
+
+
+class LimitsConfig(Frozen):
+    """Actuator and speed limits used by planners and controllers."""
+
+    steering_max: float = Field(gt=0, description="|delta| bound [rad]")
+    steering_rate_max: float = Field(gt=0, description="|d delta/dt| bound [rad/s]")
+    accel_min: float = Field(lt=0, description="strongest braking a_x [m/s^2]")
+    accel_max: float = Field(gt=0, description="strongest drive a_x [m/s^2]")
+    speed_max: float = Field(gt=0, description="top speed [m/s]")
+
+
+class EffectConfig(Frozen):
+    """One effect of the catalogue with its parameters (``[[effects]]`` tables in TOML).
+
+    ``params`` keys are the effect's parameter names; they are checked against the catalogue
+    when a model is built from the configuration.
+    """
+
+    name: str = Field(description="catalogue name, e.g. 'downforce'")
+    params: dict[str, float] = Field(default_factory=dict, description="physical parameters (SI)")
+
+
+class VehicleConfig(Frozen):
+    """The nominal vehicle model: the paper's Frenet dynamic bicycle with MF tires.
+
+    ``effects`` lists physics added on top of the paper's model (for example by ``gprace
+    diagnose -o``); an empty list is the plain nominal model.
+    """
+
+    name: str = Field(description="vehicle name")
+    mass: float = Field(gt=0, description="total mass m [kg]")
+    yaw_inertia: float = Field(gt=0, description="I_zz [kg m^2]")
+    l_f: float = Field(gt=0, description="CoG to front axle [m]")
+    l_r: float = Field(gt=0, description="CoG to rear axle [m]")
+    width: float = Field(gt=0, description="chassis width [m]")
+    length: float = Field(gt=0, description="footprint length [m]")
+    cog_height: float = Field(ge=0, description="CoG height h_c [m]")
+    mu: float = Field(gt=0, description="tire-road friction ratio [-]")
+    drag_coefficient: float = Field(ge=0, description="wind drag C_xw in F = C_xw v_x^2 [kg/m]")
+    rolling_resistance: float = Field(ge=0, description="rolling resistance coefficient c_rr, R_x = c_rr m g [-]")
+    v_min: float = Field(gt=0, description="speed floor used in slip angles to avoid 0/0 [m/s]")
+    tire: TireConfig
+    limits: LimitsConfig
+    effects: tuple[EffectConfig, ...] = Field(default=(), description="extra physics on the nominal model")
+
+    @property
+    def wheelbase(self) -> float:
+        return self.l_f + self.l_r
+
+
+class NoiseConfig(Frozen):
+    """Standard deviation of white measurement noise per recorded channel (SI units)."""
+
+    v_x: float = Field(0.0, ge=0)
+    v_y: float = Field(0.0, ge=0)
+    yaw_rate: float = Field(0.0, ge=0)
+    e_psi: float = Field(0.0, ge=0)
+    e_y: float = Field(0.0, ge=0)
+    s: float = Field(0.0, ge=0)
+
+
+class PlantConfig(Frozen):
+    """"The real car": a registered plant, the vehicle it starts from, and what it hides.
+
+    For ``frenet`` the hidden ``effects`` are added to the vehicle's own; ``commonroad-std`` uses
+    its own BMW 320i parameters and ignores ``effects``.
+    """
+
+    kind: str = Field("frenet", description="plant backend name (registry gprace.plant)")
+    vehicle: VehicleConfig
+    effects: tuple[EffectConfig, ...] = Field(default=(), description="true effects, unknown to the nominal model")
+    noise: NoiseConfig = Field(default_factory=NoiseConfig)
+    substeps: int = Field(10, ge=1, le=1000, description="RK4 substeps per control period")
+    seed: int = Field(0, description="seed of the sensor noise")
+
+
+class SimulateConfig(Frozen):
+    """Reference controller and recording settings of ``gprace simulate``."""
+
+    dt: float = Field(0.05, gt=0, le=1.0, description="control and recording period [s]")
+    laps: float = Field(1.0, gt=0, description="laps to drive")
+    speed_scale: float = Field(0.8, gt=0, le=1.2, description="fraction of the friction-limited speed")
+    weave_amplitude: float = Field(0.0, ge=0, description="lateral weaving amplitude, share of half width [-]")
+    weave_wavelength: float = Field(100.0, gt=0, description="weaving wavelength along s [m]")
+    seed: int = 0
+
+
+# --------------------------------------------------------------------------------------------
+# loading
+
+
+def load_toml(path: str | Path, model: type[M], section: str | None = None) -> M:
+    """Read ``path`` (optionally one top-level ``section`` of it) into ``model``.
+
+    Relative ``vehicle = "file.toml"`` references inside plant files are resolved against the
+    including file's folder.
+    """
+    path = Path(path)
+    data = read_toml(path)
+    if section is not None:
+        if section not in data:
+            raise ConfigError(f"{path}: missing section [{section}]")
+        data = data[section]
+    data = _resolve_includes(data, path.parent)
+    return validate(model, data, str(path))
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    try:
+        return tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file") from None
+
+
+def validate(model: type[M], data: dict[str, Any], where: str) -> M:
+    data = _effects_from_toml(data)
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(p) for p in err["loc"]) or "(root)"
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key"
+        elif err["type"] == "missing":
+            msg = "required key missing"
+        more = f" (and {len(exc.errors()) - 1} more)" if len(exc.errors()) > 1 else ""
+        raise ConfigError(f"{where}: {loc}: {msg}{more}") from None
+
+
+def _resolve_includes(data: dict[str, Any], base: Path) -> dict[str, Any]:
+    """``vehicle = "path.toml"`` -> the parsed vehicle table (relative to the including file)."""
+    out = dict(data)
+    v = out.get("vehicle")
+    if isinstance(v, str):
+        p = Path(v)
+        if not p.is_absolute():
+            p = base / p
+        if not p.exists():
+            p = builtin_config("vehicles", v)
+        out["vehicle"] = read_toml(p)
+    return out
+
+
+def _effects_from_toml(data: Any) -> Any:
+    """Accept effects written flat in TOML: ``[[effects]] name = "downforce"  c_l = 1.2``."""
+    if not isinstance(data, dict):
+        return data
+    out = {}
+    for k, v in data.items():
+        if k == "effects" and isinstance(v, list):
+            eff = []
+            for e in v:
+                if isinstance(e, dict) and "params" not in e:
+                    e = {"name": e.get("name"), "params": {a: b for a, b in e.items() if a != "name"}}
+                eff.append(e)
+            out[k] = eff
+        else:
+            out[k] = _effects_from_toml(v)
+    return out
+
+
+def configs_dir() -> Path:
+    """The shipped ``configs/`` folder (inside the package so an installed wheel has it)."""
+    return Path(__file__).parent / "data" / "configs"
+
+
+def builtin_config(kind: str, name: str) -> Path:
+    """Resolve a shipped config by name (``audi_tt_cup``) or path; error lists what exists."""
+    p = Path(name)
+    if p.exists():
+        return p
+    folder = configs_dir() / kind
+    cand = folder / (name if name.endswith(".toml") else f"{name}.toml")
+    if cand.exists():
+        return cand
+    avail = ", ".join(sorted(q.stem for q in folder.glob("*.toml")))
+    raise InputError(f"{name}: no such file, and no shipped {kind} config of that name (shipped: {avail})")
+
+
+def load_vehicle(name_or_path: str | Path) -> VehicleConfig:
+    p = builtin_config("vehicles", str(name_or_path))
+    data = read_toml(p)
+    if "vehicle" in data and isinstance(data["vehicle"], dict) and "mass" not in data:
+        data = data["vehicle"]  # an augmented plant-style file
+    return validate(VehicleConfig, data, str(p))
+
+
+def load_plant(name_or_path: str | Path) -> PlantConfig:
+    p = builtin_config("plants", str(name_or_path))
+    return load_toml(p, PlantConfig)
+
+
+# --------------------------------------------------------------------------------------------
+# hashing and writing
+
+
+def config_hash(obj: Any) -> str:
+    blob = json.dumps(obj, sort_keys=True, default=str).encode()
+    return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def dumps_toml(data: dict[str, Any]) -> str:
+    """Minimal TOML writer for our configs (scalars, nested tables, arrays of tables)."""
+    lines: list[str] = []
+    _emit(data, [], lines)
+    return "\n".join(lines).strip() + "\n"
+
+
+def _scalar(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)) and all(not isinstance(x, dict) for x in v):
+        return "[" + ", ".join(_scalar(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _emit(data: dict[str, Any], prefix: list[str], lines: list[str]) -> None:
+    tables, arrays = [], []
+    for k, v in data.items():
+        if isinstance(v, dict):
+            tables.append((k, v))
+        elif isinstance(v, (list, tuple)) and v and all(isinstance(x, dict) for x in v):
+            arrays.append((k, v))
+        elif isinstance(v, (list, tuple)) and not v:
+            continue
+        else:
+            lines.append(f"{k} = {_scalar(v)}")
+    for k, v in tables:
+        lines.append("")
+        lines.append(f"[{'.'.join(prefix + [k])}]")
+        _emit(v, prefix + [k], lines)
+    for k, items in arrays:
+        for item in items:
+            if k == "effects" and "params" in item:  # flat form, as users write it
+                item = {"name": item["name"], **item["params"]}
+            lines.append("")
+            lines.append(f"[[{'.'.join(prefix + [k])}]]")
+            _emit(item, prefix + [k], lines)

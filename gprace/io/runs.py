@@ -1,0 +1,155 @@
+"""Recordings ("runs"): time series of the Frenet state and inputs.
+
+Columns (SI units; DESIGN.md section 7): ``t, s, e_y, e_psi, v_x, v_y, yaw_rate, delta, a_x,
+kappa``. Extra columns (``lap``, ``a_x_cmd``, ``border_hit`` ...) are kept. ``s`` is the arc
+length along the track within the lap, in ``[0, L)`` for closed tracks. A run may carry the
+nominal vehicle it was recorded against (``meta["vehicle_toml"]``), its track (``meta["track"]``)
+and its period (``meta["dt"]``).
+
+HDF5 runs are artifacts of kind ``run``; CSV runs have a header row, any column order.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gprace.errors import InputError
+from gprace.io.artifacts import Artifact, read_artifact, write_artifact
+
+RUN_COLUMNS = ("t", "s", "e_y", "e_psi", "v_x", "v_y", "yaw_rate", "delta", "a_x", "kappa")
+STATE_COLUMNS = ("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s")
+INPUT_COLUMNS = ("delta", "a_x")
+
+# plausibility bounds per column: catches km/h speeds, degrees for radians, and the like
+_PLAUSIBLE = {"v_x": 120.0, "v_y": 30.0, "yaw_rate": 6.0, "e_psi": 3.2, "delta": 1.2, "a_x": 40.0}
+
+
+@dataclass
+class Run:
+    data: dict[str, np.ndarray]
+    meta: dict[str, Any] = field(default_factory=dict)
+    source: str = "<memory>"
+
+    def __post_init__(self) -> None:
+        check_columns(self.data, self.source)
+
+    @property
+    def n(self) -> int:
+        return len(self.data["t"])
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.data[name]
+        except KeyError:
+            raise InputError(f"{self.source}: no column {name!r}") from None
+
+    @property
+    def dt(self) -> float:
+        if "dt" in self.meta and self.meta["dt"]:
+            return float(self.meta["dt"])
+        return float(np.median(np.diff(self.data["t"])))
+
+    def states(self) -> np.ndarray:
+        """(n, 6) array in the model's state order ``[v_x, v_y, yaw_rate, e_psi, e_y, s]``."""
+        return np.column_stack([self.data[c] for c in STATE_COLUMNS])
+
+    def inputs(self) -> np.ndarray:
+        """(n, 2) array ``[delta, a_x]``."""
+        return np.column_stack([self.data[c] for c in INPUT_COLUMNS])
+
+    def vehicle(self):
+        """The nominal vehicle the run carries, or None."""
+        from gprace.config import VehicleConfig, validate
+        import tomllib
+
+        text = self.meta.get("vehicle_toml")
+        if not text:
+            return None
+        return validate(VehicleConfig, tomllib.loads(text), f"{self.source} (embedded vehicle)")
+
+    def slice(self, mask: np.ndarray) -> "Run":
+        return Run({k: v[mask] for k, v in self.data.items()}, dict(self.meta), self.source)
+
+
+def check_columns(data: dict[str, np.ndarray], source: str) -> None:
+    missing = [c for c in RUN_COLUMNS if c not in data]
+    if missing:
+        raise InputError(f"{source}: missing column{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
+    n = len(data["t"])
+    if n < 2:
+        raise InputError(f"{source}: recording has {n} sample(s); need at least 2")
+    for c in RUN_COLUMNS:
+        a = np.asarray(data[c], dtype=float)
+        if a.shape != (n,):
+            raise InputError(f"{source}: column {c!r} has {a.shape} values, expected ({n},)")
+        bad = ~np.isfinite(a)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(f"{source}: column {c!r} has a non-finite value ({a[i]}) at row {i + 1}")
+        data[c] = a
+    if np.any(np.diff(data["t"]) <= 0):
+        i = int(np.argmax(np.diff(data["t"]) <= 0))
+        raise InputError(f"{source}: column 't' is not strictly increasing at row {i + 2}")
+    for c, lim in _PLAUSIBLE.items():
+        m = float(np.max(np.abs(data[c])))
+        if m > lim:
+            raise InputError(
+                f"{source}: column {c!r} reaches {m:.3g}, implausible in SI units (limit {lim}); "
+                "check units (km/h instead of m/s? degrees instead of rad?)"
+            )
+
+
+def read_run(path: str | Path) -> Run:
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.suffix.lower() == ".csv":
+        return _read_csv(path)
+    art = read_artifact(path, "run")
+    return Run(dict(art.arrays), dict(art.attrs), str(path))
+
+
+def write_run(run: Run, path: str | Path, config_hash: str = "", seed: int = 0) -> Path:
+    path = Path(path)
+    if path.suffix.lower() == ".csv":
+        return write_run_csv(run, path)
+    return write_artifact(path, Artifact("run", arrays=dict(run.data), attrs=dict(run.meta), config_hash=config_hash, seed=seed))
+
+
+def write_run_csv(run: Run, path: str | Path) -> Path:
+    path = Path(path)
+    cols = list(RUN_COLUMNS) + [c for c in run.data if c not in RUN_COLUMNS and np.ndim(run.data[c]) == 1]
+    arr = np.column_stack([np.asarray(run.data[c], dtype=float) for c in cols])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    np.savetxt(tmp, arr, delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
+    tmp.replace(path)
+    return path
+
+
+def _read_csv(path: Path) -> Run:
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text CSV file") from None
+    rows = list(csv.reader(line for line in text.splitlines() if line.strip()))
+    if not rows:
+        raise InputError(f"{path}: empty file")
+    header = [h.strip() for h in rows[0]]
+    body = rows[1:]
+    data: dict[str, list[float]] = {h: [] for h in header}
+    for i, row in enumerate(body, start=2):
+        if len(row) != len(header):
+            raise InputError(f"{path}: row {i} has {len(row)} fields, header has {len(header)} (truncated file?)")
+        for h, v in zip(header, row):
+            try:
+                data[h].append(float(v))
+            except ValueError:
+                raise InputError(f"{path}: column {h!r} row {i}: {v!r} is not a number") from None
+    arrays = {h: np.asarray(v, dtype=float) for h, v in data.items()}
+    return Run(arrays, {}, str(path))
