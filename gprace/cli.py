@@ -1,0 +1,86 @@
+"""The ``gprace`` command: a thin typer app.
+
+Each stage contributes its commands through ``gprace/<stage>/commands.py`` with a function
+``register(app)``; this module only assembles them and is the one exit door for errors: a
+:class:`~gprace.errors.GpraceError` becomes a one-line message on stderr and its exit code (2 for
+bad input, 1 for a failed run), never a traceback unless ``GPRACE_DEBUG=1``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+
+import typer
+
+from gprace import __version__
+from gprace.console import console
+from gprace.errors import GpraceError
+
+app = typer.Typer(
+    name="gprace",
+    help="Learning-based autonomous racing: GP-compensated MPC, active exploration, head-to-head, diagnosis.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+# stages that contribute commands, in the order --help lists them
+COMMAND_MODULES = (
+    "gprace.tracks.commands",
+    "gprace.sim.commands",
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        console.result(f"gprace {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars or informational messages."),
+) -> None:
+    console.quiet = quiet
+
+
+for _mod in COMMAND_MODULES:
+    importlib.import_module(_mod).register(app)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit code (also used by tests)."""
+    debug = os.environ.get("GPRACE_DEBUG") == "1"
+    try:
+        app(args=argv, standalone_mode=False)
+    except GpraceError as exc:
+        if debug:
+            raise
+        console.error(str(exc))
+        return exc.exit_code
+    except typer.Exit as exc:
+        return exc.exit_code
+    except typer.Abort:
+        console.error("aborted")
+        return 130
+    except KeyboardInterrupt:
+        console.error("interrupted; finished artifacts are kept, rerun the same command to resume")
+        return 130
+    except Exception as exc:  # click usage errors and anything unexpected
+        import click
+
+        if isinstance(exc, click.exceptions.ClickException):
+            exc.show()
+            return 2
+        if debug:
+            raise
+        console.error(f"internal error: {type(exc).__name__}: {exc} (rerun with GPRACE_DEBUG=1 for a traceback)")
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
