@@ -28,8 +28,6 @@ app = typer.Typer(
 
 # stages that contribute commands, in the order --help lists them
 COMMAND_MODULES = (
-    "gprace.tracks.commands",
-    "gprace.sim.commands",
 )
 
 
