@@ -1,0 +1,120 @@
+"""The paper's Frenet dynamic bicycle model (eq. "dynamic_bicycle_model"), written once.
+
+State ``x = [v_x, v_y, yaw_rate, e_psi, e_y, s]`` (then any effect states), input
+``u = [delta, a_x]``, track curvature ``kappa`` at the car's ``s``::
+
+    v_x'  = a_x - (F_yf sin(delta) + R_x + F_xw)/m - g sin(phi) + yaw_rate v_y
+    v_y'  = (F_yf cos(delta) + F_yr)/m - yaw_rate v_x
+    r'    = (l_f F_yf cos(delta) - l_r F_yr)/I_zz
+    e_psi'= r - kappa s'
+    e_y'  = v_x sin(e_psi) + v_y cos(e_psi)
+    s'    = (v_x cos(e_psi) - v_y sin(e_psi)) / (1 - kappa e_y)
+
+with ``R_x = c_rr m g``, ``F_xw = C_xw v_x^2``, flat road (``phi = 0``) and the simplified Magic
+Formula ``F_y = mu F_z sin(C atan(B alpha))`` on static axle loads. Slip angles
+``alpha_f = delta - atan((v_y + l_f r)/v_x)``, ``alpha_r = -atan((v_y - l_r r)/v_x)`` with ``v_x``
+floored at ``v_min``.
+
+The computation runs as a pipeline of named stages (inputs -> loads -> tire -> forces); each effect
+of :mod:`gprace.model.effects` hooks into the stages it changes. The same function builds the
+numpy evaluation and the CasADi graph (``ops``), which is the "one symbolic definition".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import Any, Sequence
+
+from gprace.config import G, VehicleConfig
+
+STATE = ("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s")
+INPUT = ("delta", "a_x")
+NX, NU = 6, 2
+
+
+@dataclass(frozen=True)
+class Params:
+    """Numeric nominal parameters (SI), one frozen object instead of many floats."""
+
+    m: float
+    iz: float
+    lf: float
+    lr: float
+    h: float
+    mu: float
+    cxw: float
+    crr: float
+    bf: float
+    cf: float
+    br: float
+    cr: float
+    vmin: float
+    g: float = G
+
+    @classmethod
+    def from_vehicle(cls, v: VehicleConfig) -> "Params":
+        return cls(
+            m=v.mass, iz=v.yaw_inertia, lf=v.l_f, lr=v.l_r, h=v.cog_height, mu=v.mu,
+            cxw=v.drag_coefficient, crr=v.rolling_resistance,
+            bf=v.tire.b_front, cf=v.tire.c_front, br=v.tire.b_rear, cr=v.tire.c_rear, vmin=v.v_min,
+        )
+
+    @property
+    def fz_front(self) -> float:
+        return self.m * self.g * self.lr / (self.lf + self.lr)
+
+    @property
+    def fz_rear(self) -> float:
+        return self.m * self.g * self.lf / (self.lf + self.lr)
+
+
+def dynamics(x: Sequence[Any], u: Sequence[Any], kappa: Any, p: Params, effects: Sequence[Any], ops) -> list[Any]:
+    """Continuous-time derivative as a list of components (numpy arrays or CasADi expressions).
+
+    ``x`` and ``u`` are sequences of components (each an (n,) array or a scalar symbol).
+    """
+    c = SimpleNamespace(ops=ops, p=p, kappa=kappa)
+    c.vx, c.vy, c.r, c.epsi, c.ey, c.s = x[:NX]
+    c.z = list(x[NX:])
+    c.delta_cmd, c.ax_cmd = u
+    c.delta, c.ax = u
+    _run(effects, "inputs", c)
+
+    c.fz_f, c.fz_r = p.fz_front, p.fz_rear
+    _run(effects, "loads", c)
+
+    c.mu_f = c.mu_r = p.mu
+    c.b_f, c.c_f, c.b_r, c.c_r = p.bf, p.cf, p.br, p.cr
+    _run(effects, "tire", c)
+
+    vxs = ops.fmax(c.vx, p.vmin)
+    c.alpha_f = c.delta - ops.atan((c.vy + p.lf * c.r) / vxs)
+    c.alpha_r = -ops.atan((c.vy - p.lr * c.r) / vxs)
+    c.fy_f = c.mu_f * c.fz_f * ops.sin(c.c_f * ops.atan(c.b_f * c.alpha_f))
+    c.fy_r = c.mu_r * c.fz_r * ops.sin(c.c_r * ops.atan(c.b_r * c.alpha_r))
+
+    c.rx = p.crr * p.m * p.g
+    c.fxw = p.cxw * c.vx * c.vx
+    c.grade = 0.0  # road inclination phi [rad]
+    c.f_lat = 0.0  # extra lateral force (road bank) [N]
+    c.iz = p.iz
+    _run(effects, "forces", c)
+
+    cd, sd = ops.cos(c.delta), ops.sin(c.delta)
+    vx_dot = c.ax - (c.fy_f * sd + c.rx + c.fxw) / p.m - p.g * ops.sin(c.grade) + c.r * c.vy
+    vy_dot = (c.fy_f * cd + c.fy_r + c.f_lat) / p.m - c.r * c.vx
+    r_dot = (p.lf * c.fy_f * cd - p.lr * c.fy_r) / c.iz
+    s_dot = (c.vx * ops.cos(c.epsi) - c.vy * ops.sin(c.epsi)) / (1.0 - c.kappa * c.ey)
+    epsi_dot = c.r - c.kappa * s_dot
+    ey_dot = c.vx * ops.sin(c.epsi) + c.vy * ops.cos(c.epsi)
+    out = [vx_dot, vy_dot, r_dot, epsi_dot, ey_dot, s_dot]
+    for e in effects:
+        if e.n_states:
+            out.extend(e.derivative(c))
+    return out
+
+
+def _run(effects: Sequence[Any], stage: str, c: SimpleNamespace) -> None:
+    for e in effects:
+        getattr(e, stage)(c)
