@@ -65,10 +65,10 @@ class NominalModel:
 
     def initial_state(self, x6: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Append effect states (actuator lags start at the first command)."""
+        single = np.ndim(x6) == 1
         x6, u = _as2d(x6, NX), _as2d(u, NU)
-        parts = [x6] + [e.initial_states(u) for e in self.effects if e.n_states]
-        out = np.hstack(parts)
-        return out[0] if np.ndim(x6) == 1 and out.shape[0] == 1 else out
+        out = np.hstack([x6] + [e.initial_states(u) for e in self.effects if e.n_states])
+        return out[0] if single else out
 
     def measure(self, X: np.ndarray) -> np.ndarray:
         """Measured Frenet states (n, 6) from model states: sensor effects applied."""
