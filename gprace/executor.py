@@ -1,0 +1,85 @@
+"""One executor for batches of independent tasks (tracks, trials, seeds).
+
+``run_batch(fn, tasks, executor="local"|"dask", workers=N, scheduler=ADDRESS)`` calls the
+module-level function ``fn(task)`` for every task and returns one :class:`TaskResult` per task in
+task order. Each task carries its own seed, so results do not depend on which executor or worker
+ran it. A task that raises is recorded as failed with its error message and the batch goes on.
+
+``workers=1`` with the local executor runs in-process (no pickling), which tests and debuggers like.
+"""
+
+from __future__ import annotations
+
+import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Sequence
+
+from gprace.errors import ConfigError, InputError
+
+
+@dataclass
+class TaskResult:
+    index: int
+    ok: bool
+    value: Any = None
+    error: str = ""
+
+
+def _call(fn: Callable[[Any], Any], index: int, task: Any) -> TaskResult:
+    try:
+        return TaskResult(index, True, fn(task))
+    except Exception as exc:  # recorded, not fatal
+        tb = traceback.format_exc(limit=3)
+        return TaskResult(index, False, None, f"{type(exc).__name__}: {exc}\n{tb}")
+
+
+def run_batch(
+    fn: Callable[[Any], Any],
+    tasks: Sequence[Any],
+    executor: str = "local",
+    workers: int = 1,
+    scheduler: str | None = None,
+    on_done: Callable[[TaskResult], None] | None = None,
+) -> list[TaskResult]:
+    """Run ``fn`` over ``tasks``; ``on_done`` is called as each finishes (for saving/progress)."""
+    if executor not in ("local", "dask"):
+        raise ConfigError(f"unknown executor {executor!r}; available: local, dask")
+    if workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {workers}")
+    results: list[TaskResult | None] = [None] * len(tasks)
+
+    def done(r: TaskResult) -> None:
+        results[r.index] = r
+        if on_done is not None:
+            on_done(r)
+
+    if executor == "dask":
+        for r in _dask(fn, tasks, scheduler):
+            done(r)
+    elif workers == 1 or len(tasks) <= 1:
+        for i, t in enumerate(tasks):
+            done(_call(fn, i, t))
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futs = [pool.submit(_call, fn, i, t) for i, t in enumerate(tasks)]
+            for fut in as_completed(futs):
+                done(fut.result())
+    return [r for r in results if r is not None]
+
+
+def _dask(fn: Callable[[Any], Any], tasks: Sequence[Any], scheduler: str | None) -> Iterable[TaskResult]:
+    if not scheduler:
+        raise ConfigError("--executor dask needs --scheduler tcp://HOST:PORT")
+    from dask.distributed import Client, as_completed as dask_completed
+
+    try:
+        client = Client(scheduler, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise InputError(f"cannot reach Dask scheduler {scheduler}: {exc}") from None
+    try:
+        futs = [client.submit(_call, fn, i, t, pure=False) for i, t in enumerate(tasks)]
+        for fut in dask_completed(futs):
+            yield fut.result()
+    finally:
+        client.close()
