@@ -63,6 +63,14 @@ class EffectConfig(Frozen):
     name: str = Field(description="catalogue name, e.g. 'downforce'")
     params: dict[str, float] = Field(default_factory=dict, description="physical parameters (SI)")
 
+    @model_validator(mode="after")
+    def _in_catalogue(self) -> "EffectConfig":
+        """Unknown effect names and parameters fail when the file is read, not at first use."""
+        from gprace.model.effects import make_effect  # lazy: effects.py imports this module
+
+        make_effect(self)  # raises ConfigError (a ValueError) naming the effect and parameter
+        return self
+
 
 class VehicleConfig(Frozen):
     """The nominal vehicle model: the paper's Frenet dynamic bicycle with MF tires.
@@ -172,6 +180,8 @@ def validate(model: type[M], data: dict[str, Any], where: str) -> M:
             msg = "unknown key"
         elif err["type"] == "missing":
             msg = "required key missing"
+        elif err["type"] == "value_error":
+            msg = msg.removeprefix("Value error, ")
         more = f" (and {len(exc.errors()) - 1} more)" if len(exc.errors()) > 1 else ""
         raise ConfigError(f"{where}: {loc}: {msg}{more}") from None
 
