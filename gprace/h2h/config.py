@@ -1,0 +1,69 @@
+"""Head-to-head settings: one frozen object per car controller plus the race set-up.
+
+Numbers follow the simulation of Zhu et al. 2022 as collected in REFERENCE.md (1:10 BARC cars,
+dt 0.1 s, N = 10). Where that set-up is silent, the choices are documented on the fields.
+"""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from gprace.config import Frozen
+
+
+class MPCConfig(Frozen):
+    """Weights and limits of one car's NMPC (ego or opponent)."""
+
+    q_contour: float = Field(50.0, ge=0, description="weight of e_y^2 (contouring to the centre line)")
+    q_progress: float = Field(200.0, ge=0, description="reward per metre of progress s_N - s_0")
+    r_input: tuple[float, float] = Field((2.0, 2.0), description="weights of delta^2 and a_x^2")
+    r_rate: tuple[float, float] = Field((20.0, 20.0), description="weights of the input changes")
+    speed_max: float = Field(1.6, gt=0, description="hard speed limit [m/s]")
+    speed_soft: float = Field(1.4, gt=0, description="soft speed limit [m/s] (quadratic slack)")
+    accel: tuple[float, float] = Field((-1.0, 0.55), description="a_x bounds [m/s^2]")
+    steering_max: float = Field(0.435, gt=0, description="|delta| bound [rad]")
+    q_block: float = Field(0.0, ge=0, description="blocking weight Q_block / (1 + ds)^2 (opponent only)")
+    border_margin: float = Field(0.13, ge=0, description="half footprint kept inside the border [m]")
+    slack_linear: float = Field(2000.0, ge=0, description="linear penalty of soft-constraint slacks")
+    slack_quadratic: float = Field(20000.0, ge=0, description="quadratic penalty of soft-constraint slacks")
+    speed_slack: float = Field(200.0, ge=0, description="quadratic penalty of the soft speed excess")
+    substeps: int = Field(2, ge=1, description="RK4 sub-steps of the prediction model (dt/2 is stable)")
+    max_iter: int = Field(60, ge=5, description="IPOPT iteration limit")
+
+
+def ego_mpc() -> MPCConfig:
+    return MPCConfig()
+
+
+def opponent_mpc() -> MPCConfig:
+    """Contouring 75, progress 30 (lower than the ego's 200), input 5 / 25, speed 1.3 (soft 1.0),
+    a_x in [-1, 0.45], blocking weight 500 (REFERENCE.md decision: a positive weight)."""
+    return MPCConfig(
+        q_contour=75.0, q_progress=30.0, r_input=(5.0, 5.0), r_rate=(25.0, 25.0), speed_max=1.3,
+        speed_soft=1.0, accel=(-1.0, 0.45), q_block=500.0,
+    )
+
+
+class H2HConfig(Frozen):
+    """Race set-up shared by collection, exploration and evaluation."""
+
+    dt: float = Field(0.1, gt=0, description="control period [s]")
+    horizon: int = Field(10, ge=2, description="NMPC horizon N")
+    pred_steps: int = Field(9, ge=1, description="steps of the opponent prediction (N - 1)")
+    plant_substeps: int = Field(10, ge=1, description="RK4 sub-steps of the simulated cars")
+    samples: int = Field(50, ge=1, description="GP rollout samples")
+    car_length: float = Field(0.26, gt=0)
+    car_width: float = Field(0.173, gt=0)
+    mpc_length: float = Field(0.36, gt=0, description="car length seen by the collision constraint")
+    mpc_width: float = Field(0.2, gt=0)
+    disk_radius: float = Field(0.111, gt=0, description="radius of the 4 disks covering the ego")
+    std_factor: float = Field(1.0, ge=0, description="ellipse inflation per predicted std [m/m]")
+    after_overtake: float = Field(1.5, ge=0, description="seconds simulated after the overtake")
+    max_time: float = Field(40.0, gt=0, description="safety stop [s]")
+    end_margin: float = Field(0.3, ge=0, description="a run ends when a car is this close to the track end [m]")
+    q_explore: tuple[float, float, float] = Field((20.0, 60.0, 5.0), description="J_expl weights on s, e_y, v_x")
+    stalemate_steps: int = Field(8, ge=1, description="steps with little change of the relative configuration")
+    stalemate_tol: float = Field(0.02, ge=0, description="change threshold of (gap s, gap e_y) per step")
+    hold_steps: int = Field(5, ge=1, description="steps a target is held after a stalemate")
+    ego: MPCConfig = Field(default_factory=ego_mpc)
+    opponent: MPCConfig = Field(default_factory=opponent_mpc)

@@ -1,0 +1,100 @@
+"""Car footprints, border hits, collisions and the tracks of the head-to-head races.
+
+Footprints are oriented rectangles. A border hit is a time step at which a footprint corner lies
+beyond the track edge; corners are placed in Frenet coordinates (``e_y + along sin(e_psi) +
+across cos(e_psi)``), exact on straights and within ``kappa * (L/2)^2 / 2`` (< 1 cm on the tightest
+arc here) on curves. A collision is an overlap of the two rectangles in the global frame
+(separating-axis test), vectorised over time.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gprace.errors import InputError
+
+LOOP_NAME = "h2h_loop"
+
+
+def corner_offsets(length: float, width: float) -> np.ndarray:
+    """(4, 2) corners (along, across) of a rectangle centred on the car."""
+    a, b = 0.5 * length, 0.5 * width
+    return np.array([[a, b], [a, -b], [-a, -b], [-a, b]])
+
+
+def border_hits(track, X: np.ndarray, length: float, width: float) -> np.ndarray:
+    """Boolean (T,) : some footprint corner outside ``[-w_r, w_l]`` for states X (T, 6)."""
+    X = np.atleast_2d(X)
+    c = corner_offsets(length, width)
+    epsi, ey, s = X[:, 3:4], X[:, 4:5], X[:, 5:6]
+    lat = ey + c[:, 0] * np.sin(epsi) + c[:, 1] * np.cos(epsi)  # (T, 4)
+    sc = s + c[:, 0] * np.cos(epsi) - c[:, 1] * np.sin(epsi)
+    return np.any((lat > track.width_left(sc)) | (lat < -track.width_right(sc)), axis=1)
+
+
+def global_pose(track, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Global ``x, y, psi`` of Frenet states X (T, 6)."""
+    X = np.atleast_2d(X)
+    x, y = track.to_global(X[:, 5], X[:, 4])
+    return np.asarray(x), np.asarray(y), np.asarray(track.heading(X[:, 5])) + X[:, 3]
+
+
+def rect_overlap(pa: np.ndarray, pb: np.ndarray, length: float, width: float) -> np.ndarray:
+    """Separating-axis test of two equal rectangles; pa, pb (T, 3) = x, y, psi -> (T,) bool."""
+    c = corner_offsets(length, width)
+
+    def corners(p):
+        cos, sin = np.cos(p[:, 2:3]), np.sin(p[:, 2:3])
+        return np.stack([p[:, 0:1] + c[:, 0] * cos - c[:, 1] * sin, p[:, 1:2] + c[:, 0] * sin + c[:, 1] * cos], axis=-1)
+
+    ca, cb = corners(pa), corners(pb)  # (T, 4, 2)
+    sep = np.zeros(len(pa), dtype=bool)
+    for p in (pa, pb):
+        for ang in (p[:, 2], p[:, 2] + np.pi / 2):
+            ax = np.stack([np.cos(ang), np.sin(ang)], axis=-1)[:, None, :]
+            A, B = np.sum(ca * ax, axis=-1), np.sum(cb * ax, axis=-1)
+            sep |= (A.max(1) < B.min(1)) | (B.max(1) < A.min(1))
+    return ~sep
+
+
+def collisions(track, Xa: np.ndarray, Xb: np.ndarray, length: float, width: float) -> np.ndarray:
+    pa = np.column_stack(global_pose(track, Xa))
+    pb = np.column_stack(global_pose(track, Xb))
+    return rect_overlap(pa, pb, length, width)
+
+
+# ----------------------------------------------------------------------------------------------
+# tracks
+def loop_track():
+    """The closed exploration track: the shipped ``h2h_loop`` when present, else a built-in
+    stadium loop of the same size (2 x 10.5 m straights, two half circles of 2.4 m radius,
+    36.1 m, 1.5 m wide)."""
+    from gprace.tracks.loaders import load_track
+
+    try:
+        return load_track(LOOP_NAME)
+    except InputError:
+        pass
+    from gprace.tracks.segments import SegmentTrack, build_track
+
+    spec = SegmentTrack.model_validate({
+        "name": LOOP_NAME, "closed": True, "width": 1.5,
+        "segments": [
+            {"type": "straight", "length": 10.5}, {"type": "arc", "radius": 2.4, "angle": np.pi},
+            {"type": "straight", "length": 10.5}, {"type": "arc", "radius": 2.4, "angle": np.pi},
+        ],
+    })
+    return build_track(spec, LOOP_NAME, "h2h loop (built-in)")
+
+
+def make_track(spec: dict):
+    """Track from a task's spec: ``{"kind": "random", "seed", "stretches", "width"}`` or
+    ``{"kind": "loop"}``."""
+    kind = spec.get("kind")
+    if kind == "loop":
+        return loop_track()
+    if kind == "random":
+        from gprace.tracks.random import random_track
+
+        return random_track(int(spec["seed"]), n_stretches=int(spec.get("stretches", 3)), width=float(spec.get("width", 0.75)))
+    raise InputError(f"track spec: unknown kind {kind!r} (valid: random, loop)")

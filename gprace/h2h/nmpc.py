@@ -1,0 +1,249 @@
+"""The head-to-head NMPC (paper problem "opponent_problem"), one builder for both cars.
+
+    min  alpha J_expl + (1 - alpha) (sum q_c e_y^2 + u'R u + du'R_d du - q_s (s_N - s_0))
+         + soft-constraint penalties (+ the opponent's blocking term)
+    s.t. x_{k+1} = RK4(x_k, u_k, kappa_k)        Frenet dynamic bicycle (gprace.model), dt/substeps
+         -w_r + c <= e_y <= w_l - c               soft (slack per stage)
+         u_min <= u <= u_max,  v_x <= v_max,  v_x - v_soft <= slack
+         1 - E_k(disk_j) <= slack                 ego only: 4 disks outside each predicted ellipse
+
+Decision variables are ordered stage-wise ``[u_0, x_1, sl_1, u_1, x_2, sl_2, ...]`` with each
+stage's dynamics constraint before its path constraints (the ordering fatrop and sparse linear
+solvers like). The NLP is SX, solved by IPOPT (MUMPS) through ``nlpsol`` and warm-started with the
+previous primal and dual solution shifted by one stage.
+
+Collision geometry. The ellipse around an opponent pose lives in the global frame, rotated by the
+opponent's heading. The ego's global position is a function of (s, e_y) through the track; inside
+the NLP it is linearised per stage around the previous plan: ``p = c_k + t_k (s - sigma_k) + n_k e_y``
+and heading ``theta_k + kappa_k (s - sigma_k) + e_psi``. The warm start keeps ``s - sigma_k`` at a
+few centimetres, so the error is second order (kappa (s - sigma)^2 / 2 < 1 mm here).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gprace.h2h.config import H2HConfig, MPCConfig
+from gprace.model import NominalModel
+
+NX, NU, NS = 6, 2, 3  # states, inputs, slacks per stage (track, speed, collision)
+N_GLOBAL = 9  # x0 (6), u_prev (2), alpha
+N_STAGE = 19
+# per-stage parameter offsets
+KAPPA, WL, WR, EY_OTHER, W_BLOCK, S_REF, EY_REF, V_REF = range(8)
+LIN_CX, LIN_CY, LIN_TH, LIN_SIG, LIN_KAP = range(8, 13)
+OPP_X, OPP_Y, OPP_PSI, OPP_A, OPP_B, OPP_ON = range(13, 19)
+DISK_OFFSETS = (-0.135, -0.045, 0.045, 0.135)
+
+
+@dataclass
+class StageData:
+    """Numeric per-stage data (arrays of length N); built by the caller each step."""
+
+    kappa: np.ndarray
+    wl: np.ndarray
+    wr: np.ndarray
+    ey_other: np.ndarray | None = None
+    w_block: np.ndarray | None = None
+    ref: np.ndarray | None = None  # (N, 3): s, e_y, v_x
+    lin: np.ndarray | None = None  # (N, 5): cx, cy, theta, sigma, kappa
+    opp: np.ndarray | None = None  # (N, 6): x, y, psi, a, b, on
+
+
+@dataclass
+class Solution:
+    X: np.ndarray  # (N+1, 6) planned states, X[0] = x0
+    U: np.ndarray  # (N, 2)
+    slack: np.ndarray  # (N, 3)
+    ok: bool
+    status: str
+    seconds: float
+    fallback: bool = False
+
+
+@dataclass
+class NMPC:
+    """Build once per (vehicle, settings, collision flag); call :meth:`solve` every step."""
+
+    model: NominalModel
+    mpc: MPCConfig
+    h2h: H2HConfig
+    collision: bool = False
+    failures: int = 0
+    solves: int = 0
+    _warm: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        import casadi as ca
+
+        N, c, h = self.h2h.horizon, self.mpc, self.h2h
+        F = self.model.casadi_rk4(h.dt, c.substeps)
+        p = ca.SX.sym("p", N_GLOBAL + N_STAGE * N)
+        x0, u_prev, alpha = p[0:6], p[6:8], p[8]
+        w, g, lbg, ubg = [], [], [], []
+        lbw, ubw = [], []
+        racing, explore, penalty = 0, 0, 0
+        xk, uk_prev = x0, u_prev
+        R, Rd = np.array(c.r_input), np.array(c.r_rate)
+        disks = []
+        for k in range(N):
+            q = p[N_GLOBAL + N_STAGE * k: N_GLOBAL + N_STAGE * (k + 1)]
+            u = ca.SX.sym(f"u{k}", NU)
+            x = ca.SX.sym(f"x{k + 1}", NX)
+            sl = ca.SX.sym(f"sl{k + 1}", NS)
+            w += [u, x, sl]
+            lbw += [-c.steering_max, c.accel[0]] + [0.05, -5, -10, -np.pi, -5, -1e3] + [0, 0, 0]
+            ubw += [c.steering_max, c.accel[1]] + [c.speed_max, 5, 10, np.pi, 5, 1e6] + [np.inf] * 3
+            # dynamics first, then the stage's path constraints
+            g.append(x - F(xk, u, q[KAPPA]))
+            lbg += [0.0] * NX
+            ubg += [0.0] * NX
+            ey, s, vx = x[4], x[5], x[0]
+            g.append(ey - (q[WL] - c.border_margin) - sl[0])
+            g.append(-(q[WR] - c.border_margin) - ey - sl[0])
+            g.append(vx - c.speed_soft - sl[1])
+            lbg += [-np.inf] * 3
+            ubg += [0.0] * 3
+            if self.collision:
+                dsg = s - q[LIN_SIG]
+                th = q[LIN_TH]
+                px = q[LIN_CX] + ca.cos(th) * dsg - ca.sin(th) * ey
+                py = q[LIN_CY] + ca.sin(th) * dsg + ca.cos(th) * ey
+                psi = th + q[LIN_KAP] * dsg + x[3]
+                co, so = ca.cos(q[OPP_PSI]), ca.sin(q[OPP_PSI])
+                for d in DISK_OFFSETS:
+                    rx = px + d * ca.cos(psi) - q[OPP_X]
+                    ry = py + d * ca.sin(psi) - q[OPP_Y]
+                    lx = co * rx + so * ry
+                    ly = -so * rx + co * ry
+                    e = (lx / q[OPP_A]) ** 2 + (ly / q[OPP_B]) ** 2
+                    g.append(q[OPP_ON] * (1 - e) - sl[2])
+                    lbg.append(-np.inf)
+                    ubg.append(0.0)
+            du = u - uk_prev
+            racing += c.q_contour * ey**2 + ca.dot(R * u, u) + ca.dot(Rd * du, du)
+            racing += q[W_BLOCK] * (ey - q[EY_OTHER]) ** 2
+            qs, qe, qv = h.q_explore
+            explore += qs * (s - q[S_REF]) ** 2 + qe * (ey - q[EY_REF]) ** 2 + qv * (vx - q[V_REF]) ** 2
+            penalty += c.slack_linear * (sl[0] + sl[2]) + c.slack_quadratic * (sl[0] ** 2 + sl[2] ** 2)
+            penalty += c.speed_slack * sl[1] ** 2
+            xk, uk_prev = x, u
+        racing -= c.q_progress * (xk[5] - x0[5])
+        J = alpha * explore + (1 - alpha) * racing + penalty
+        wv = ca.vertcat(*w)
+        gv = ca.vertcat(*g)
+        opts = {
+            "print_time": False,
+            "error_on_fail": False,
+            "ipopt": {
+                "print_level": 0, "sb": "yes", "max_iter": c.max_iter, "tol": 1e-6,
+                "acceptable_tol": 1e-4, "acceptable_iter": 3, "warm_start_init_point": "yes",
+                "warm_start_bound_push": 1e-6, "warm_start_mult_bound_push": 1e-6, "mu_init": 1e-3,
+                "linear_solver": "mumps",
+            },
+        }
+        self._solver = ca.nlpsol("h2h_nmpc", "ipopt", {"x": wv, "p": p, "f": J, "g": gv}, opts)
+        self._lbw, self._ubw = np.array(lbw, float), np.array(ubw, float)
+        self._lbg, self._ubg = np.array(lbg, float), np.array(ubg, float)
+        self._nw, self._ng = wv.shape[0], gv.shape[0]
+        self._stage_w = NU + NX + NS
+        self._stage_g = len(lbg) // N
+
+    # ------------------------------------------------------------------------------------------
+    def reset(self) -> None:
+        self._warm = {}
+
+    def params(self, x0: np.ndarray, u_prev: np.ndarray, alpha: float, st: StageData) -> np.ndarray:
+        N = self.h2h.horizon
+        P = np.zeros((N, N_STAGE))
+        P[:, KAPPA], P[:, WL], P[:, WR] = st.kappa, st.wl, st.wr
+        if st.ey_other is not None:
+            P[:, EY_OTHER], P[:, W_BLOCK] = st.ey_other, st.w_block
+        if st.ref is not None:
+            P[:, S_REF:V_REF + 1] = st.ref
+        if st.lin is not None:
+            P[:, LIN_CX:LIN_KAP + 1] = st.lin
+        if st.opp is not None:
+            P[:, OPP_X:OPP_ON + 1] = st.opp
+        else:
+            P[:, OPP_A] = P[:, OPP_B] = 1.0
+        return np.concatenate([x0[:6], u_prev, [alpha], P.ravel()])
+
+    def initial_guess(self, x0: np.ndarray) -> np.ndarray:
+        """Constant-speed roll-out along the centre-line direction (cold start)."""
+        N = self.h2h.horizon
+        wv = np.zeros((N, self._stage_w))
+        for k in range(N):
+            xk = x0[:6].copy()
+            xk[5] = x0[5] + (k + 1) * self.h2h.dt * max(x0[0], 0.3)
+            xk[3] = 0.0
+            xk[1] = xk[2] = 0.0
+            wv[k, NU:NU + NX] = xk
+        return wv.ravel()
+
+    def guess_states(self, x0: np.ndarray) -> np.ndarray:
+        """Planned states (N+1, 6) of the current warm start (for stage data / GP inputs)."""
+        N = self.h2h.horizon
+        w = self._warm.get("x")
+        w = self.initial_guess(x0) if w is None else w
+        X = w.reshape(N, self._stage_w)[:, NU:NU + NX]
+        return np.vstack([x0[:6], X])
+
+    def solve(self, x0: np.ndarray, u_prev: np.ndarray, alpha: float, st: StageData) -> Solution:
+        N = self.h2h.horizon
+        p = self.params(np.asarray(x0, float), np.asarray(u_prev, float), alpha, st)
+        w0 = self._warm.get("x")
+        if w0 is None:
+            w0 = self.initial_guess(x0)
+        args = {"x0": w0, "p": p, "lbx": self._lbw, "ubx": self._ubw, "lbg": self._lbg, "ubg": self._ubg}
+        if "lam_g" in self._warm:
+            args["lam_g0"], args["lam_x0"] = self._warm["lam_g"], self._warm["lam_x"]
+        self.solves += 1
+        t0 = time.perf_counter()
+        try:
+            res = self._solver(**args)
+            stats = self._solver.stats()
+            status = str(stats.get("return_status", ""))
+            ok = bool(stats.get("success", False)) or status == "Solved_To_Acceptable_Level"
+            wv = np.asarray(res["x"]).ravel()
+            ok = ok and bool(np.all(np.isfinite(wv)))
+        except Exception as exc:  # noqa: BLE001 -- a solver failure must not end the race
+            ok, status, wv, res = False, f"exception: {exc}", None, None
+        dt = time.perf_counter() - t0
+        if not ok:
+            self.failures += 1
+            return self._fallback(x0, status, dt)
+        W = wv.reshape(N, self._stage_w)
+        sol = Solution(
+            X=np.vstack([np.asarray(x0, float)[:6], W[:, NU:NU + NX]]), U=W[:, :NU].copy(),
+            slack=W[:, NU + NX:].copy(), ok=True, status=status, seconds=dt,
+        )
+        self._warm = {
+            "x": _shift(wv, self._stage_w), "lam_g": _shift(np.asarray(res["lam_g"]).ravel(), self._stage_g),
+            "lam_x": _shift(np.asarray(res["lam_x"]).ravel(), self._stage_w), "last": sol,
+        }
+        return sol
+
+    def _fallback(self, x0: np.ndarray, status: str, seconds: float) -> Solution:
+        """Shifted previous solution (first input of the shifted plan); braking if none."""
+        N = self.h2h.horizon
+        last: Solution | None = self._warm.get("last")
+        if last is None:
+            U = np.tile([0.0, self.mpc.accel[0] * 0.5], (N, 1))
+            X = np.tile(np.asarray(x0, float)[:6], (N + 1, 1))
+        else:
+            U = np.vstack([last.U[1:], last.U[-1:]])
+            X = np.vstack([np.asarray(x0, float)[:6], last.X[2:], last.X[-1:]])
+        sol = Solution(X=X, U=U, slack=np.zeros((N, NS)), ok=False, status=status, seconds=seconds, fallback=True)
+        # the next solve starts from the shifted guess, without duals (they belong to another problem)
+        if last is not None:
+            self._warm = {"x": _shift(self._warm["x"], self._stage_w), "last": sol}
+        return sol
+
+
+def _shift(v: np.ndarray, width: int) -> np.ndarray:
+    """Drop the first stage block and repeat the last (warm start for the next period)."""
+    return np.concatenate([v[width:], v[-width:]])

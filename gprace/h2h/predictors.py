@@ -1,0 +1,197 @@
+"""Opponent predictors behind one interface: GP (sampled rollouts), constant velocity, oracle.
+
+``predictor.predict(ctx) -> Prediction`` with ``mean`` (K, 6) predicted opponent Frenet states at
+steps 1..K (same layout as the car state; quantities a predictor does not model are held) and
+``std`` (K, 2): standard deviations of ``s`` and ``e_y`` in metres (they inflate the ego's ellipses).
+
+GP opponent model (REFERENCE.md, Zhu et al. 2022): inputs ``z`` = :data:`FEATURES`, outputs the
+one-step change of the opponent's ``[s, e_y, e_psi, v_x, yaw_rate]``. Multi-step prediction draws
+``n`` sample paths: at every step each sample gets one draw ``mean + sqrt(var) * eps`` from the GP
+(latent variance), with the curvature features recomputed at the sample's own ``s`` and the ego part
+of the input taken from the ego's plan at that step. All samples go through one ``predict`` call
+per step (no Python loop over samples).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gprace.errors import InputError, UnknownBackendError
+
+FEATURES = (
+    "ey_ego_minus_ey_opp", "epsi_ego", "vx_ego", "s_opp_minus_s_ego", "ey_opp", "epsi_opp",
+    "vx_opp", "yaw_rate_opp", "kappa_opp_0", "kappa_opp_0.5", "kappa_opp_1.0",
+)
+OUTPUTS = ("ds_opp", "dey_opp", "depsi_opp", "dvx_opp", "dyaw_rate_opp")
+OUT_STATE = (5, 4, 3, 0, 2)  # state index of each output (s, e_y, e_psi, v_x, yaw_rate)
+LOOKAHEAD = (0.0, 0.5, 1.0)
+CONTROLLABLE = (0, 3)  # gap in e_y and gap in s: the features the ego can steer
+FEATURE_MAP = "opponent"
+
+
+def gap_s(track, s_opp, s_ego):
+    """``s_opp - s_ego``, wrapped to (-L/2, L/2] on a closed track."""
+    d = np.asarray(s_opp, float) - np.asarray(s_ego, float)
+    if track.closed:
+        d = (d + 0.5 * track.length) % track.length - 0.5 * track.length
+    return d
+
+
+def features(track, ego: np.ndarray, opp: np.ndarray) -> np.ndarray:
+    """GP inputs (n, 11) from ego states (n, 6) or (6,) and opponent states (n, 6)."""
+    opp = np.atleast_2d(opp)
+    ego = np.broadcast_to(ego, opp.shape)
+    s_o = opp[:, 5]
+    kap = [track.kappa(track.wrap(s_o + d)) for d in LOOKAHEAD]
+    return np.column_stack([
+        ego[:, 4] - opp[:, 4], ego[:, 3], ego[:, 0], gap_s(track, s_o, ego[:, 5]), opp[:, 4], opp[:, 3],
+        opp[:, 0], opp[:, 2], *kap,
+    ])
+
+
+def training_pairs(track, ego: np.ndarray, opp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(Z, Y) from closed-loop trajectories (T+1, 6): features at t, opponent change t -> t+1."""
+    Z = features(track, ego[:-1], opp[:-1])
+    d = opp[1:] - opp[:-1]
+    Y = d[:, list(OUT_STATE)]
+    return Z, Y
+
+
+@dataclass
+class Prediction:
+    mean: np.ndarray  # (K, 6)
+    std: np.ndarray  # (K, 2): s, e_y
+
+
+@dataclass
+class Context:
+    track: object
+    ego_plan: np.ndarray  # (>= K+1, 6), row 0 = current ego state
+    opp: np.ndarray  # (6,) current opponent state
+    opp_plan: np.ndarray | None = None  # (>= K+1, 6) the opponent's own plan (oracle only)
+
+
+class Predictor:
+    name = "predictor"
+
+    def __init__(self, steps: int) -> None:
+        self.steps = steps
+
+    def predict(self, ctx: Context) -> Prediction:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+class OraclePredictor(Predictor):
+    """The opponent's true open-loop plan at this step (used to collect data)."""
+
+    name = "oracle"
+
+    def predict(self, ctx: Context) -> Prediction:
+        if ctx.opp_plan is None:
+            raise InputError("oracle predictor: the opponent's plan is not available")
+        K = self.steps
+        return Prediction(np.array(ctx.opp_plan[1:K + 1], float), np.zeros((K, 2)))
+
+
+class ConstantVelocityPredictor(Predictor):
+    """Frenet rates ``ds/dt`` and ``de_y/dt`` held at their current values."""
+
+    name = "cv"
+
+    def predict(self, ctx: Context) -> Prediction:
+        K, x = self.steps, np.asarray(ctx.opp, float)
+        dt = self.dt
+        kap = ctx.track.kappa(ctx.track.wrap(x[5]))
+        sdot = (x[0] * np.cos(x[3]) - x[1] * np.sin(x[3])) / (1.0 - kap * x[4])
+        eydot = x[0] * np.sin(x[3]) + x[1] * np.cos(x[3])
+        k = np.arange(1, K + 1)[:, None]
+        mean = np.tile(x, (K, 1))
+        mean[:, 5:6] = x[5] + k * dt * sdot
+        mean[:, 4:5] = x[4] + k * dt * eydot
+        return Prediction(mean, np.zeros((K, 2)))
+
+    def __init__(self, steps: int, dt: float = 0.1) -> None:
+        super().__init__(steps)
+        self.dt = dt
+
+
+class GPPredictor(Predictor):
+    """Sampled multi-step rollouts of a GP opponent model."""
+
+    name = "gp"
+
+    def __init__(self, gp, steps: int, samples: int = 50, seed: int = 0, label: str = "gp") -> None:
+        super().__init__(steps)
+        self.gp = gp
+        self.samples = samples
+        self.rng = np.random.default_rng(seed)
+        self.name = label
+
+    def rollout(self, track, ego_plan: np.ndarray, opp: np.ndarray, eps: np.ndarray | None = None) -> np.ndarray:
+        """Sample paths (n, K, 6); ``eps`` (K, n, 5) standard normal draws (drawn if None)."""
+        K, n = self.steps, self.samples
+        if eps is None:
+            eps = self.rng.standard_normal((K, n, len(OUTPUTS)))
+        S = np.tile(np.asarray(opp, float)[:6], (n, 1))
+        out = np.empty((n, K, 6))
+        idx = list(OUT_STATE)
+        for k in range(K):
+            Z = features(track, ego_plan[k], S)
+            mu, var = self.gp.predict(Z)
+            S[:, idx] += mu + np.sqrt(np.maximum(var, 0.0)) * eps[k]
+            out[:, k] = S
+        return out
+
+    def predict(self, ctx: Context) -> Prediction:
+        paths = self.rollout(ctx.track, ctx.ego_plan, ctx.opp)
+        # s stays unwrapped (continuous) on closed tracks, as in the simulation
+        mean = paths.mean(axis=0)
+        std = np.column_stack([paths[:, :, 5].std(axis=0), paths[:, :, 4].std(axis=0)])
+        return Prediction(mean, std)
+
+
+# ----------------------------------------------------------------------------------------------
+PREDICTORS = ("gp", "cv", "oracle")
+
+
+def load_opponent_gp(path: str | Path):
+    """A saved GP with the opponent feature layout; InputError naming the mismatch otherwise."""
+    from gprace.gp.base import load_model
+
+    saved = load_model(path)
+    names = tuple(saved.input_names)
+    if names != FEATURES or tuple(saved.output_names) != OUTPUTS:
+        raise InputError(
+            f"{path}: GP model has inputs {list(names)} and outputs {list(saved.output_names)}; the opponent "
+            f"predictor needs the '{FEATURE_MAP}' layout inputs {list(FEATURES)} -> outputs {list(OUTPUTS)}"
+        )
+    return saved.gp
+
+
+def make_predictor(kind: str, steps: int, dt: float = 0.1, model: str | Path | None = None, samples: int = 50,
+                   seed: int = 0, label: str | None = None) -> Predictor:
+    if kind == "oracle":
+        return OraclePredictor(steps)
+    if kind == "cv":
+        return ConstantVelocityPredictor(steps, dt)
+    if kind == "gp":
+        if model is None:
+            raise InputError("gp predictor: needs a GP model file")
+        return GPPredictor(_cached_gp(str(model)), steps, samples, seed, label or "gp")
+    raise UnknownBackendError(f"unknown predictor {kind!r}; available: {', '.join(PREDICTORS)}")
+
+
+_GP_CACHE: dict[tuple[str, int], object] = {}
+
+
+def _cached_gp(path: str):
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{path}: no such GP model file")
+    key = (str(p.resolve()), p.stat().st_mtime_ns)
+    if key not in _GP_CACHE:
+        _GP_CACHE[key] = load_opponent_gp(p)
+    return _GP_CACHE[key]

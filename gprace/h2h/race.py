@@ -1,0 +1,198 @@
+"""One head-to-head race: two 1:10 cars, the blocking opponent MPC and the ego NMPC.
+
+``run_race(task)`` is the module-level function the executor calls; ``task`` is a plain dict, so
+it pickles for local processes and Dask alike, and everything random in it derives from
+``task["seed"]`` (identical results whoever runs it):
+
+* ``track``: track spec (:func:`gprace.h2h.geometry.make_track`),
+* ``seed``: start configuration and GP sampling seed,
+* ``predictor``: ``gp`` | ``cv`` | ``oracle``; ``model``: GP model path for ``gp``,
+* ``alpha``: exploration weight (> 0 needs ``explore_data``: a dataset file with Z, Y),
+* ``config``: :class:`H2HConfig` fields (optional), ``duration``: run length for exploration
+  episodes (then the race does not stop at the overtake),
+* ``crash_at``: none in normal use.
+
+Starts (REFERENCE.md): opponent ``s`` in [0.9, 1.2] m, ego in [0.2, 0.4] m, lateral offset within
++-0.3 x width, heading error +-0.02 rad, speed 0.65 to 1.3 m/s; on a closed track the whole grid is
+shifted by a random arc length. The plant integrates both cars with RK4 and 10 sub-steps per
+0.1 s. The race ends 1.5 s after the ego's centre passes the opponent's, when a car reaches the end
+of an open track, when a car leaves the track by more than half a metre, or at ``max_time``.
+
+Per step the opponent solves first (it sees the ego's current state), then the ego's predictor
+forecasts the opponent (the oracle reads the opponent's fresh plan), then the ego solves, then both
+inputs are applied together.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from gprace.h2h.config import H2HConfig
+from gprace.h2h.geometry import border_hits, collisions, global_pose, make_track
+from gprace.h2h.nmpc import NMPC, StageData
+from gprace.h2h.predictors import Context, gap_s, make_predictor
+
+_CACHE: dict = {}
+
+
+def _model():
+    if "model" not in _CACHE:
+        from gprace.config import load_vehicle
+        from gprace.model import NominalModel
+
+        _CACHE["model"] = NominalModel(load_vehicle("barc_1_10"))
+    return _CACHE["model"]
+
+
+def controllers(cfg: H2HConfig) -> tuple[NMPC, NMPC]:
+    """(ego, opponent) NMPCs, built once per process and configuration."""
+    key = ("mpc", cfg.model_dump_json())
+    if key not in _CACHE:
+        m = _model()
+        _CACHE[key] = (NMPC(m, cfg.ego, cfg, collision=True), NMPC(m, cfg.opponent, cfg, collision=False))
+    ego, opp = _CACHE[key]
+    ego.reset(), opp.reset()
+    ego.failures = ego.solves = opp.failures = opp.solves = 0
+    return ego, opp
+
+
+def start_states(track, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    w = float(track.width_left(0.0) + track.width_right(0.0))
+    base = rng.uniform(0.0, track.length) if track.closed else 0.0
+
+    def car(lo, hi):
+        return np.array([rng.uniform(0.65, 1.3), 0.0, 0.0, rng.uniform(-0.02, 0.02),
+                         rng.uniform(-0.3, 0.3) * w, base + rng.uniform(lo, hi)])
+
+    opp = car(0.9, 1.2)
+    ego = car(0.2, 0.4)
+    return ego, opp
+
+
+def extend(a: np.ndarray, n: int) -> np.ndarray:
+    """Rows 1..K -> n rows: linear extrapolation of the last two rows (held if K == 1)."""
+    a = np.asarray(a, float)
+    while len(a) < n:
+        nxt = 2 * a[-1] - a[-2] if len(a) >= 2 else a[-1]
+        a = np.vstack([a, nxt])
+    return a[:n]
+
+
+def ellipse_data(track, cfg: H2HConfig, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """(N, 6) x, y, psi, a, b, on of the forbidden ellipse around each predicted opponent pose."""
+    x, y, psi = global_pose(track, mean)
+    r = cfg.disk_radius
+    a = cfg.mpc_length / np.sqrt(2) + r + cfg.std_factor * std[:, 0]
+    b = cfg.mpc_width / np.sqrt(2) + r + cfg.std_factor * std[:, 1]
+    return np.column_stack([x, y, psi, a, b, np.ones(len(x))])
+
+
+def run_race(task: dict) -> dict:
+    cfg = H2HConfig(**task.get("config", {}))
+    track = make_track(task["track"])
+    rng = np.random.default_rng(int(task["seed"]))
+    N, dt = cfg.horizon, cfg.dt
+    predictor = make_predictor(task.get("predictor", "gp"), cfg.pred_steps, dt, task.get("model"), cfg.samples,
+                               seed=int(task["seed"]) + 7919)
+    alpha = float(task.get("alpha", 0.0))
+    explorer = None
+    if alpha > 0:
+        from gprace.h2h.explore import Explorer
+        from gprace.io.artifacts import read_artifact
+
+        data = read_artifact(task["explore_data"], "h2h_dataset")
+        explorer = Explorer.from_data(predictor.gp, data.arrays["Z"], data.arrays["Y"], alpha,
+                                      stalemate_steps=cfg.stalemate_steps, stalemate_tol=cfg.stalemate_tol,
+                                      hold_steps=cfg.hold_steps)
+    ego_mpc, opp_mpc = controllers(cfg)
+    model = _model()
+    ego, opp = start_states(track, rng)
+    duration = task.get("duration")
+    max_time = float(duration) if duration else cfg.max_time
+    crash_at = task.get("crash_at")
+
+    X = np.vstack([ego, opp])
+    Uprev = np.zeros((2, 2))
+    kfun = lambda s: track.kappa(track.wrap(s))  # noqa: E731
+    hist_x, hist_u, ego_ms, fb, targets = [X.copy()], [], [], [], []
+    t_overtake, end_reason = np.nan, "time"
+    n_steps = int(round(max_time / dt))
+    for step in range(n_steps):
+        if crash_at is not None and step == int(crash_at):
+            raise RuntimeError(f"injected crash at step {step}")
+        ego, opp = X[0], X[1]
+        # ---- opponent: contouring MPC with the blocking term while the ego is behind
+        gap = float(gap_s(track, opp[5], ego[5]))
+        wblock = cfg.opponent.q_block / (1.0 + gap) ** 2 if gap > 0 else 0.0
+        Go = opp_mpc.guess_states(opp)
+        st_o = StageData(kappa=kfun(Go[:-1, 5]), wl=track.width_left(Go[1:, 5]), wr=track.width_right(Go[1:, 5]),
+                         ey_other=np.full(N, ego[4]), w_block=np.full(N, wblock))
+        sol_o = opp_mpc.solve(opp, Uprev[1], 0.0, st_o)
+        # ---- ego: prediction from the previous open-loop plan, then the NMPC
+        Ge = ego_mpc.guess_states(ego)
+        pred = predictor.predict(Context(track, Ge, opp, sol_o.X))
+        mean, std = extend(pred.mean, N), extend(pred.std, N)
+        sig = Ge[1:, 5]
+        cx, cy = track.to_global(sig, np.zeros(N))
+        lin = np.column_stack([cx, cy, track.heading(sig), sig, kfun(sig)])
+        ref = None
+        if explorer is not None:
+            explorer.target_gaps(track, ego, opp)
+            targets.append(explorer.target.copy())
+            ref = explorer.reference(track, ego, mean, cfg.ego.border_margin)
+        st_e = StageData(kappa=kfun(Ge[:-1, 5]), wl=track.width_left(sig), wr=track.width_right(sig), ref=ref,
+                         lin=lin, opp=ellipse_data(track, cfg, mean, std))
+        sol_e = ego_mpc.solve(ego, Uprev[0], alpha, st_e)
+        U = np.vstack([sol_e.U[0], sol_o.U[0]])
+        X = model.rk4(X, U, kfun, dt, cfg.plant_substeps)
+        Uprev = U
+        hist_x.append(X.copy())
+        hist_u.append(U.copy())
+        ego_ms.append(1e3 * sol_e.seconds)
+        fb.append((sol_e.fallback, sol_o.fallback))
+        t = (step + 1) * dt
+        if not np.all(np.isfinite(X)):
+            end_reason = "diverged"
+            break
+        if np.isnan(t_overtake) and gap_s(track, X[1, 5], X[0, 5]) < 0:
+            t_overtake = t
+        w = track.width_left(X[:, 5]) + track.width_right(X[:, 5])
+        if np.any(np.abs(X[:, 4]) > 0.5 * w + 0.5):
+            end_reason = "off_track"
+            break
+        if not duration and not np.isnan(t_overtake) and t >= t_overtake + cfg.after_overtake - 1e-9:
+            end_reason = "overtaken"
+            break
+        if not track.closed and np.max(X[:, 5]) >= track.length - cfg.end_margin:
+            end_reason = "track_end"
+            break
+    H = np.array(hist_x)  # (T+1, 2, 6)
+    Xe, Xo = H[:, 0], H[:, 1]
+    be = border_hits(track, Xe, cfg.car_length, cfg.car_width)
+    bo = border_hits(track, Xo, cfg.car_length, cfg.car_width)
+    col = collisions(track, Xe, Xo, cfg.car_length, cfg.car_width)
+    fb = np.array(fb, dtype=bool).reshape(-1, 2)
+    U = np.array(hist_u).reshape(-1, 2, 2)
+    arrays = {
+        "t": dt * np.arange(len(H)), "ego": Xe, "opp": Xo, "u_ego": U[:, 0], "u_opp": U[:, 1],
+        "ego_solve_ms": np.array(ego_ms), "fallback_ego": fb[:, 0], "fallback_opp": fb[:, 1],
+        "border_ego": be, "border_opp": bo, "collision": col,
+    }
+    if targets:
+        arrays["targets"] = np.array(targets)
+    attrs = {
+        "track": track.name, "track_length": float(track.length), "seed": int(task["seed"]),
+        "predictor": str(task.get("label", predictor.name)), "alpha": alpha, "end_reason": end_reason,
+        "overtake_time": float(t_overtake), "border_hit": bool(be.any()), "border_hit_opp": bool(bo.any()),
+        "collision": bool(col.any()), "steps": len(H) - 1, "fallbacks_ego": int(fb[:, 0].sum()),
+        "fallbacks_opp": int(fb[:, 1].sum()), "stalemates": int(explorer.stalemates) if explorer else 0,
+    }
+    return {"arrays": arrays, "attrs": attrs}
+
+
+def time_race(task: dict) -> tuple[dict, float]:
+    t0 = time.perf_counter()
+    out = run_race(task)
+    return out, time.perf_counter() - t0
