@@ -28,6 +28,7 @@ app = typer.Typer(
 
 # stages that contribute commands, in the order --help lists them
 COMMAND_MODULES = (
+    "gprace.tracks.commands",
 )
 
 

@@ -52,9 +52,9 @@ CLOSE_HEADING_TOL = 1e-2
 
 
 class _Widths(Frozen):
-    width: float | None = Field(None, gt=0, description="total width, centred [m]")
-    width_left: float | None = Field(None, gt=0, description="centre line to left border [m]")
-    width_right: float | None = Field(None, gt=0, description="centre line to right border [m]")
+    width: float | None = Field(None, gt=0, allow_inf_nan=False, description="total width, centred [m]")
+    width_left: float | None = Field(None, gt=0, allow_inf_nan=False, description="centre line to left border [m]")
+    width_right: float | None = Field(None, gt=0, allow_inf_nan=False, description="centre line to right border [m]")
 
     @model_validator(mode="after")
     def _one_width_form(self):
@@ -73,8 +73,8 @@ class _Widths(Frozen):
 
 
 class _Angle(_Widths):
-    angle: float | None = Field(None, description="swept angle [rad], > 0 turns left")
-    angle_deg: float | None = Field(None, description="swept angle [deg], > 0 turns left")
+    angle: float | None = Field(None, allow_inf_nan=False, description="swept angle [rad], > 0 turns left")
+    angle_deg: float | None = Field(None, allow_inf_nan=False, description="swept angle [deg], > 0 turns left")
 
     @model_validator(mode="after")
     def _one_angle(self):
@@ -91,27 +91,27 @@ class _Angle(_Widths):
 
 class Straight(_Widths):
     type: Literal["straight"]
-    length: float = Field(gt=0, description="length [m]")
+    length: float = Field(gt=0, allow_inf_nan=False, description="length [m]")
 
 
 class Arc(_Angle):
     type: Literal["arc"]
-    radius: float = Field(gt=0, description="centre-line radius [m]")
+    radius: float = Field(gt=0, allow_inf_nan=False, description="centre-line radius [m]")
 
 
 class Chicane(_Angle):
     type: Literal["chicane"]
-    radius: float = Field(gt=0, description="radius of both arcs [m]")
-    gap: float = Field(ge=0, description="straight between the two arcs [m]")
+    radius: float = Field(gt=0, allow_inf_nan=False, description="radius of both arcs [m]")
+    gap: float = Field(ge=0, allow_inf_nan=False, description="straight between the two arcs [m]")
 
 
 Segment = Annotated[Union[Straight, Arc, Chicane], Field(discriminator="type")]
 
 
 class StartPose(Frozen):
-    x: float = 0.0
-    y: float = 0.0
-    heading: float = Field(0.0, description="initial heading [rad]")
+    x: float = Field(0.0, allow_inf_nan=False, description="initial x [m]")
+    y: float = Field(0.0, allow_inf_nan=False, description="initial y [m]")
+    heading: float = Field(0.0, allow_inf_nan=False, description="initial heading [rad]")
 
 
 class SegmentTrack(Frozen):
@@ -119,9 +119,9 @@ class SegmentTrack(Frozen):
 
     name: str | None = Field(None, description="track name; default the file name")
     closed: bool = Field(description="whether the last segment joins the first")
-    width: float | None = Field(None, gt=0, description="total width, centred [m]")
-    width_left: float | None = Field(None, gt=0, description="centre line to left border [m]")
-    width_right: float | None = Field(None, gt=0, description="centre line to right border [m]")
+    width: float | None = Field(None, gt=0, allow_inf_nan=False, description="total width, centred [m]")
+    width_left: float | None = Field(None, gt=0, allow_inf_nan=False, description="centre line to left border [m]")
+    width_right: float | None = Field(None, gt=0, allow_inf_nan=False, description="centre line to right border [m]")
     start: StartPose = Field(default_factory=StartPose)
     transition: float | None = Field(
         None, ge=0, description="curvature ramp length at joins [m]; default from the geometry"

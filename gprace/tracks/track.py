@@ -122,13 +122,6 @@ class Track:
         tu = _invert_arc(first, t, su)
         uni = first(tu)
 
-        # widths on the uniform grid (linear in s between input points)
-        if closed:
-            wlu = np.interp(su, s_raw[:-1], wl, period=length0)
-            wru = np.interp(su, s_raw[:-1], wr, period=length0)
-        else:
-            wlu, wru = np.interp(su, s_raw, wl), np.interp(su, s_raw, wr)
-
         # 3. smoothing
         raw_uni = uni
         if self.smoothing > 0:
@@ -149,21 +142,32 @@ class Track:
         self.length = float(u[-1])
         self._h = self.length / (len(u) - 1)
 
-        # smoothing moves the reference line, not the borders: shift the widths by the normal
-        # component of the displacement (first order in the displacement)
+        # widths: linear in s between the input points; smoothing moves the reference line, not
+        # the borders, so the widths take up the normal component of the displacement (first
+        # order in the displacement). Nodes: the input points and the spline knots.
         ws = u[:-1] if closed else u
         d1 = self._d1(ws)
         nrm = np.column_stack([-d1[:, 1], d1[:, 0]]) / np.hypot(d1[:, 0], d1[:, 1])[:, None]
         shift = np.sum((raw_uni - uni) * nrm, axis=1)
-        wlu, wru = wlu + shift, wru - shift
-        for side, w in (("left", wlu), ("right", wru)):
+        s_in = s_raw * (self.length / length0)
+        if closed:
+            nodes = np.union1d(ws, s_in[:-1])
+            wln = np.interp(nodes, s_in[:-1], wl, period=self.length)
+            wrn = np.interp(nodes, s_in[:-1], wr, period=self.length)
+            sh = np.interp(nodes, ws, shift, period=self.length)
+        else:
+            nodes = np.union1d(ws, s_in)
+            wln, wrn = np.interp(nodes, s_in, wl), np.interp(nodes, s_in, wr)
+            sh = np.interp(nodes, ws, shift)
+        wln, wrn = wln + sh, wrn - sh
+        for side, w in (("left", wln), ("right", wrn)):
             if np.any(w <= 0):
                 i = int(np.argmin(w))
                 raise InputError(
                     f"{where}: smoothing of {self.smoothing:g} m moves the centre line outside the "
-                    f"{side} border near s = {ws[i]:.1f} m; use less smoothing"
+                    f"{side} border near s = {nodes[i]:.1f} m; use less smoothing"
                 )
-        self._ws, self._wl, self._wr = ws, wlu, wru
+        self._ws, self._wl, self._wr = nodes, wln, wrn
         self.n_points = len(x)
 
     # ------------------------------------------------------------------------------------------

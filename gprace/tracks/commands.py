@@ -1,0 +1,84 @@
+"""``gprace track show``: summary and optional picture of a track."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    track_app = typer.Typer(help="Inspect race tracks (TUM CSV, segment TOML, shipped names).", no_args_is_help=True)
+
+    @track_app.command("show")
+    def show_cmd(
+        file: str = typer.Argument(..., help="Track: a .csv (TUM) or .toml (segments) path, or a shipped name."),
+        plot: Path | None = typer.Option(None, "--plot", help="Write a PNG of centre line and borders."),
+        as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+    ) -> None:
+        """Print length, min radius, width range and point count of FILE; optionally plot it."""
+        from gprace.console import console
+        from gprace.tracks import load_track
+
+        track = load_track(file)
+        info = track.summary()
+        if plot is not None:
+            plot_track(track, plot)
+            info["plot"] = str(plot)
+        if as_json:
+            console.json(info)
+            return
+        console.result(f"track       {info['name']} ({'closed' if info['closed'] else 'open'})")
+        console.result(f"length      {info['length_m']:.2f} m")
+        console.result(f"min radius  {info['min_radius_m']:.2f} m")
+        console.result(f"width       {info['width_min_m']:.2f} .. {info['width_max_m']:.2f} m")
+        console.result(f"points      {info['n_points']}")
+        if plot is not None:
+            console.result(f"plot        {plot}")
+
+    app.add_typer(track_app, name="track")
+
+
+def plot_track(track, path: Path) -> None:
+    """Centre line, borders and start marker of ``track`` as a PNG (headless)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from gprace.errors import InputError
+
+    path = Path(path)
+    if path.parent and not path.parent.exists():
+        raise InputError(f"{path}: folder {path.parent} does not exist")
+    (xl, yl), (xr, yr) = track.borders()
+    smp = track.sample(min(track.length / 2000, 1.0))
+    fig, ax = plt.subplots(figsize=(7, 7))
+    try:
+        if track.closed:
+            xl, yl, xr, yr = (list(a) + [a[0]] for a in (xl, yl, xr, yr))
+            cx, cy = list(smp.x) + [smp.x[0]], list(smp.y) + [smp.y[0]]
+        else:
+            cx, cy = smp.x, smp.y
+        ax.plot(xl, yl, color="0.2", lw=1.0, label="borders")
+        ax.plot(xr, yr, color="0.2", lw=1.0)
+        ax.plot(cx, cy, color="tab:blue", lw=0.8, ls="--", label="centre line")
+        ax.plot(smp.x[0], smp.y[0], "o", color="tab:red", label="start")
+        hx, hy = smp.x[1] - smp.x[0], smp.y[1] - smp.y[0]
+        scale = 0.03 * max(float(max(smp.x) - min(smp.x)), float(max(smp.y) - min(smp.y)), 1e-9)
+        norm = (hx * hx + hy * hy) ** 0.5
+        ax.annotate(
+            "",
+            xy=(smp.x[0] + scale * hx / norm * 2, smp.y[0] + scale * hy / norm * 2),
+            xytext=(smp.x[0], smp.y[0]),
+            arrowprops={"arrowstyle": "->", "color": "tab:red"},
+        )
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_title(f"{track.name}: {track.length:.1f} m, min radius {track.min_radius:.1f} m")
+        ax.legend(loc="best", fontsize="small")
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+    finally:
+        plt.close(fig)
