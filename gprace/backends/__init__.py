@@ -86,3 +86,6 @@ plants.builtin("commonroad-std", "gprace.plants.commonroad:CommonRoadSTDPlant")
 
 gps = Registry("gprace.gp", "GP backend")
 solvers = Registry("gprace.solver", "QP solver")
+solvers.builtin("cvxpy-clarabel", "gprace.backends.qp_cvxpy:CvxpyClarabelQP")
+solvers.builtin("clarabel", "gprace.backends.qp_clarabel:ClarabelQP")
+solvers.builtin("casadi", "gprace.backends.qp_casadi:CasadiQP")

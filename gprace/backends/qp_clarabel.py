@@ -1,0 +1,69 @@
+"""``clarabel`` QP backend: Clarabel called directly on the sparse standard form.
+
+The sparsity of ``P`` and ``M = [Aeq; G]`` is built once per horizon; every call only replaces
+``q``, the nonzero values of ``M`` and ``b`` with ``solver.update(q=, A=, b=)`` (presolve off and
+structural zeros kept, as in-place updates require).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from gprace.mpc.qp import LtvProblem, QPResult, QPStatus, SparseQP, Weights, check_result, fail_result
+
+_STATUS = {
+    "Solved": QPStatus.SOLVED,
+    "AlmostSolved": QPStatus.INACCURATE,
+    "PrimalInfeasible": QPStatus.INFEASIBLE,
+    "DualInfeasible": QPStatus.INFEASIBLE,
+    "AlmostPrimalInfeasible": QPStatus.INFEASIBLE,
+    "AlmostDualInfeasible": QPStatus.INFEASIBLE,
+    "MaxIterations": QPStatus.MAX_ITER,
+    "MaxTime": QPStatus.MAX_ITER,
+}
+
+
+class ClarabelQP:
+    name = "clarabel"
+
+    def __init__(self, N: int, weights: Weights = Weights(), tol: float = 1e-8, max_iter: int = 100) -> None:
+        import clarabel
+
+        self._cl = clarabel
+        self.form = SparseQP(N, weights)
+        self.N = N
+        st = clarabel.DefaultSettings()
+        st.verbose = False
+        st.presolve_enable = False
+        st.input_sparse_dropzeros = False
+        st.max_iter = max_iter
+        st.tol_gap_abs = st.tol_gap_rel = tol
+        st.tol_feas = tol
+        self.settings = st
+        self.cones = [clarabel.ZeroConeT(self.form.neq), clarabel.NonnegativeConeT(self.form.nin)]
+        self._solver = None
+
+    def solve(self, pb: LtvProblem) -> QPResult:
+        f = self.form
+        t0 = time.perf_counter()
+        try:
+            vals, b = f.fill(pb)
+            q = f.q(pb)
+            if self._solver is None:
+                M = f.M.copy()
+                M.data = vals
+                self._solver = self._cl.DefaultSolver(f.P_triu, q, M, b, self.cones, self.settings)
+            else:
+                self._solver.update(q=q, A=vals, b=b)
+            sol = self._solver.solve()
+        except Exception as exc:  # a failed solve never crashes a lap
+            self._solver = None
+            return fail_result(self.N, QPStatus.FAILED, f"clarabel: {exc}", time.perf_counter() - t0)
+        dt = time.perf_counter() - t0
+        status = _STATUS.get(str(sol.status).split(".")[-1], QPStatus.FAILED)
+        z = np.asarray(sol.x)
+        x, u, eps = f.unpack(z)
+        obj = float(sol.obj_val) + f.constant(pb) if status.usable else np.nan
+        return check_result(QPResult(status, x, u, eps, obj, dt, int(sol.iterations), str(sol.status)))

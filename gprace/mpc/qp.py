@@ -1,0 +1,245 @@
+"""The tracking QP (paper eq. "mpc_problem") as data, its sparse standard form, and solver results.
+
+Decision variables, written **relative to the current position** (progress ``s`` measured from
+the car, so every number in the QP is of the size of the deviations it controls; REFERENCE.md:
+absolute progress made Clarabel report "Solved" with errors of 5e-2 m/s^2):
+
+    z = [u_0 .. u_{N-1} (2N), x_1 .. x_N (6N), eps_1 .. eps_N (N)]
+
+    min  sum_{k=1..N} |x_k - xref_k|_Q^2 + sum_{k=0..N-1} |u_k - uref_k|_R^2
+         + r_delta sum_{k=0..N-1} (delta_k - delta_{k-1})^2 + rho_1 sum eps_k + rho_2 sum eps_k^2
+    s.t. x_{k+1} = A_k x_k + B_k u_k + c_k              (x_0 given; c_k holds the GP mean)
+         u_lo <= u_k <= u_hi
+         ey_lo_k - eps_k <= e_y,k <= ey_hi_k + eps_k,  eps_k >= 0
+
+``delta_{-1}`` is the last applied steering angle. The lateral bounds are soft (exact L1 penalty
+``rho_1`` large): a racing MPC must return an input even when a disturbance has already pushed the
+car past a tightened bound. ``Q`` and ``R`` are diagonal.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import sparse
+
+NXS, NUS = 6, 2
+EY = 4
+
+
+class QPStatus(enum.Enum):
+    SOLVED = "solved"
+    INACCURATE = "inaccurate"      # solved to reduced accuracy: used, but counted
+    INFEASIBLE = "infeasible"
+    MAX_ITER = "max_iter"
+    FAILED = "failed"              # numerical error, exception, non-finite solution
+
+    @property
+    def usable(self) -> bool:
+        return self in (QPStatus.SOLVED, QPStatus.INACCURATE)
+
+
+@dataclass
+class QPResult:
+    status: QPStatus
+    x: np.ndarray            # (N, 6) predicted states x_1..x_N (relative s)
+    u: np.ndarray            # (N, 2) inputs u_0..u_{N-1}
+    eps: np.ndarray          # (N,) slack of the lateral bounds
+    objective: float = np.nan
+    solve_time: float = 0.0  # wall time of the backend call [s]
+    iterations: int = 0
+    message: str = ""
+
+
+@dataclass(frozen=True)
+class Weights:
+    """Diagonal weights of the tracking cost."""
+
+    Q: tuple[float, ...] = (1.0, 2.0, 20.0, 200.0, 20.0, 0.5)   # v_x, v_y, yaw_rate, e_psi, e_y, s
+    R: tuple[float, ...] = (20.0, 0.02)                          # delta, a_x
+    r_delta: float = 2000.0                                      # (delta_k - delta_{k-1})^2
+    slack_l1: float = 2000.0
+    slack_l2: float = 2000.0
+
+
+@dataclass
+class LtvProblem:
+    """One QP instance: LTV data over the horizon, references and bounds (all relative to the car)."""
+
+    A: np.ndarray         # (N, 6, 6)
+    B: np.ndarray         # (N, 6, 2)
+    c: np.ndarray         # (N, 6)
+    x0: np.ndarray        # (6,)
+    xref: np.ndarray      # (N, 6) for k = 1..N
+    uref: np.ndarray      # (N, 2) for k = 0..N-1
+    ey_lo: np.ndarray     # (N,)
+    ey_hi: np.ndarray     # (N,)
+    u_lo: np.ndarray      # (2,)
+    u_hi: np.ndarray      # (2,)
+    delta_prev: float
+    weights: Weights = field(default_factory=Weights)
+
+    @property
+    def N(self) -> int:
+        return self.A.shape[0]
+
+
+def fail_result(N: int, status: QPStatus, message: str, solve_time: float = 0.0) -> QPResult:
+    return QPResult(status, np.full((N, NXS), np.nan), np.full((N, NUS), np.nan), np.full(N, np.nan),
+                    np.nan, solve_time, 0, message)
+
+
+class SparseQP:
+    """Standard form ``min 1/2 z'Pz + q'z  s.t.  Aeq z = beq,  G z <= h`` with a FIXED sparsity.
+
+    The structure (which entries of ``A_k``, ``B_k`` exist: all of them, stored even when zero) is
+    built once for a horizon ``N``; :meth:`fill` returns the new nonzero values in the stored order,
+    so solvers update their matrices in place. ``M = [Aeq; G]`` is stacked for conic solvers.
+    """
+
+    def __init__(self, N: int, weights: Weights) -> None:
+        self.N = N
+        self.weights = weights
+        nu, nx = NUS * N, NXS * N
+        self.nz = nu + nx + N
+        self.iu = lambda k: k * NUS
+        self.ix = lambda k: nu + (k - 1) * NXS  # x_k, k = 1..N
+        self.ie = lambda k: nu + nx + (k - 1)
+        self.neq = NXS * N
+        self.nin = 2 * NUS * N + 3 * N
+        self._build_P()
+        self._build_M()
+
+    # cost -----------------------------------------------------------------------------------
+    def _build_P(self) -> None:
+        N, w = self.N, self.weights
+        Q, R = np.asarray(w.Q, float), np.asarray(w.R, float)
+        d = np.zeros(self.nz)
+        rows, cols, vals = [], [], []
+        for k in range(N):
+            d[self.iu(k): self.iu(k) + NUS] += 2 * R
+            d[self.ix(k + 1): self.ix(k + 1) + NXS] += 2 * Q
+            d[self.ie(k + 1)] += 2 * w.slack_l2
+        # steering-rate term r (delta_k - delta_{k-1})^2
+        for k in range(N):
+            d[self.iu(k)] += 2 * w.r_delta
+            if k >= 1:
+                d[self.iu(k - 1)] += 2 * w.r_delta
+                a, b = self.iu(k - 1), self.iu(k)
+                rows += [a, b]
+                cols += [b, a]
+                vals += [-2 * w.r_delta, -2 * w.r_delta]
+        P = sparse.coo_matrix((np.concatenate([d, vals]), (np.concatenate([np.arange(self.nz), rows]),
+                                                            np.concatenate([np.arange(self.nz), cols]))),
+                              shape=(self.nz, self.nz)).tocsc()
+        P.sort_indices()
+        self.P = P
+        self.P_triu = sparse.triu(P).tocsc()
+        self.P_triu.sort_indices()
+        self.Qd, self.Rd = Q, R
+
+    def q(self, pb: LtvProblem) -> np.ndarray:
+        N, w = self.N, self.weights
+        q = np.zeros(self.nz)
+        q[: NUS * N] = (-2 * self.Rd * pb.uref).ravel()
+        q[NUS * N: NUS * N + NXS * N] = (-2 * self.Qd * pb.xref).ravel()
+        q[NUS * N + NXS * N:] = w.slack_l1
+        q[self.iu(0)] += -2 * w.r_delta * pb.delta_prev
+        return q
+
+    def constant(self, pb: LtvProblem) -> float:
+        """Cost terms that do not depend on z (so objectives compare across backends)."""
+        return float(np.sum(self.Qd * pb.xref**2) + np.sum(self.Rd * pb.uref**2) + self.weights.r_delta * pb.delta_prev**2)
+
+    # constraints ----------------------------------------------------------------------------
+    def _build_M(self) -> None:
+        """Pattern of ``M = [Aeq; G]``; values come from a flat vector through ``self._perm``."""
+        N = self.N
+        rows, cols, src = [], [], []  # src: index into the value vector of fill()
+        self._n_val = 0
+
+        def add(r, c, n_src):
+            rows.append(r)
+            cols.append(c)
+            src.append(n_src)
+
+        # value vector layout: [ones for x_{k+1} (6N)] [-A_k entries k>=1 (36(N-1))] [-B_k entries (12N)] [G values]
+        off_I = 0
+        off_A = off_I + NXS * N
+        off_B = off_A + NXS * NXS * (N - 1)
+        off_G = off_B + NXS * NUS * N
+        for k in range(N):
+            r0 = k * NXS
+            for i in range(NXS):
+                add(r0 + i, self.ix(k + 1) + i, off_I + k * NXS + i)
+            if k >= 1:
+                for i in range(NXS):
+                    for j in range(NXS):
+                        add(r0 + i, self.ix(k) + j, off_A + (k - 1) * 36 + i * NXS + j)
+            for i in range(NXS):
+                for j in range(NUS):
+                    add(r0 + i, self.iu(k) + j, off_B + k * NXS * NUS + i * NUS + j)
+        g = self.neq
+        gvals = []
+        # input bounds: u <= hi ; -u <= -lo
+        for k in range(N):
+            for j in range(NUS):
+                add(g, self.iu(k) + j, off_G + len(gvals)); gvals.append(1.0); g += 1
+                add(g, self.iu(k) + j, off_G + len(gvals)); gvals.append(-1.0); g += 1
+        # lateral: e_y - eps <= hi ; -e_y - eps <= -lo ; -eps <= 0
+        for k in range(1, N + 1):
+            add(g, self.ix(k) + EY, off_G + len(gvals)); gvals.append(1.0)
+            add(g, self.ie(k), off_G + len(gvals)); gvals.append(-1.0); g += 1
+            add(g, self.ix(k) + EY, off_G + len(gvals)); gvals.append(-1.0)
+            add(g, self.ie(k), off_G + len(gvals)); gvals.append(-1.0); g += 1
+            add(g, self.ie(k), off_G + len(gvals)); gvals.append(-1.0); g += 1
+        self._gvals = np.array(gvals)
+        self._off = (off_I, off_A, off_B, off_G)
+        nval = off_G + len(gvals)
+        M = sparse.coo_matrix((np.arange(1, len(rows) + 1, dtype=float), (rows, cols)), shape=(self.neq + self.nin, self.nz)).tocsc()
+        M.sort_indices()
+        order = M.data.astype(int) - 1          # position in the (rows, cols, src) lists
+        self._perm = np.asarray(src)[order]     # value-vector index of each stored entry
+        self._nval = nval
+        M.data = self._values_base()[self._perm]
+        self.M = M
+
+    def _values_base(self) -> np.ndarray:
+        v = np.zeros(self._nval)
+        off_I, _, _, off_G = self._off
+        v[off_I: off_I + NXS * self.N] = 1.0
+        v[off_G:] = self._gvals
+        return v
+
+    def fill(self, pb: LtvProblem) -> tuple[np.ndarray, np.ndarray]:
+        """``(M.data, b)`` for this problem: new nonzero values (stored order) and right-hand side."""
+        N = self.N
+        v = self._values_base()
+        _, off_A, off_B, _ = self._off
+        v[off_A: off_A + 36 * (N - 1)] = -pb.A[1:].reshape(-1)
+        v[off_B: off_B + 12 * N] = -pb.B.reshape(-1)
+        beq = pb.c.copy()
+        beq[0] += pb.A[0] @ pb.x0
+        hu = np.empty((N, NUS, 2))
+        hu[:, :, 0] = pb.u_hi
+        hu[:, :, 1] = -pb.u_lo
+        hl = np.column_stack([pb.ey_hi, -pb.ey_lo, np.zeros(N)])
+        b = np.concatenate([beq.ravel(), hu.ravel(), hl.ravel()])
+        return v[self._perm], b
+
+    def unpack(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        N = self.N
+        u = z[: NUS * N].reshape(N, NUS)
+        x = z[NUS * N: NUS * N + NXS * N].reshape(N, NXS)
+        eps = z[NUS * N + NXS * N:]
+        return x, u, eps
+
+
+def check_result(res: QPResult, tol: float = 1e6) -> QPResult:
+    """Demote a 'solved' result with non-finite or absurd numbers to FAILED."""
+    if res.status.usable and (not np.all(np.isfinite(res.u)) or not np.all(np.isfinite(res.x)) or np.max(np.abs(res.u)) > tol):
+        res.status = QPStatus.FAILED
+        res.message = (res.message + "; non-finite solution").strip("; ")
+    return res
