@@ -19,8 +19,10 @@ from rich.table import Table
 class Console:
     def __init__(self, quiet: bool = False) -> None:
         self.quiet = quiet
-        self.out = _RichConsole(file=sys.stdout, highlight=False, soft_wrap=True)
-        self.err = _RichConsole(file=sys.stderr, highlight=False, soft_wrap=True)
+        # no file= binding: rich looks up sys.stdout/sys.stderr at print time, so redirection
+        # (pytest's capsys, shell pipes set up later) always sees the output
+        self.out = _RichConsole(highlight=False, soft_wrap=True)
+        self.err = _RichConsole(stderr=True, highlight=False, soft_wrap=True)
 
     # results -----------------------------------------------------------------
     def result(self, text: str = "") -> None:
