@@ -280,7 +280,8 @@ class CombinedSlip(Effect):
     name = "combined_slip"
     description = (
         "lateral grip lost to longitudinal force on the friction ellipse: F_y scaled by "
-        "sqrt(1 - k (F_x/(mu F_z))^2); drive on the rear axle, braking split by static load"
+        "sqrt(1 - k (F_x/(mu F_z))^2); drive on the rear axle, braking split in proportion to the "
+        "current axle loads (an ideally balanced brake; the static split when no load effect is active)"
     )
     channels = ("v_y", "yaw_rate")
     params = {"k": ParamSpec(1.0, 0.0, 2.0, "-", "strength of the coupling (1: full friction ellipse)")}
@@ -289,8 +290,9 @@ class CombinedSlip(Effect):
         ops, p = c.ops, c.p
         fx = p.m * c.ax
         brake = ops.fmin(fx, 0.0)
-        fx_r = ops.fmax(fx, 0.0) + brake * p.lf / (p.lf + p.lr)
-        fx_f = brake * p.lr / (p.lf + p.lr)
+        share_f = c.fz_f / (c.fz_f + c.fz_r)  # loads after load transfer and downforce
+        fx_r = ops.fmax(fx, 0.0) + brake * (1.0 - share_f)
+        fx_f = brake * share_f
         floor = 0.05
         c.fy_f = c.fy_f * ops.sqrt(ops.fmax(1.0 - self.k * (fx_f / (c.mu_f * c.fz_f)) ** 2, floor))
         c.fy_r = c.fy_r * ops.sqrt(ops.fmax(1.0 - self.k * (fx_r / (c.mu_r * c.fz_r)) ** 2, floor))

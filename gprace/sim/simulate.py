@@ -1,0 +1,121 @@
+"""Drive a plant around a track with the reference controller and record a :class:`Run`.
+
+The controller sees only the measured (noisy) Frenet state, as on a real car. Each recorded row
+``k`` holds the measurement at ``t_k = k dt``, the command applied over ``[t_k, t_k + dt)``, the
+curvature at the measured ``s``, the lap counter and ``border_hit`` (1 when the car's footprint,
+from the *true* state, crosses a track edge: half-extent
+``|l/2 sin e_psi| + |w/2 cos e_psi|`` beyond ``w_left`` or ``w_right``).
+
+Stops after ``laps`` laps (closed tracks) or at the track end (open tracks). A car that leaves the
+track by more than twice its width, or almost stops, ends the run early with a warning: the
+recording up to that point is kept.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from gprace.config import PlantConfig, SimulateConfig, config_hash
+from gprace.console import console
+from gprace.errors import RunFailedError
+from gprace.io.runs import Run
+from gprace.plants import make_plant
+from gprace.sim.controller import ReferenceController
+
+
+def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Run:
+    """Record ``sim_config.laps`` laps of ``plant_config`` on ``track`` (see module docstring)."""
+    dt = sim_config.dt
+    if sim_config.seed:
+        plant_config = plant_config.model_copy(update={"seed": plant_config.seed + 1_000_003 * sim_config.seed})
+    vehicle = plant_config.vehicle
+    ctrl = ReferenceController(vehicle, track, dt, sim_config.speed_scale, sim_config.weave_amplitude,
+                               sim_config.weave_wavelength)
+    plant = make_plant(plant_config, track, dt)
+    x0, u0 = ctrl.initial_state(0.0)
+    y = plant.reset(x0, u0)
+
+    L = track.length
+    goal = sim_config.laps * L if track.closed else L
+    v_mean = float(np.mean(ctrl.profile.v))
+    n_max = int(math.ceil(goal / max(0.3 * v_mean, 1e-3) / dt)) + 10
+    half_l, half_w = 0.5 * vehicle.length, 0.5 * vehicle.width
+    v_stall = 0.2 * min(v_mean, float(ctrl.profile.v.min()) + 1e-9)
+
+    Y = np.empty((n_max + 1, 6))
+    U = np.empty((n_max + 1, 2))
+    lap = np.empty(n_max + 1)
+    hit = np.empty(n_max + 1)
+    k = 0
+    reason = ""
+    while True:
+        u = ctrl(y)
+        x = plant.state
+        Y[k], U[k], lap[k] = y, u, plant.lap
+        ext = abs(half_l * math.sin(x[3])) + abs(half_w * math.cos(x[3]))
+        wl, wr = float(track.width_left(x[5])), float(track.width_right(x[5]))
+        hit[k] = float(x[4] + ext > wl or x[4] - ext < -wr)
+        k += 1
+        progress = plant.lap * L + x[5] if track.closed else x[5]
+        if progress >= goal:
+            break
+        if x[4] > wl + 2 * vehicle.width or x[4] < -wr - 2 * vehicle.width:
+            reason = f"the car left the track at s = {x[5]:.1f} m (e_y = {x[4]:.2f} m)"
+        elif x[0] < v_stall:
+            reason = f"the car almost stopped at s = {x[5]:.1f} m (v_x = {x[0]:.2f} m/s)"
+        elif k > n_max:
+            reason = f"no progress to the goal after {n_max} steps"
+        if reason:
+            break
+        y = plant.step(u)
+
+    if reason:
+        if k < 2:
+            raise RunFailedError(f"simulate: {reason} at the first step")
+        console.warn(f"simulate: {reason}; recording stops after {k} samples")
+    Y, U = Y[:k], U[:k]
+    s_meas = track.wrap(Y[:, 5])
+    data = {
+        "t": dt * np.arange(k),
+        "s": s_meas,
+        "e_y": Y[:, 4],
+        "e_psi": Y[:, 3],
+        "v_x": Y[:, 0],
+        "v_y": Y[:, 1],
+        "yaw_rate": Y[:, 2],
+        "delta": U[:, 0],
+        "a_x": U[:, 1],
+        "kappa": track.kappa(s_meas),
+        "lap": lap[:k],
+        "border_hit": hit[:k],
+    }
+    meta = {
+        "vehicle_toml": vehicle.to_toml(),
+        "track": str(getattr(track, "source", None) or track.name),
+        "dt": dt,
+        "plant": plant_config.kind,
+        "plant_hash": plant_config.digest(),
+        "simulate_hash": sim_config.digest(),
+        "laps": sim_config.laps,
+        "speed_scale": sim_config.speed_scale,
+        "weave_amplitude": sim_config.weave_amplitude,
+        "weave_wavelength": sim_config.weave_wavelength,
+        "completed": not reason,
+    }
+    return Run(data, meta, source=f"simulate({plant_config.kind}, {track.name})")
+
+
+def run_hash(run: Run) -> str:
+    """Config hash stored with a simulated run: plant, simulation settings and track."""
+    return config_hash([run.meta.get("plant_hash"), run.meta.get("simulate_hash"), run.meta.get("track")])
+
+
+def lap_times(run: Run) -> list[float]:
+    """Times of the completed laps [s] (from the lap counter)."""
+    lap = np.asarray(run.data["lap"])
+    t = run.data["t"]
+    idx = np.flatnonzero(np.diff(lap) > 0) + 1
+    starts = np.concatenate([[0], idx])
+    return [float(t[b] - t[a]) for a, b in zip(starts[:-1], starts[1:])]
