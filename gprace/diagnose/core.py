@@ -1,0 +1,285 @@
+"""Data preparation and the vectorised multi-step predictor of ``gprace diagnose``.
+
+All recordings are stacked into one :class:`Dataset`. A *window* starts at a recorded sample
+``k`` and predicts ``H`` steps ahead with the model driven by the recorded inputs
+``u[k], ..., u[k+H-1]``; every window is computed at once (a batch of windows, one RK4 step for
+the whole batch per horizon step), never a Python loop over samples.
+
+Curvature along a predicted path comes from the recordings themselves (their ``kappa`` column,
+interpolated over ``s``, periodic when the recording shows lap wraps), so the diagnosis needs no
+track file. Sensor effects (``gyro_bias``) are inverted on the initial measurement, and actuator
+lag states start from the recorded command history filtered with the lag being tested.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gprace.errors import InputError
+from gprace.io.runs import Run
+from gprace.model import Effect, NominalModel
+
+CHANNELS = ("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s")
+DYNAMIC = (0, 1, 2)  # v_x, v_y, yaw_rate: the channels fitted and tested for structure
+TESTED = (0, 1, 2, 3, 4)  # channels with a structure statistic (s is reported via e_psi/e_y)
+_OFFSET = 1.0e7  # separates recordings inside one concatenated curvature table
+LAG_INPUT = {"steering_lag": 0, "drivetrain_lag": 1}
+
+
+@dataclass
+class Dataset:
+    Y: np.ndarray  # (N, 6) measured states
+    U: np.ndarray  # (N, 2) recorded commands
+    kappa: np.ndarray  # (N,)
+    rec: np.ndarray  # (N,) recording index
+    lap: np.ndarray  # (N,) global lap id (unique over recordings)
+    t: np.ndarray
+    dt: float
+    L: np.ndarray  # (R,) lap length per recording (inf when no lap wrap)
+    sources: list[str]
+    ks: np.ndarray = field(repr=False, default=None)  # curvature table (s + rec * _OFFSET)
+    kv: np.ndarray = field(repr=False, default=None)
+
+    @property
+    def n(self) -> int:
+        return len(self.t)
+
+    @property
+    def laps_total(self) -> int:
+        return len(np.unique(self.lap))
+
+    def kappa_at(self, s: np.ndarray, rec: np.ndarray) -> np.ndarray:
+        L = self.L[rec]
+        sw = np.where(np.isfinite(L), np.mod(s, np.where(np.isfinite(L), L, 1.0)), s)
+        return np.interp(sw + rec * _OFFSET, self.ks, self.kv)
+
+    def windows(self, H: int) -> np.ndarray:
+        """Start indices ``k`` with ``k .. k+H`` inside one recording and without time gaps."""
+        N = self.n
+        k = np.arange(max(N - H, 0))
+        ok = self.rec[k] == self.rec[k + H]
+        gap = np.abs(self.t[k + H] - self.t[k] - H * self.dt) < 0.5 * self.dt
+        return k[ok & gap]
+
+    def s_unwrapped(self) -> np.ndarray:
+        """``s`` continued over lap wraps (per recording), for window geometry."""
+        out = self.Y[:, 5].copy()
+        for r in range(len(self.L)):
+            m = self.rec == r
+            if np.isfinite(self.L[r]):
+                lapr = self.lap[m] - self.lap[m].min()
+                out[m] = out[m] + lapr * self.L[r]
+        return out
+
+
+def build_dataset(runs: list[Run], min_samples: int = 200) -> Dataset:
+    """Stack recordings; checks period, length and lap structure (InputError naming the file)."""
+    if not runs:
+        raise InputError("diagnose: no recording given")
+    dts = [r.dt for r in runs]
+    dt = float(dts[0])
+    for r, d in zip(runs, dts):
+        if not (dt * 0.98 < d < dt * 1.02):
+            raise InputError(f"{r.source}: sample period {d:.4g} s differs from {runs[0].source} ({dt:.4g} s)")
+    total = sum(r.n for r in runs)
+    if total < min_samples:
+        raise InputError(
+            f"{runs[0].source if len(runs) == 1 else 'recordings'}: {total} samples "
+            f"({total * dt:.1f} s); diagnosis needs at least {min_samples} ({min_samples * dt:.0f} s)"
+        )
+    Ys, Us, ks, recs, laps, ts, Ls, tabs_s, tabs_k = [], [], [], [], [], [], [], [], []
+    lap0 = 0
+    for i, r in enumerate(runs):
+        Y, U = r.states(), r.inputs()
+        s = Y[:, 5]
+        ds = np.diff(s)
+        wraps = np.flatnonzero(ds < -0.5 * max(np.ptp(s), 1e-9))
+        meta_L = r.meta.get("track_length") if isinstance(r.meta, dict) else None
+        if len(wraps):
+            sdot = np.median(np.abs(ds[ds > 0])) if np.any(ds > 0) else 0.0
+            L = float(np.median(s[wraps] - s[wraps + 1] + sdot))
+            if meta_L:
+                L = float(meta_L)
+            lap = np.concatenate([[0], np.cumsum(ds < -0.5 * np.ptp(s))])
+        else:
+            L = float(meta_L) if meta_L else np.inf
+            lap = np.zeros(len(s), dtype=int)
+        Ys.append(Y), Us.append(U), ks.append(r["kappa"]), recs.append(np.full(len(s), i))
+        laps.append(lap + lap0)
+        lap0 += int(lap.max()) + 1
+        ts.append(r["t"] - r["t"][0] + (ts[-1][-1] + 1e3 if ts else 0.0))
+        Ls.append(L)
+        o = np.argsort(s)
+        ss, kk = s[o], r["kappa"][o]
+        if np.isfinite(L):
+            ss = np.concatenate([ss - L, ss, ss + L])
+            kk = np.concatenate([kk, kk, kk])
+        tabs_s.append(ss + i * _OFFSET)
+        tabs_k.append(kk)
+    ds = Dataset(
+        Y=np.vstack(Ys), U=np.vstack(Us), kappa=np.concatenate(ks), rec=np.concatenate(recs),
+        lap=np.concatenate(laps), t=np.concatenate(ts), dt=dt, L=np.asarray(Ls, dtype=float),
+        sources=[r.source for r in runs],
+    )
+    ds.ks, ds.kv = np.concatenate(tabs_s), np.concatenate(tabs_k)
+    return ds
+
+
+# --------------------------------------------------------------------------------------------
+# prediction
+
+
+def lag_states(model: NominalModel, data: Dataset) -> np.ndarray:
+    """Actuator-lag states at every sample: the command history through each lag (exact ZOH)."""
+    from scipy.signal import lfilter
+
+    cols = []
+    for e in model.effects:
+        if not e.n_states:
+            continue
+        idx = LAG_INPUT.get(e.name)
+        if idx is None or e.n_states != 1:  # unknown stateful effect: start at its default
+            cols.append(e.initial_states(data.U))
+            continue
+        a = float(np.exp(-data.dt / e.values["tau"]))
+        z = np.empty(data.n)
+        for r in np.unique(data.rec):
+            m = np.flatnonzero(data.rec == r)
+            u = data.U[m, idx]
+            # z[k+1] = a z[k] + (1-a) u[k], z[0] = u[0]
+            y, _ = lfilter([0.0, 1.0 - a], [1.0, -a], u, zi=[a * u[0]])
+            z[m] = y
+            z[m[0]] = u[0]
+        cols.append(z[:, None])
+    if not cols:
+        return np.zeros((data.n, 0))
+    return np.hstack(cols)
+
+
+def initial_states(model: NominalModel, Y0: np.ndarray, Z0: np.ndarray) -> np.ndarray:
+    """Model states from measurements: additive sensor offsets removed, effect states appended."""
+    X = np.hstack([Y0, Z0]) if model.nx > 6 else Y0.copy()
+    if any(type(e).measure is not Effect.measure for e in model.effects):
+        off = model.measure(X) - X[:, :6]
+        X[:, :6] = X[:, :6] - off
+    return X
+
+
+def predict(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, substeps: int = 2,
+            Y0: np.ndarray | None = None, Z: np.ndarray | None = None) -> np.ndarray:
+    """Measured predictions ``(m, H, 6)`` of windows starting at ``starts`` (batch over windows)."""
+    Y0 = data.Y[starts] if Y0 is None else Y0
+    if Z is None:
+        Z = lag_states(model, data) if model.nx > 6 else np.zeros((data.n, 0))
+    X = initial_states(model, Y0, Z[starts])
+    rec = data.rec[starts]
+    kfun = lambda s: data.kappa_at(s, rec)  # noqa: E731
+    out = np.empty((len(starts), H, 6))
+    for j in range(H):
+        X = model.rk4(X, data.U[starts + j], kfun, data.dt, substeps)
+        out[:, j] = model.measure(X)
+    return out
+
+
+def errors(data: Dataset, starts: np.ndarray, pred: np.ndarray, target: np.ndarray | None = None) -> np.ndarray:
+    """Measured minus predicted, ``(m, H, 6)``; ``s`` differences wrapped to the lap."""
+    H = pred.shape[1]
+    if target is None:
+        target = data.Y[starts[:, None] + np.arange(1, H + 1)[None, :]]
+    E = target - pred
+    L = data.L[data.rec[starts]][:, None]
+    fin = np.isfinite(L)
+    Ls = np.where(fin, L, 1.0)
+    E[..., 5] = np.where(fin, (E[..., 5] + 0.5 * Ls) % Ls - 0.5 * Ls, E[..., 5])
+    return E
+
+
+# --------------------------------------------------------------------------------------------
+# noise estimate and noise twin
+
+
+def _robust_std(a: np.ndarray, axis=0) -> np.ndarray:
+    med = np.median(a, axis=axis)
+    return 1.4826 * np.median(np.abs(a - med), axis=axis)
+
+
+def one_step_spread(model: NominalModel, data: Dataset, starts: np.ndarray, substeps: int,
+                    Y: np.ndarray | None = None, target: np.ndarray | None = None) -> np.ndarray:
+    pred = predict(model, data, starts, 1, substeps, Y0=None if Y is None else Y)
+    E = errors(data, starts, pred, None if target is None else target)
+    return _robust_std(E[:, 0, :])
+
+
+@dataclass
+class Twin:
+    """Synthetic recordings of the model itself with the estimated noise ("noise twin")."""
+
+    Y0: np.ndarray  # (R, m, 6) initial measurement of each window, per realisation
+    T: np.ndarray  # (R, m, H, 6) measured targets
+
+
+def make_twin(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, sigma: np.ndarray,
+              realisations: int = 2, seed: int = 0, seg: int | None = None, fine: int = 10) -> Twin:
+    """Simulate the model (fine RK4, as a plant would) over segments of the recorded inputs.
+
+    Each segment starts at a recorded state and is driven by the recorded commands; the twin's
+    measurements are its states plus white noise of standard deviation ``sigma``. Windows are
+    then cut from the twin exactly where they are cut from the data.
+    """
+    seg = seg or 4 * H
+    rng = np.random.default_rng(seed)
+    # segment anchors: the window start rounded down to a multiple of seg within its recording
+    rec = data.rec[starts]
+    first = np.zeros(len(data.L), dtype=int)
+    for r in range(len(data.L)):
+        first[r] = np.flatnonzero(data.rec == r)[0]
+    off = starts - first[rec]
+    anchor = first[rec] + (off // seg) * seg
+    anchors, inv = np.unique(anchor, return_inverse=True)
+    steps = seg + H
+    N = data.n
+    Z = lag_states(model, data) if model.nx > 6 else np.zeros((N, 0))
+    X = initial_states(model, data.Y[anchors], Z[anchors])
+    arec = data.rec[anchors]
+    kfun = lambda s: data.kappa_at(s, arec)  # noqa: E731
+    traj = np.empty((len(anchors), steps + 1, 6))
+    traj[:, 0] = model.measure(X)
+    for j in range(steps):
+        idx = np.minimum(anchors + j, N - 1)
+        X = model.rk4(X, data.U[idx], kfun, data.dt, fine)
+        traj[:, j + 1] = model.measure(X)
+    pos = starts - anchors[inv]
+    Y0s, Ts = [], []
+    for _ in range(realisations):
+        noisy = traj + sigma * rng.standard_normal(traj.shape)
+        Y0s.append(noisy[inv, pos])
+        Ts.append(noisy[inv[:, None], pos[:, None] + np.arange(1, H + 1)[None, :]])
+    return Twin(np.stack(Y0s), np.stack(Ts))
+
+
+def twin_errors(model: NominalModel, data: Dataset, starts: np.ndarray, twin: Twin, substeps: int) -> np.ndarray:
+    """Multi-step errors of the model on its twin, ``(R, m, H, 6)``."""
+    H = twin.T.shape[2]
+    out = []
+    for r in range(twin.Y0.shape[0]):
+        pred = predict(model, data, starts, H, substeps, Y0=twin.Y0[r])
+        out.append(errors(data, starts, pred, twin.T[r]))
+    return np.stack(out)
+
+
+def estimate_noise(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, substeps: int,
+                   iterations: int = 2, seed: int = 0) -> np.ndarray:
+    """Sensor-noise standard deviation per channel, calibrated so the twin's one-step spread
+    matches the data's (robust spread, so localised structured error barely moves it)."""
+    target = one_step_spread(model, data, starts, substeps)
+    sigma = target / np.sqrt(2.0)
+    sub = starts[:: max(1, len(starts) // 3000)]
+    for _ in range(iterations):
+        tw = make_twin(model, data, sub, 1, sigma, realisations=1, seed=seed + 17)
+        pred = predict(model, data, sub, 1, substeps, Y0=tw.Y0[0])
+        E = errors(data, sub, pred, tw.T[0])
+        got = _robust_std(E[:, 0, :])
+        sigma = sigma * np.where(got > 0, target / np.maximum(got, 1e-12), 1.0)
+    return sigma

@@ -1,0 +1,259 @@
+"""Name: fit catalogue effects to the multi-step residuals and select them by held-out gain.
+
+Every candidate effect's physical parameters are fitted with bounds (``scipy.optimize.
+least_squares``, trust-region reflective) to the multi-step prediction errors of the dynamic
+channels, each channel divided by its noise-floor RMSE. Window effects (``road_grade``,
+``road_bank``, ``friction_patch``) are started from every located region of their channels and
+their ``s_start``/``s_end`` are fitted together with the amplitude (the logistic edges keep the
+cost differentiable); ``ramp`` stays at its catalogue default.
+
+Selection is greedy forward: the candidates are screened by in-sample fit, the best few are
+cross-validated (folds by lap when there are at least three laps, otherwise interleaved
+five-second segments), and the one with the lowest held-out loss is added if its gain is
+significant (paired block t-statistic > :data:`T_GAIN`) and practically relevant (at least
+:data:`MIN_REL_GAIN` of the held-out loss). Candidates whose held-out loss is within
+:data:`AMBIGUOUS_SHARE` of the winner's gain and not significantly worse are reported as
+``ambiguous_with``; the named one is the most parsimonious (fewest parameters). Parameter 95%
+intervals come from the Jacobian of the fit with a block (cluster) sandwich covariance, because
+overlapping windows make the residuals correlated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gprace.diagnose.core import DYNAMIC, Dataset, errors, lag_states, predict
+from gprace.diagnose.locate import blocks
+from gprace.model import EFFECTS, NominalModel
+
+T_GAIN = 3.0
+MIN_REL_GAIN = 0.03
+AMBIGUOUS_SHARE = 0.1
+SCREEN_TOP = 4
+
+# starting values (no effect, or a small one where "none" is a bound) per effect parameter
+START = {
+    ("aero_drag", "c_d"): 0.0, ("rolling_resistance", "c_rr"): 0.0, ("road_grade", "angle"): 0.0,
+    ("drivetrain_lag", "tau"): 0.08, ("downforce", "c_l"): 0.0, ("load_transfer", "cog_height"): 0.1,
+    ("tire_load_sensitivity", "k"): 0.0, ("friction_patch", "factor"): 0.9,
+    ("combined_slip", "k"): 0.3, ("road_bank", "angle"): 0.0, ("steering_lag", "tau"): 0.05,
+    ("steering_offset", "offset"): 0.0, ("yaw_inertia", "factor"): 1.0, ("gyro_bias", "bias"): 0.0,
+}
+FIXED = {"ramp"}  # window edge width stays at its default
+SCALE = {"s_start": 10.0, "s_end": 10.0}
+WINDOW_CHANNELS = {"road_grade": (0,), "road_bank": (1,), "friction_patch": (1, 2)}
+
+
+@dataclass
+class Fit:
+    name: str
+    free: list[str]
+    x: np.ndarray
+    fixed: dict[str, float]
+    cost: float = np.inf  # in-sample mean normalised squared error
+    jac: np.ndarray | None = None
+    res: np.ndarray | None = None
+    ci: dict = field(default_factory=dict)
+
+    def values(self) -> dict[str, float]:
+        v = dict(self.fixed)
+        v.update({k: float(x) for k, x in zip(self.free, self.x)})
+        return v
+
+    def effect(self):
+        return EFFECTS[self.name](**self.values())
+
+
+@dataclass
+class Problem:
+    """What every fit shares: data, windows, horizon, channel scales, the effects already chosen."""
+
+    vehicle: object
+    data: Dataset
+    H: int
+    scale: np.ndarray  # (3,) noise-floor RMSE of the dynamic channels
+    substeps: int = 1
+    base: list = field(default_factory=list)  # Effect objects already in the model
+
+    def model(self, extra=()) -> NominalModel:
+        return NominalModel(self.vehicle, list(self.base) + list(extra))
+
+    def residuals(self, model: NominalModel, starts: np.ndarray) -> np.ndarray:
+        """(m, H, 3) normalised multi-step errors of the dynamic channels."""
+        Z = lag_states(model, self.data) if model.nx > 6 else None
+        sub = self.substeps
+        for e in model.effects:  # resolve fast actuator lags: RK4 step no longer than tau
+            if "tau" in e.values:
+                sub = max(sub, int(np.ceil(self.data.dt / max(e.values["tau"], 1e-3))))
+        E = errors(self.data, starts, predict(model, self.data, starts, self.H, min(sub, 20), Z=Z))
+        return E[..., list(DYNAMIC)] / self.scale
+
+    def loss(self, model: NominalModel, starts: np.ndarray) -> np.ndarray:
+        """Per-window loss: mean normalised squared error over horizon and channels."""
+        return np.mean(self.residuals(model, starts) ** 2, axis=(1, 2))
+
+
+def free_params(name: str) -> list[str]:
+    return [k for k in EFFECTS[name].params if k not in FIXED]
+
+
+def _bounds(name: str, free: list[str], data: Dataset):
+    cls = EFFECTS[name]
+    lo, hi = [], []
+    smax = float(np.nanmax(data.Y[:, 5])) + 1.0
+    for k in free:
+        spec = cls.params[k]
+        if k in ("s_start", "s_end"):
+            lo.append(-5.0), hi.append(smax + 5.0)
+        elif k == "tau":  # lags far below the sample period are not identifiable (and stiff)
+            lo.append(max(spec.lower, 0.01)), hi.append(spec.upper)
+        else:
+            lo.append(spec.lower), hi.append(spec.upper)
+    return np.array(lo), np.array(hi)
+
+
+def starts_for(name: str, regions: dict[int, list[tuple[float, float]]]) -> list[dict[str, float]]:
+    cls = EFFECTS[name]
+    base = {}
+    for k, spec in cls.params.items():
+        if k in FIXED:
+            continue
+        base[k] = START.get((name, k), spec.default if spec.default is not None else 0.0)
+    if not cls.window:
+        return [base]
+    out = []
+    amp = "angle" if "angle" in cls.params else "factor"
+    for c in WINDOW_CHANNELS[name]:
+        for (a, b) in regions.get(c, [])[:2]:
+            for sgn in ((1, -1) if amp == "angle" else (1,)):
+                d = dict(base)
+                d["s_start"], d["s_end"] = a, b
+                d[amp] = 0.02 * sgn if amp == "angle" else 0.85
+                out.append(d)
+    return out
+
+
+def fit_effect(prob: Problem, name: str, starts: np.ndarray, inits: list[dict[str, float]],
+               max_nfev: int = 40) -> Fit | None:
+    """Bounded least squares of one effect's parameters (best over the starting points)."""
+    from scipy.optimize import least_squares
+
+    free = free_params(name)
+    fixed = {k: EFFECTS[name].params[k].default for k in EFFECTS[name].params if k in FIXED}
+    lo, hi = _bounds(name, free, prob.data)
+    xs = np.array([SCALE.get(k, max(abs(hi[i] - lo[i]) * 0.05, 1e-3)) for i, k in enumerate(free)])
+    best: Fit | None = None
+
+    def fun(x):
+        vals = dict(fixed)
+        vals.update(zip(free, x))
+        if "s_start" in vals and vals["s_end"] < vals["s_start"] + 1.0:
+            vals["s_end"] = vals["s_start"] + 1.0
+        try:
+            eff = EFFECTS[name](**vals)
+        except Exception:  # outside bounds by rounding
+            return np.full(len(starts) * prob.H * 3, 1e3)
+        r = prob.residuals(prob.model([eff]), starts).ravel()
+        r = np.where(np.isfinite(r), r, 1e3)
+        return r
+
+    full = starts
+    for init in inits:
+        starts = full
+        if "s_start" in init:
+            starts = _near(prob, full, init["s_start"], init["s_end"])
+            if len(starts) < 5:
+                continue
+        x0 = np.clip(np.array([init[k] for k in free], dtype=float), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        try:
+            sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=xs, method="trf", max_nfev=max_nfev,
+                                diff_step=1e-3 if any(k.startswith("s_") for k in free) else None)
+        except (ValueError, FloatingPointError):
+            continue
+        if len(starts) != len(full):  # cost and Jacobian over all windows
+            starts = full
+            sol.fun = fun(sol.x)
+            sol.jac = None
+        cost = float(np.mean(sol.fun**2))
+        if best is None or cost < best.cost:
+            best = Fit(name, free, sol.x, fixed, cost, sol.jac, sol.fun)
+    return best
+
+
+def _near(prob: Problem, starts: np.ndarray, a: float, b: float, margin: float = 60.0) -> np.ndarray:
+    """Windows whose path can reach the stretch [a - margin, b + margin] (wrapped to the lap)."""
+    s0 = prob.data.Y[starts, 5]
+    L = prob.data.L[prob.data.rec[starts]]
+    reach = np.abs(prob.data.Y[starts, 0]) * prob.H * prob.data.dt
+    lo, hi = a - margin - reach, b + margin
+    inside = (s0 >= lo) & (s0 <= hi)
+    Lf = np.where(np.isfinite(L), L, np.inf)
+    inside |= (s0 - Lf >= lo) & (s0 - Lf <= hi)
+    return starts[inside]
+
+
+def refit(prob: Problem, fit: Fit, starts: np.ndarray, max_nfev: int = 20) -> Fit:
+    return fit_effect(prob, fit.name, starts, [fit.values()], max_nfev=max_nfev) or fit
+
+
+def interval95(prob: Problem, fit: Fit, starts: np.ndarray) -> dict[str, tuple[float, float]]:
+    """95% intervals from the fit's Jacobian, cluster-robust over ~2 s blocks of windows."""
+    J, r = fit.jac, fit.res
+    if J is None or r is None:
+        return {}
+    J = np.asarray(J.todense() if hasattr(J, "todense") else J)
+    per = prob.H * 3
+    bid = np.repeat(blocks(prob.data, starts), per)
+    _, inv = np.unique(bid, return_inverse=True)
+    G = np.zeros((inv.max() + 1, J.shape[1]))
+    np.add.at(G, inv, J * r[:, None])
+    A = J.T @ J
+    try:
+        Ai = np.linalg.pinv(A)
+    except np.linalg.LinAlgError:
+        return {}
+    cov = Ai @ (G.T @ G) @ Ai
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    return {k: (float(x - 1.96 * s), float(x + 1.96 * s)) for k, x, s in zip(fit.free, fit.x, sd)}
+
+
+# --------------------------------------------------------------------------------------------
+# cross-validation
+
+
+def folds(data: Dataset, starts: np.ndarray, k_max: int = 4) -> np.ndarray:
+    """Fold id per window: by lap when there are >= 3 laps, else interleaved 5 s segments."""
+    laps = data.lap[starts]
+    ul = np.unique(laps)
+    if len(ul) >= 3:
+        K = min(k_max, len(ul))
+        rank = np.searchsorted(ul, laps)
+        return rank % K
+    seg = blocks(data, starts, seconds=5.0)
+    _, inv = np.unique(seg, return_inverse=True)
+    return inv % 3
+
+
+def cv_channel_losses(prob: Problem, fit: Fit, starts: np.ndarray, fold: np.ndarray, fit_stride: int) -> np.ndarray:
+    """Held-out (m, 3) per-window, per-channel normalised MSE of ``fit``'s effect, refitted
+    without each fold (warm start from the full fit)."""
+    out = np.empty((len(starts), 3))
+    for f in np.unique(fold):
+        tr = starts[fold != f][::fit_stride]
+        te = fold == f
+        ff = refit(prob, fit, tr)
+        out[te] = np.mean(prob.residuals(prob.model([ff.effect()]), starts[te]) ** 2, axis=1)
+    return out
+
+
+def gain_test(l0: np.ndarray, l1: np.ndarray, bid: np.ndarray) -> tuple[float, float]:
+    """(relative gain, paired block t-statistic) of loss l1 against l0."""
+    _, inv = np.unique(bid, return_inverse=True)
+    nb = inv.max() + 1
+    cnt = np.bincount(inv, minlength=nb)
+    d = (np.bincount(inv, l0 - l1, nb)) / np.maximum(cnt, 1)
+    se = np.std(d, ddof=1) / np.sqrt(nb) if nb > 1 else np.inf
+    t = float(np.mean(d) / se) if se > 0 else 0.0
+    return float((l0.mean() - l1.mean()) / max(l0.mean(), 1e-300)), t
