@@ -24,11 +24,14 @@ class MPCConfig(Frozen):
     steering_max: float = Field(0.435, gt=0, description="|delta| bound [rad]")
     q_block: float = Field(0.0, ge=0, description="blocking weight Q_block / (1 + ds)^2 (opponent only)")
     border_margin: float = Field(0.13, ge=0, description="half footprint kept inside the border [m]")
-    slack_linear: float = Field(2000.0, ge=0, description="linear penalty of soft-constraint slacks")
-    slack_quadratic: float = Field(20000.0, ge=0, description="quadratic penalty of soft-constraint slacks")
+    slack_linear: float = Field(2000.0, ge=0, description="linear penalty of the collision slack")
+    slack_quadratic: float = Field(2e4, ge=0, description="quadratic penalty of the collision slack")
+    border_linear: float = Field(1e5, ge=0, description="linear penalty of the track-border slack")
+    border_quadratic: float = Field(1e7, ge=0, description="quadratic penalty of the track-border slack")
     speed_slack: float = Field(200.0, ge=0, description="quadratic penalty of the soft speed excess")
     substeps: int = Field(2, ge=1, description="RK4 sub-steps of the prediction model (dt/2 is stable)")
     max_iter: int = Field(60, ge=5, description="IPOPT iteration limit")
+    jit: bool = Field(False, description="compile the NLP functions with the C compiler (about 20 s per process)")
 
 
 def ego_mpc() -> MPCConfig:

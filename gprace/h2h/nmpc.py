@@ -128,7 +128,8 @@ class NMPC:
             racing += q[W_BLOCK] * (ey - q[EY_OTHER]) ** 2
             qs, qe, qv = h.q_explore
             explore += qs * (s - q[S_REF]) ** 2 + qe * (ey - q[EY_REF]) ** 2 + qv * (vx - q[V_REF]) ** 2
-            penalty += c.slack_linear * (sl[0] + sl[2]) + c.slack_quadratic * (sl[0] ** 2 + sl[2] ** 2)
+            penalty += c.border_linear * sl[0] + c.border_quadratic * sl[0] ** 2
+            penalty += c.slack_linear * sl[2] + c.slack_quadratic * sl[2] ** 2
             penalty += c.speed_slack * sl[1] ** 2
             xk, uk_prev = x, u
         racing -= c.q_progress * (xk[5] - x0[5])
@@ -145,6 +146,8 @@ class NMPC:
                 "linear_solver": "mumps",
             },
         }
+        if c.jit:
+            opts.update({"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O1"], "verbose": False}})
         self._solver = ca.nlpsol("h2h_nmpc", "ipopt", {"x": wv, "p": p, "f": J, "g": gv}, opts)
         self._lbw, self._ubw = np.array(lbw, float), np.array(ubw, float)
         self._lbg, self._ubg = np.array(lbg, float), np.array(ubg, float)

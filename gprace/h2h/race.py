@@ -89,6 +89,18 @@ def ellipse_data(track, cfg: H2HConfig, mean: np.ndarray, std: np.ndarray) -> np
     return np.column_stack([x, y, psi, a, b, np.ones(len(x))])
 
 
+def usable_widths(track, s: np.ndarray, kappa_max_ey: float = 0.8) -> tuple[np.ndarray, np.ndarray]:
+    """Track widths for the controllers, capped on the inside of tight arcs where the Frenet model
+    is singular (``kappa e_y -> 1``): at most ``kappa_max_ey / |kappa|`` toward the centre of curvature."""
+    k = track.kappa(track.wrap(s))
+    wl, wr = np.asarray(track.width_left(s), float), np.asarray(track.width_right(s), float)
+    with np.errstate(divide="ignore"):
+        cap = kappa_max_ey / np.maximum(np.abs(k), 1e-9)
+    wl = np.where(k > 0, np.minimum(wl, cap), wl)
+    wr = np.where(k < 0, np.minimum(wr, cap), wr)
+    return wl, wr
+
+
 def run_race(task: dict) -> dict:
     cfg = H2HConfig(**task.get("config", {}))
     track = make_track(task["track"])
@@ -125,9 +137,12 @@ def run_race(task: dict) -> dict:
         ego, opp = X[0], X[1]
         # ---- opponent: contouring MPC with the blocking term while the ego is behind
         gap = float(gap_s(track, opp[5], ego[5]))
-        wblock = cfg.opponent.q_block / (1.0 + gap) ** 2 if gap > 0 else 0.0
+        # blocking while the ego is behind (its centre more than a car length back); alongside,
+        # the opponent holds its line instead of steering into the ego
+        wblock = cfg.opponent.q_block / (1.0 + gap) ** 2 if gap > cfg.car_length else 0.0
         Go = opp_mpc.guess_states(opp)
-        st_o = StageData(kappa=kfun(Go[:-1, 5]), wl=track.width_left(Go[1:, 5]), wr=track.width_right(Go[1:, 5]),
+        wl, wr = usable_widths(track, Go[1:, 5])
+        st_o = StageData(kappa=kfun(Go[:-1, 5]), wl=wl, wr=wr,
                          ey_other=np.full(N, ego[4]), w_block=np.full(N, wblock))
         sol_o = opp_mpc.solve(opp, Uprev[1], 0.0, st_o)
         # ---- ego: prediction from the previous open-loop plan, then the NMPC
@@ -142,7 +157,8 @@ def run_race(task: dict) -> dict:
             explorer.target_gaps(track, ego, opp)
             targets.append(explorer.target.copy())
             ref = explorer.reference(track, ego, mean, cfg.ego.border_margin)
-        st_e = StageData(kappa=kfun(Ge[:-1, 5]), wl=track.width_left(sig), wr=track.width_right(sig), ref=ref,
+        wl, wr = usable_widths(track, sig)
+        st_e = StageData(kappa=kfun(Ge[:-1, 5]), wl=wl, wr=wr, ref=ref,
                          lin=lin, opp=ellipse_data(track, cfg, mean, std))
         sol_e = ego_mpc.solve(ego, Uprev[0], alpha, st_e)
         U = np.vstack([sol_e.U[0], sol_o.U[0]])

@@ -1,0 +1,473 @@
+"""The paper's head-to-head protocol: collect, train, explore, select, race, tabulate.
+
+Layout of ``--out DIR`` (every file an HDF5 artifact, written atomically)::
+
+    collect/runs/run_<i>.h5       one record per collection race (oracle predictor), kind h2h_run
+    collect/dataset.h5            (Z, Y) of all collection runs, kind h2h_dataset
+    init/dataset.h5               the first ``init_runs`` collection runs (the exploration's start)
+    explore/runs/run_<i>.h5       exploration episodes on the closed loop (alpha = 0.9)
+    explore/dataset.h5            init data + exploration data
+    models/{baseline,init,explore,select}.h5   GP models (kind gp_model)
+    eval/<predictor>/run_<i>.h5   the races of every predictor on the same scenarios
+    table.json                    the comparison table
+
+Every batch of runs goes through :func:`gprace.executor.run_batch`. Each run record stores a hash
+of its task; with ``resume`` a record whose hash matches is kept and only missing or failed runs
+are rerun. A run that raises is recorded (``ok = False`` and its error) and skipped by the table.
+Datasets and models are reused when present and built from the same inputs (their ``config_hash``).
+
+Decisions (the paper is silent): the exploration GP's "20 runs" are the first 20 runs of the
+baseline collection (same mechanism, no extra cost); exploration time is split into episodes of
+``episode_seconds`` on the loop, each restarted from a random grid (runs in parallel); the
+"selection only" GP is a diverse selection from the baseline data with as many points as the
+exploration GP's dictionary; GPs with more than ``exact_max`` points use the ``sparse`` backend.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from gprace.config import config_hash
+from gprace.errors import ConfigError, InputError
+from gprace.h2h.predictors import FEATURE_MAP, FEATURES, OUTPUTS
+
+RUN_KIND = "h2h_run"
+DATASET_KIND = "h2h_dataset"
+SEED_EVAL, SEED_COLLECT, SEED_EXPLORE = 0, 100_000, 200_000
+RACED = ("baseline", "explore")
+OFFLINE = ("baseline", "explore", "select", "cv")
+
+
+@dataclass
+class Settings:
+    tracks: int = 100
+    runs: int = 500
+    init_runs: int = 20
+    explore_minutes: float = 10.0
+    episode_seconds: float = 60.0
+    alpha: float = 0.9
+    dict_size: int = 600
+    stretches: int = 3
+    width: float = 0.75
+    raced: tuple[str, ...] = RACED
+    offline: tuple[str, ...] = OFFLINE
+    backend: str = "auto"
+    exact_max: int = 1500
+    inducing: int = 200
+    optimize: bool = True
+    samples: int = 50
+    max_time: float = 40.0
+    config: dict = field(default_factory=dict)
+    # execution (not part of any result)
+    workers: int = 1
+    executor: str = "local"
+    scheduler: str | None = None
+    resume: bool = False
+
+    def check(self) -> None:
+        if self.tracks < 1:
+            raise InputError(f"--tracks must be >= 1, got {self.tracks}")
+        if self.runs < 1 or self.init_runs < 1:
+            raise InputError(f"--runs and --init-runs must be >= 1, got {self.runs} and {self.init_runs}")
+        if self.init_runs > self.runs:
+            raise InputError(f"--init-runs ({self.init_runs}) cannot exceed --runs ({self.runs})")
+        if not 0.0 <= self.alpha <= 1.0:
+            raise InputError(f"--alpha must be in [0, 1], got {self.alpha}")
+        if self.explore_minutes <= 0 or self.episode_seconds <= 0:
+            raise InputError("--explore-minutes and --episode-seconds must be positive")
+        if self.dict_size < 2:
+            raise InputError(f"--dict-size must be >= 2, got {self.dict_size}")
+        known = set(OFFLINE) | {"init", "oracle"}
+        for p in (*self.raced, *self.offline):
+            if p not in known:
+                from gprace.errors import UnknownBackendError
+
+                raise UnknownBackendError(f"unknown predictor {p!r}; available: {', '.join(sorted(known))}")
+
+    def race_config(self) -> dict:
+        return dict(self.config, max_time=self.max_time, samples=self.samples)
+
+
+def _task_hash(task: dict) -> str:
+    return config_hash({k: v for k, v in task.items() if k != "id"})
+
+
+# ----------------------------------------------------------------------------------------------
+# batches of races
+def _record_path(run_dir: Path, i: int) -> Path:
+    return run_dir / f"run_{i:05d}.h5"
+
+
+def _read_record(path: Path) -> dict | None:
+    from gprace.io.artifacts import read_artifact
+
+    try:
+        art = read_artifact(path, RUN_KIND)
+    except InputError:
+        return None
+    return {"arrays": art.arrays, "attrs": art.attrs}
+
+
+def _write_record(path: Path, task: dict, ok: bool, value: dict | None, error: str) -> None:
+    from gprace.io.artifacts import Artifact, write_artifact
+
+    attrs = dict(value["attrs"]) if value else {}
+    attrs.update({"ok": bool(ok), "error": error, "task_hash": _task_hash(task), "task": json.dumps(task)})
+    arrays = dict(value["arrays"]) if value else {}
+    write_artifact(path, Artifact(RUN_KIND, arrays=arrays, attrs=attrs, seed=int(task.get("seed", 0))))
+
+
+def race_with_data(task: dict) -> dict:
+    """:func:`run_race` plus the GP training pairs of the run (computed in the worker)."""
+    from gprace.h2h.geometry import make_track
+    from gprace.h2h.predictors import training_pairs
+    from gprace.h2h.race import run_race
+
+    out = run_race(task)
+    Z, Y = training_pairs(make_track(task["track"]), out["arrays"]["ego"], out["arrays"]["opp"])
+    out["arrays"]["Z"], out["arrays"]["Y"] = Z, Y
+    return out
+
+
+def run_tasks(tasks: list[dict], run_dir: Path, st: Settings, what: str,
+              fn: Callable[[dict], dict] = race_with_data) -> list[dict]:
+    """Run (or reuse) every task; returns one record per task: ``{"arrays", "attrs"}`` with
+    ``attrs["ok"]`` and ``attrs["error"]``."""
+    from gprace.console import console
+    from gprace.executor import run_batch
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    records: list[dict | None] = [None] * len(tasks)
+    todo = []
+    for i, t in enumerate(tasks):
+        p = _record_path(run_dir, i)
+        rec = _read_record(p) if (st.resume and p.exists()) else None
+        if rec is not None and rec["attrs"].get("ok") and rec["attrs"].get("task_hash") == _task_hash(t):
+            records[i] = rec
+        else:
+            todo.append(i)
+    if todo:
+        console.info(f"{what}: {len(todo)} runs to do ({len(tasks) - len(todo)} reused) in {run_dir}")
+
+    def done(r) -> None:
+        i = todo[r.index]
+        _write_record(_record_path(run_dir, i), tasks[i], r.ok, r.value, r.error)
+        if not r.ok:
+            console.warn(f"{what}: run {i} failed and is skipped: {r.error.splitlines()[0]}")
+
+    results = run_batch(fn, [tasks[i] for i in todo], executor=st.executor, workers=st.workers,
+                        scheduler=st.scheduler, on_done=done)
+    for r in results:
+        i = todo[r.index]
+        if r.ok:
+            rec = {"arrays": r.value["arrays"], "attrs": dict(r.value["attrs"], ok=True, error="")}
+        else:
+            rec = {"arrays": {}, "attrs": {"ok": False, "error": r.error, "seed": tasks[i].get("seed")}}
+        records[i] = rec
+    return [r for r in records if r is not None]
+
+
+# ----------------------------------------------------------------------------------------------
+# datasets and models
+def _write_dataset(path: Path, Z: np.ndarray, Y: np.ndarray, run: np.ndarray, key: dict, attrs: dict) -> Path:
+    from gprace.io.artifacts import Artifact, write_artifact
+
+    art = Artifact(DATASET_KIND, arrays={"Z": Z, "Y": Y, "run": run},
+                   attrs=dict(attrs, inputs=list(FEATURES), outputs=list(OUTPUTS), n=len(Z)),
+                   config_hash=config_hash(key))
+    return write_artifact(path, art)
+
+
+def read_dataset(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    from gprace.io.artifacts import read_artifact
+
+    art = read_artifact(path, DATASET_KIND)
+    return art.arrays["Z"], art.arrays["Y"]
+
+
+def _cached(path: Path, key: dict) -> bool:
+    """An artifact at ``path`` built from the same inputs."""
+    if not path.exists():
+        return False
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            return str(f.attrs.get("config_hash", "")) == config_hash(key)
+    except OSError:
+        return False
+
+
+def dataset_from_records(records: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    Zs, Ys, R = [], [], []
+    for i, r in enumerate(records):
+        if r["attrs"].get("ok") and "Z" in r["arrays"] and len(r["arrays"]["Z"]):
+            Zs.append(r["arrays"]["Z"])
+            Ys.append(r["arrays"]["Y"])
+            R.append(np.full(len(r["arrays"]["Z"]), i))
+    if not Zs:
+        raise InputError("no successful run produced data; see the failed-run records")
+    return np.vstack(Zs), np.vstack(Ys), np.concatenate(R)
+
+
+def collect_tasks(st: Settings, n: int) -> list[dict]:
+    return [{"id": f"collect-{i}", "track": {"kind": "random", "seed": SEED_COLLECT + i, "stretches": st.stretches,
+             "width": st.width}, "seed": SEED_COLLECT + i, "predictor": "oracle", "config": st.race_config()}
+            for i in range(n)]
+
+
+def collect(st: Settings, out: Path) -> dict[str, Path]:
+    """Baseline collection (``runs`` random tracks, oracle predictor) and the initial subset."""
+    tasks = collect_tasks(st, st.runs)
+    paths = {"collect": out / "collect" / "dataset.h5", "init": out / "init" / "dataset.h5"}
+    key = {"tasks": [_task_hash(t) for t in tasks]}
+    key_init = {"tasks": key["tasks"][: st.init_runs]}
+    if _cached(paths["collect"], key) and _cached(paths["init"], key_init):
+        return paths
+    recs = run_tasks(tasks, out / "collect" / "runs", st, "collect")
+    Z, Y, R = dataset_from_records(recs)
+    n_failed = sum(not r["attrs"].get("ok") for r in recs)
+    _write_dataset(paths["collect"], Z, Y, R, key, {"runs": len(recs), "failed": n_failed, "source": "collect"})
+    m = R < st.init_runs
+    if not m.any():
+        raise InputError(f"none of the first {st.init_runs} collection runs succeeded")
+    _write_dataset(paths["init"], Z[m], Y[m], R[m], key_init, {"runs": st.init_runs, "source": "init"})
+    return paths
+
+
+def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyper_model: Path | None = None,
+          initial: Path | None = None, seed: int = 0) -> Path:
+    """Fit the opponent GP (Matern 1.5) on a dataset.
+
+    With ``size``, the points are first streamed through the GP layer's diverse selection
+    (:func:`gprace.gp.selection.select_diverse`) with the hyperparameters of ``hyper_model``,
+    starting from the dictionary ``initial`` (a dataset) when given; the GP is then refitted on
+    the selected dictionary.
+    """
+    from gprace.gp.base import load_model, make_gp, save_model
+
+    key = {"data": _hash_file(dataset), "size": size, "backend": st.backend, "exact_max": st.exact_max,
+           "inducing": st.inducing, "seed": seed, "optimize": st.optimize,
+           "hyper": _hash_file(hyper_model) if hyper_model else None, "initial": _hash_file(initial) if initial else None}
+    if _cached(model, key):
+        return model
+    Z, Y = read_dataset(dataset)
+    extra = {}
+    if size is not None:
+        from gprace.gp.selection import select_diverse
+
+        if hyper_model is None:
+            raise InputError("diverse selection needs a fitted GP for its hyperparameters")
+        hyper = load_model(hyper_model).gp.hyper_
+        init = read_dataset(initial) if initial is not None else None
+        Z, Y, stats = select_diverse(hyper, Z, Y, size, initial=init)
+        extra = {f"selection_{k}": int(v) for k, v in stats.as_dict().items()}
+    backend = st.backend if st.backend != "auto" else ("exact" if len(Z) <= st.exact_max else "sparse")
+    settings: dict[str, Any] = {"kernel": "matern15", "seed": seed, "optimize": st.optimize}
+    if backend == "sparse":
+        settings["n_inducing"] = min(st.inducing, len(Z))
+    gp = make_gp(backend, **settings).fit(Z, Y)
+    meta = {"feature_map": FEATURE_MAP, "input_names": list(FEATURES), "output_names": list(OUTPUTS),
+            "n_points": len(Z), "y_std": json.dumps(Y.std(axis=0).tolist()), **extra}
+    model.parent.mkdir(parents=True, exist_ok=True)
+    return save_model(model, gp, meta, config_hash=config_hash(key), seed=seed)
+
+
+def _hash_file(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def explore(st: Settings, out: Path, init_model: Path, init_data: Path) -> Path:
+    """Exploration episodes on the closed loop with alpha; returns the exploration dataset."""
+    n_ep = max(1, int(round(st.explore_minutes * 60.0 / st.episode_seconds)))
+    tasks = [{"id": f"explore-{i}", "track": {"kind": "loop"}, "seed": SEED_EXPLORE + i, "predictor": "gp",
+              "model": str(init_model), "alpha": st.alpha, "explore_data": str(init_data),
+              "duration": st.episode_seconds, "config": st.race_config(), "model_hash": _hash_file(init_model)}
+             for i in range(n_ep)]
+    path = out / "explore" / "dataset.h5"
+    key = {"tasks": [_task_hash(t) for t in tasks], "init": _hash_file(init_data)}
+    if _cached(path, key):
+        return path
+    recs = run_tasks(tasks, out / "explore" / "runs", st, "explore")
+    Ze, Ye, Re = dataset_from_records(recs)
+    stal = sum(int(r["attrs"].get("stalemates", 0)) for r in recs if r["attrs"].get("ok"))
+    _write_dataset(path, Ze, Ye, Re, key, {"episodes": n_ep, "stalemates": stal, "source": "explore"})
+    return path
+
+
+def models(st: Settings, out: Path) -> dict[str, Path]:
+    """All GP models of the protocol (cached): baseline (all collection data), init (first
+    ``init_runs``), explore (diverse selection of init + exploration data, init's hyperparameters),
+    select (diverse selection of the baseline data, baseline's hyperparameters, same size)."""
+    d = collect(st, out)
+    m = out / "models"
+    paths = {"baseline": train(d["collect"], m / "baseline.h5", st), "init": train(d["init"], m / "init.h5", st)}
+    ex = explore(st, out, paths["init"], d["init"])
+    paths["explore"] = train(ex, m / "explore.h5", st, size=st.dict_size, hyper_model=paths["init"], initial=d["init"])
+    from gprace.gp.base import load_model
+
+    n_explore = int(load_model(paths["explore"]).attrs.get("n_points", st.dict_size))
+    paths["select"] = train(d["collect"], m / "select.h5", st, size=n_explore, hyper_model=paths["baseline"])
+    return paths
+
+
+# ----------------------------------------------------------------------------------------------
+# evaluation
+def eval_tasks(st: Settings, predictor: str, model: Path | None) -> list[dict]:
+    kind = predictor if predictor in ("cv", "oracle") else "gp"
+    tasks = []
+    for i in range(st.tracks):
+        t = {"id": f"eval-{predictor}-{i}", "track": {"kind": "random", "seed": SEED_EVAL + i, "stretches": st.stretches,
+             "width": st.width}, "seed": SEED_EVAL + i, "predictor": kind, "label": predictor,
+             "config": st.race_config()}
+        if model is not None:
+            t["model"] = str(model)
+            t["model_hash"] = _hash_file(model)
+        tasks.append(t)
+    return tasks
+
+
+def race_predictors(st: Settings, out: Path, model_paths: dict[str, Path]) -> dict[str, list[dict]]:
+    res = {}
+    for p in st.raced:
+        tasks = eval_tasks(st, p, model_paths.get(p))
+        res[p] = run_tasks(tasks, out / "eval" / p, st, f"race {p}")
+    return res
+
+
+def offline_errors_task(task: dict) -> dict:
+    """Prediction errors of every offline predictor on one closed-loop opponent trajectory.
+
+    Rollouts start at every step t of the record, from the true opponent state, with the ego's
+    true closed-loop trajectory as the ego part of the input; all start times and samples go
+    through one GP call per step. Returns ``{name: (K, n_t) |mean e_y - true e_y|}``.
+    """
+    from gprace.h2h.config import H2HConfig
+    from gprace.h2h.geometry import make_track
+    from gprace.h2h.predictors import GPPredictor, make_predictor
+
+    cfg = H2HConfig(**task.get("config", {}))
+    K = cfg.pred_steps
+    track = make_track(task["track"])
+    rec = _read_record(Path(task["record"]))
+    E, O = rec["arrays"]["ego"], rec["arrays"]["opp"]
+    T = len(O) - K
+    out = {}
+    if T <= 0:
+        return {name: np.zeros((K, 0)) for name in task["models"]}
+    truth = np.stack([O[k + 1:k + 1 + T, 4] for k in range(K)])  # (K, T)
+    for name, path in task["models"].items():
+        if name == "cv":
+            pred = make_predictor("cv", K, cfg.dt)
+            x = O[:T]
+            kap = track.kappa(track.wrap(x[:, 5]))
+            eyd = x[:, 0] * np.sin(x[:, 3]) + x[:, 1] * np.cos(x[:, 3])
+            mean = x[None, :, 4] + cfg.dt * np.arange(1, K + 1)[:, None] * eyd[None, :]
+            del pred, kap
+        else:
+            gp = make_predictor("gp", K, cfg.dt, path, cfg.samples, seed=int(task["seed"]))
+            assert isinstance(gp, GPPredictor)
+            n = cfg.samples
+            gp.samples = n * T
+            # ego plan per sample: the true ego states from each start time t
+            starts = np.repeat(np.arange(T), n)
+            rng = np.random.default_rng(int(task["seed"]))
+            S = np.repeat(O[:T], n, axis=0)
+            ey = np.empty((K, T))
+            from gprace.h2h.predictors import OUT_STATE, features
+
+            for k in range(K):
+                Zk = features(track, E[starts + k], S)
+                mu, var = gp.gp.predict(Zk)
+                S[:, list(OUT_STATE)] += mu + np.sqrt(np.maximum(var, 0)) * rng.standard_normal(mu.shape)
+                ey[k] = S[:, 4].reshape(T, n).mean(axis=1)
+            mean = ey
+        out[name] = np.abs(mean - truth)
+    return out
+
+
+def offline_errors(st: Settings, out: Path, raced: dict[str, list[dict]], model_paths: dict[str, Path]) -> dict:
+    from gprace.executor import run_batch
+
+    names = {p: (str(model_paths[p]) if p != "cv" else None) for p in st.offline}
+    tasks = []
+    for p in st.raced:
+        for i, rec in enumerate(raced[p]):
+            if rec["attrs"].get("ok"):
+                t = json.loads(rec["attrs"]["task"]) if "task" in rec["attrs"] else eval_tasks(st, p, None)[i]
+                tasks.append({"record": str(_record_path(out / "eval" / p, i)), "track": t["track"], "seed": t["seed"],
+                              "config": t["config"], "models": names})
+    res = run_batch(offline_errors_task, tasks, executor=st.executor, workers=st.workers, scheduler=st.scheduler)
+    errs: dict[str, list[np.ndarray]] = {p: [] for p in st.offline}
+    for r in res:
+        if r.ok:
+            for p in st.offline:
+                errs[p].append(r.value[p])
+    K = H2H_K(st)
+    return {p: (np.hstack(v) if v else np.zeros((K, 0))) for p, v in errs.items()}
+
+
+def H2H_K(st: Settings) -> int:
+    from gprace.h2h.config import H2HConfig
+
+    return H2HConfig(**st.race_config()).pred_steps
+
+
+def table(st: Settings, raced: dict[str, list[dict]], errors: dict[str, np.ndarray]) -> dict:
+    """The paper's table: racing results per raced predictor and offline e_y errors per predictor."""
+    n = st.tracks
+    inside = np.ones(n, dtype=bool)
+    for p in st.raced:
+        for i, r in enumerate(raced[p]):
+            a = r["attrs"]
+            inside[i] &= bool(a.get("ok")) and not bool(a.get("border_hit"))
+    rows = {}
+    for p in st.raced:
+        recs = raced[p]
+        ok = [r for r in recs if r["attrs"].get("ok")]
+        ot = np.array([r["attrs"].get("overtake_time", np.nan) if r["attrs"].get("ok") else np.nan for r in recs], float)
+        common = ot[inside]
+        common = common[np.isfinite(common)]
+        ms = np.concatenate([np.asarray(r["arrays"].get("ego_solve_ms", [])) for r in ok]) if ok else np.zeros(0)
+        rows[p] = {
+            "runs": len(recs), "failed": len(recs) - len(ok),
+            "border_hits": int(sum(bool(r["attrs"].get("border_hit")) for r in ok)),
+            "collisions": int(sum(bool(r["attrs"].get("collision")) for r in ok)),
+            "overtakes": int(np.isfinite(ot).sum()),
+            "overtake_time_mean": float(common.mean()) if len(common) else float("nan"),
+            "overtake_time_std": float(common.std()) if len(common) else float("nan"),
+            "overtake_scenarios": int(len(common)),
+            "fallbacks_ego": int(sum(int(r["attrs"].get("fallbacks_ego", 0)) for r in ok)),
+            "ego_solve_ms_median": float(np.median(ms)) if len(ms) else float("nan"),
+        }
+    err = {}
+    for p, E in errors.items():
+        err[p] = {"mean": E.mean(axis=1).tolist() if E.shape[1] else [], "std": E.std(axis=1).tolist() if E.shape[1] else [],
+                  "points": int(E.shape[1])}
+    return {"settings": {k: v for k, v in asdict(st).items() if k not in ("workers", "executor", "scheduler", "resume")},
+            "common_inside": int(inside.sum()), "racing": rows, "ey_error": err}
+
+
+def head2head(st: Settings, out: Path) -> dict:
+    st.check()
+    paths = models(st, out)
+    raced = race_predictors(st, out, paths)
+    errors = offline_errors(st, out, raced, paths)
+    tab = table(st, raced, errors)
+    (out / "table.json").write_text(json.dumps(tab, indent=2, default=_nan))
+    return tab
+
+
+def _nan(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
