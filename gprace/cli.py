@@ -29,6 +29,8 @@ app = typer.Typer(
 # stages that contribute commands, in the order --help lists them
 COMMAND_MODULES = (
     "gprace.tracks.commands",
+    "gprace.report.commands",
+    "gprace.h2h.commands",
 )
 
 

@@ -1,0 +1,179 @@
+"""CLI: ``gprace eval head2head`` (the whole protocol) and ``gprace h2h collect|train|explore``.
+
+Heavy imports (casadi, dask, the GP layer) happen inside the commands.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from gprace.console import console
+
+OUT = typer.Option(Path("h2h_out"), "--out", help="Folder of cached artifacts and per-run HDF5 records.")
+WORKERS = typer.Option(1, "--workers", help="Local worker processes.")
+EXECUTOR = typer.Option("local", "--executor", help="local | dask")
+SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address tcp://HOST:PORT (with --executor dask).")
+RESUME = typer.Option(False, "--resume", help="Keep finished runs; rerun only missing or failed ones.")
+JSON = typer.Option(False, "--json", help="Print the result as JSON.")
+
+
+def _group(app: typer.Typer, name: str, help: str) -> typer.Typer:
+    """The sub-app ``name`` (shared with other stages if one already registered it)."""
+    for info in app.registered_groups:
+        if info.name == name and info.typer_instance is not None:
+            return info.typer_instance
+    sub = typer.Typer(help=help, no_args_is_help=True)
+    app.add_typer(sub, name=name)
+    return sub
+
+
+def check_scheduler(executor: str, scheduler: str | None, timeout: float = 3.0) -> None:
+    """Fail fast (before any work) when the Dask scheduler cannot be reached."""
+    from gprace.errors import ConfigError, InputError
+
+    if executor not in ("local", "dask"):
+        raise ConfigError(f"unknown executor {executor!r}; available: local, dask")
+    if executor != "dask":
+        return
+    if not scheduler:
+        raise ConfigError("--executor dask needs --scheduler tcp://HOST:PORT")
+    import socket
+    from urllib.parse import urlparse
+
+    u = urlparse(scheduler if "://" in scheduler else f"tcp://{scheduler}")
+    if not u.hostname or not u.port:
+        raise InputError(f"--scheduler {scheduler!r}: expected tcp://HOST:PORT")
+    try:
+        socket.create_connection((u.hostname, u.port), timeout=timeout).close()
+    except OSError as exc:
+        raise InputError(f"cannot reach Dask scheduler {scheduler}: {exc}; nothing was run and finished artifacts are kept") from None
+
+
+def _settings(**kw):
+    from gprace.h2h.protocol import Settings
+
+    raced = kw.pop("predictors", None)
+    if raced:
+        kw["raced"] = tuple(p.strip() for p in raced.split(",") if p.strip())
+    st = Settings(**kw)
+    check_scheduler(st.executor, st.scheduler)
+    st.check()
+    return st
+
+
+def print_table(tab: dict, as_json: bool) -> None:
+    if as_json:
+        console.json(tab)
+        return
+    rows = []
+    for p, r in tab["racing"].items():
+        rows.append([p, r["runs"], r["failed"], r["border_hits"], r["collisions"], r["overtakes"],
+                     f"{r['overtake_time_mean']:.3f} +- {r['overtake_time_std']:.3f} (n={r['overtake_scenarios']})",
+                     r["fallbacks_ego"], f"{r['ego_solve_ms_median']:.1f}"])
+    console.table(f"Head-to-head racing ({tab['common_inside']} scenarios with every predictor inside)",
+                  ["predictor", "runs", "failed", "border hits", "collisions", "overtakes", "overtake time [s]",
+                   "ego fallbacks", "ego solve median [ms]"], rows)
+    erows = []
+    for p, e in tab["ey_error"].items():
+        if e["mean"]:
+            erows.append([p, e["points"]] + [f"{m:.3f} +- {s:.3f}" for m, s in zip(e["mean"], e["std"])])
+    K = max((len(e["mean"]) for e in tab["ey_error"].values()), default=0)
+    console.table("Opponent e_y prediction error [m] (offline, all closed-loop opponent trajectories)",
+                  ["predictor", "points"] + [f"{k}-step" for k in range(1, K + 1)], erows)
+
+
+def register(app: typer.Typer) -> None:
+    ev = _group(app, "eval", "Evaluation protocols of the paper.")
+    h2h = _group(app, "h2h", "Head-to-head racing steps: collect, train, explore.")
+
+    @ev.command("head2head")
+    def head2head(
+        tracks: int = typer.Option(100, "--tracks", help="Random evaluation scenarios."),
+        out: Path = OUT,
+        runs: int = typer.Option(500, "--runs", help="Baseline collection runs (oracle predictor)."),
+        init_runs: int = typer.Option(20, "--init-runs", help="Runs behind the exploration's initial GP."),
+        explore_minutes: float = typer.Option(10.0, "--explore-minutes", help="Simulated exploration time."),
+        episode_seconds: float = typer.Option(60.0, "--episode-seconds", help="Length of one exploration episode."),
+        alpha: float = typer.Option(0.9, "--alpha", help="Exploration weight during exploration."),
+        dict_size: int = typer.Option(600, "--dict-size", help="Dictionary size of the exploration GP."),
+        width: float = typer.Option(0.75, "--width", help="Width of the random tracks [m]."),
+        stretches: int = typer.Option(3, "--stretches", help="Stretches per random track."),
+        predictors: str = typer.Option("baseline,explore", "--predictors", help="Predictors raced (baseline, explore, select, init, cv, oracle)."),
+        backend: str = typer.Option("auto", "--gp-backend", help="exact | sparse | auto (sparse above --exact-max points)."),
+        exact_max: int = typer.Option(1500, "--exact-max"),
+        inducing: int = typer.Option(200, "--inducing", help="Inducing points of the sparse GP."),
+        samples: int = typer.Option(50, "--samples", help="GP rollout samples."),
+        max_time: float = typer.Option(40.0, "--max-time", help="Longest race [s]."),
+        workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
+        resume: bool = RESUME, as_json: bool = JSON,
+    ) -> None:
+        """The paper's head-to-head comparison: collect, train, explore, race all predictors, tabulate."""
+        from gprace.h2h.protocol import head2head as run
+
+        st = _settings(tracks=tracks, runs=runs, init_runs=init_runs, explore_minutes=explore_minutes,
+                       episode_seconds=episode_seconds, alpha=alpha, dict_size=dict_size, width=width,
+                       stretches=stretches, predictors=predictors, backend=backend, exact_max=exact_max,
+                       inducing=inducing, samples=samples, max_time=max_time, workers=workers, executor=executor,
+                       scheduler=scheduler, resume=resume)
+        print_table(run(st, out), as_json)
+
+    @h2h.command("collect")
+    def collect(
+        out: Path = OUT,
+        runs: int = typer.Option(500, "--runs"), init_runs: int = typer.Option(20, "--init-runs"),
+        width: float = typer.Option(0.75, "--width"), stretches: int = typer.Option(3, "--stretches"),
+        max_time: float = typer.Option(40.0, "--max-time"),
+        workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
+        resume: bool = RESUME, as_json: bool = JSON,
+    ) -> None:
+        """Race random tracks with the oracle predictor; write the (Z, Y) datasets."""
+        from gprace.h2h.protocol import collect as run, read_dataset
+
+        st = _settings(runs=runs, init_runs=init_runs, width=width, stretches=stretches, max_time=max_time,
+                       workers=workers, executor=executor, scheduler=scheduler, resume=resume)
+        paths = run(st, out)
+        res = {k: {"path": str(v), "points": len(read_dataset(v)[0])} for k, v in paths.items()}
+        console.json(res) if as_json else [console.result(f"{k}: {v['path']} ({v['points']} points)") for k, v in res.items()]
+
+    @h2h.command("train")
+    def train(
+        dataset: Path = typer.Argument(..., help="An h2h_dataset file."),
+        model: Path = typer.Argument(..., help="Output GP model file."),
+        size: Optional[int] = typer.Option(None, "--select", help="Diverse selection of this many points first."),
+        hyper_model: Optional[Path] = typer.Option(None, "--hyper-model", help="GP whose hyperparameters drive the selection."),
+        initial: Optional[Path] = typer.Option(None, "--initial", help="Dataset that starts the dictionary."),
+        backend: str = typer.Option("auto", "--gp-backend"), exact_max: int = typer.Option(1500, "--exact-max"),
+        inducing: int = typer.Option(200, "--inducing"), as_json: bool = JSON,
+    ) -> None:
+        """Fit the opponent GP (Matern 1.5) on a dataset."""
+        from gprace.gp.base import load_model
+        from gprace.h2h.protocol import Settings, train as run
+
+        st = Settings(backend=backend, exact_max=exact_max, inducing=inducing)
+        path = run(dataset, model, st, size=size, hyper_model=hyper_model, initial=initial)
+        saved = load_model(path)
+        res = {"model": str(path), "backend": saved.backend, "points": int(saved.attrs.get("n_points", 0))}
+        console.json(res) if as_json else console.result(f"{res['model']}: {res['backend']} GP on {res['points']} points")
+
+    @h2h.command("explore")
+    def explore(
+        out: Path = OUT,
+        init_model: Path = typer.Option(..., "--init-model", help="The initial GP model."),
+        init_data: Path = typer.Option(..., "--init-data", help="Its dataset (candidate grid, first dictionary)."),
+        explore_minutes: float = typer.Option(10.0, "--explore-minutes"),
+        episode_seconds: float = typer.Option(60.0, "--episode-seconds"),
+        alpha: float = typer.Option(0.9, "--alpha"),
+        workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
+        resume: bool = RESUME, as_json: bool = JSON,
+    ) -> None:
+        """Exploration episodes on the closed loop (Algorithm 1, stalemate breaking)."""
+        from gprace.h2h.protocol import explore as run, read_dataset
+
+        st = _settings(explore_minutes=explore_minutes, episode_seconds=episode_seconds, alpha=alpha, workers=workers,
+                       executor=executor, scheduler=scheduler, resume=resume)
+        path = run(st, out, init_model, init_data)
+        res = {"dataset": str(path), "points": len(read_dataset(path)[0])}
+        console.json(res) if as_json else console.result(f"{res['dataset']}: {res['points']} exploration points")
