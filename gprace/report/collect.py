@@ -1,0 +1,616 @@
+"""Find gprace results under a folder and turn them into figure inputs, per domain.
+
+Scanning is by content, not by file name: HDF5 files by their ``kind`` attribute, JSON files by
+their keys (:func:`gprace.report.inspect.json_kind`). Each domain collector returns a
+:class:`Section` with its figures and tables and, for anything it expected but did not find or
+could not read, a one-line note; nothing here raises on a partial or odd folder.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from gprace.report import figures as F
+from gprace.report.inspect import artifact_kind, json_kind, key_results, open_artifact
+
+
+@dataclass
+class Item:
+    caption: str
+    figure: Any = None  # matplotlib Figure
+    html: str = ""  # a table or text block (already escaped)
+    name: str = ""  # file stem for --png
+
+
+@dataclass
+class Section:
+    key: str
+    title: str
+    items: list[Item] = field(default_factory=list)
+    missing: list[str] = field(default_factory=list)
+
+    def add_figure(self, name: str, caption: str, make: Callable[[], Any]) -> None:
+        """Add ``make()``; a figure that fails becomes a note naming the error, never a crash."""
+        try:
+            self.items.append(Item(caption, figure=make(), name=name))
+        except Exception as exc:  # noqa: BLE001 - a report shows what it can
+            self.missing.append(f"{caption}: could not be drawn ({type(exc).__name__}: {exc})")
+
+
+@dataclass
+class Found:
+    """Result files under a folder, by kind (``kind -> [paths]``) and parsed JSON (path -> obj)."""
+
+    root: Path
+    files: dict[str, list[Path]] = field(default_factory=dict)
+    json: dict[Path, Any] = field(default_factory=dict)
+
+    def of(self, *kinds: str) -> list[Path]:
+        out: list[Path] = []
+        for k in kinds:
+            out += self.files.get(k, [])
+        return sorted(set(out))
+
+    def kinds_like(self, part: str) -> list[Path]:
+        return sorted({p for k, ps in self.files.items() if part in k for p in ps})
+
+
+def scan(root: str | Path) -> Found:
+    """Every artifact (``*.h5``, ``*.hdf5``) and result JSON below ``root``, skipping hidden and
+    temporary files (an interrupted atomic write leaves ``.name.tmp``)."""
+    root = Path(root)
+    found = Found(root)
+    for p in sorted(root.rglob("*")):
+        if not p.is_file() or any(part.startswith(".") for part in p.relative_to(root).parts):
+            continue
+        suf = p.suffix.lower()
+        if suf in (".h5", ".hdf5"):
+            k = artifact_kind(p)
+            if k is not None:
+                found.files.setdefault(k, []).append(p)
+        elif suf == ".json":
+            try:
+                obj = json.loads(p.read_text())
+            except (OSError, UnicodeDecodeError, ValueError):
+                continue
+            found.json[p] = obj
+            found.files.setdefault(json_kind(obj), []).append(p)
+    return found
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers
+def _num(path: Path, pattern: str) -> int | None:
+    """The number in the last path component matching ``pattern`` (e.g. ``iter_03`` -> 3)."""
+    for part in reversed(path.parts):
+        m = re.search(pattern, part)
+        if m:
+            return int(m.group(1))
+    return None
+
+
+def _iteration_of(path: Path, meta: dict) -> int | None:
+    for k in ("iteration", "iter"):
+        if k in meta and isinstance(meta[k], (int, float)):
+            return int(meta[k])
+    return _num(path, r"(?:^|[_-])?it(?:er(?:ation)?)?[_-]?(\d+)")
+
+
+def _trial_of(path: Path, meta: dict) -> int:
+    for k in ("trial",):
+        if k in meta and isinstance(meta[k], (int, float)):
+            return int(meta[k])
+    n = _num(path, r"trial[_-]?(\d+)")
+    if n is not None:
+        return n
+    return int(meta.get("seed", 0) or 0)
+
+
+def _table(headers: list[str], rows: list[list[Any]]) -> str:
+    import html
+
+    def cell(v: Any) -> str:
+        if isinstance(v, float):
+            return "-" if not np.isfinite(v) else f"{v:.4g}"
+        if isinstance(v, (list, tuple)):
+            return ", ".join(cell(x) for x in v)
+        return html.escape(str(v))
+
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
+    body = "".join("<tr>" + "".join(f"<td>{cell(v)}</td>" for v in r) + "</tr>" for r in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _load_track(name: Any, override: str | None):
+    from gprace.report.single import try_track
+
+    return try_track(override) if override else try_track(name)
+
+
+# ----------------------------------------------------------------------------------------------
+# time trial
+def _variant_name(root: Path, summary: Any) -> str:
+    text = json.dumps(summary, default=str).lower() if summary is not None else ""
+    name = root.name.lower()
+    if "baseline" in name or '"selection": "random"' in text:
+        return "baseline"
+    if "explor" in name or '"alpha"' in text:
+        return "exploration"
+    return root.name or "time trial"
+
+
+_KEYS = {
+    "iteration": ("iteration", "iter", "it"),
+    "trial": ("trial", "seed"),
+    "planned": ("planned_lap_time", "lap_time_planned", "planned", "plan_lap_time"),
+    "driven": ("driven_lap_time", "lap_time_driven", "driven", "lap_time"),
+}
+
+
+def _rows_in(obj: Any) -> list[dict]:
+    """The longest list of dicts inside a summary JSON that carries an iteration field."""
+    best: list[dict] = []
+
+    def visit(o: Any) -> None:
+        nonlocal best
+        if isinstance(o, list) and o and all(isinstance(x, dict) for x in o):
+            if any(any(k in x for k in _KEYS["iteration"]) for x in o) and len(o) > len(best):
+                best = o
+            for x in o:
+                visit(x)
+        elif isinstance(o, dict):
+            for v in o.values():
+                visit(v)
+
+    visit(obj)
+    return best
+
+
+def _get(row: dict, what: str) -> Any:
+    for k in _KEYS[what]:
+        if k in row:
+            return row[k]
+    return None
+
+
+def _gp_errors(row: dict) -> dict[str, float]:
+    """``{"planning": e, "tracking": e}`` from a summary row's GP-error fields (flat or nested)."""
+    out: dict[str, float] = {}
+    for k, v in row.items():
+        kl = k.lower()
+        if isinstance(v, dict) and ("err" in kl or "rmse" in kl):
+            for g, e in v.items():
+                if isinstance(e, (int, float)):
+                    out[str(g)] = float(e)
+                elif isinstance(e, dict):  # per output: average
+                    vals = [float(x) for x in e.values() if isinstance(x, (int, float))]
+                    if vals:
+                        out[str(g)] = float(np.mean(vals))
+        elif isinstance(v, (int, float)) and ("err" in kl or "rmse" in kl):
+            for g in ("planning", "tracking"):
+                if g in kl or g[:4] in kl:
+                    out[g] = float(v)
+    return out
+
+
+def timetrial_variants(found: Found) -> dict[Path, dict[str, Any]]:
+    """Per iterate folder: ``{"name", "summary", "runs": [(path, meta, it, trial)], "plans": [...]}``.
+
+    A folder is an iterate folder when it holds a time-trial ``summary.json`` or run artifacts
+    under per-iteration sub-folders; its variant name is ``exploration`` or ``baseline`` when the
+    folder name or summary says so.
+    """
+    roots: dict[Path, dict[str, Any]] = {}
+    for p in found.of("timetrial_summary"):
+        roots.setdefault(p.parent, {"summary": found.json[p], "summary_path": p})
+    runs = found.of("run")
+    for p in runs:
+        if _num(p.relative_to(found.root), r"(?:^|[_-])?it(?:er(?:ation)?)?[_-]?(\d+)") is None:
+            continue
+        # the iterate root: the nearest ancestor that has a summary, else the parent of iter_*
+        root = next((a for a in p.parents if a in roots), None)
+        if root is None:
+            root = next(a.parent for a in p.parents if re.search(r"it(?:er(?:ation)?)?[_-]?\d+", a.name))
+            roots.setdefault(root, {"summary": None})
+    for root, v in roots.items():
+        v["name"] = _variant_name(root, v.get("summary"))
+        v["runs"], v["plans"] = [], []
+        for p in runs:
+            if root in p.parents:
+                try:
+                    art = open_artifact(p, "run")
+                except Exception:  # noqa: BLE001
+                    continue
+                v["runs"].append((p, art, _iteration_of(p.relative_to(root), art.attrs), _trial_of(p.relative_to(root), art.attrs)))
+        for p in found.of("plan"):
+            if root in p.parents:
+                v["plans"].append(p)
+    # unique names
+    seen: dict[str, int] = {}
+    for v in roots.values():
+        n = v["name"]
+        seen[n] = seen.get(n, 0) + 1
+        if seen[n] > 1:
+            v["name"] = f"{n} {seen[n]}"
+    return roots
+
+
+def timetrial_section(found: Found, track_override: str | None = None) -> Section | None:
+    variants = timetrial_variants(found)
+    loose_runs = [p for p in found.of("run") if not any(r in p.parents for r in variants)]
+    loose_plans = [p for p in found.of("plan") if not any(r in p.parents for r in variants)]
+    if not variants and not loose_runs and not loose_plans:
+        return None
+    sec = Section("timetrial", "Time trial")
+    lap: dict[str, dict[str, list[float]]] = {}
+    gperr: dict[str, dict[str, list[float]]] = {}
+    table_rows = []
+    for root, v in variants.items():
+        name = v["name"]
+        L = lap.setdefault(name, {"iteration": [], "planned": [], "driven": []})
+        E = gperr.setdefault(name, {"iteration": []})
+        rows = _rows_in(v["summary"]) if v.get("summary") is not None else []
+        for r in rows:
+            it, pl, dr = _get(r, "iteration"), _get(r, "planned"), _get(r, "driven")
+            if isinstance(it, (int, float)) and isinstance(pl, (int, float)) and isinstance(dr, (int, float)):
+                L["iteration"].append(float(it))
+                L["planned"].append(float(pl))
+                L["driven"].append(float(dr))
+                table_rows.append([name, int(it), _get(r, "trial"), float(pl), float(dr), float(dr) - float(pl)])
+            errs = _gp_errors(r)
+            if errs and isinstance(it, (int, float)):
+                n = len(E["iteration"])
+                E["iteration"].append(float(it))
+                for g, e in errs.items():
+                    E.setdefault(g, [np.nan] * n).append(e)
+                for g in E:
+                    if g != "iteration" and len(E[g]) < n + 1:
+                        E[g].append(np.nan)
+        if not L["iteration"]:  # no usable summary: lap times from the run artifacts
+            for p, art, it, trial in v["runs"]:
+                pl, dr = art.attrs.get("planned_lap_time"), art.attrs.get("lap_time")
+                if it is not None and isinstance(pl, (int, float)) and isinstance(dr, (int, float)):
+                    L["iteration"].append(float(it))
+                    L["planned"].append(float(pl))
+                    L["driven"].append(float(dr))
+                    table_rows.append([name, it, trial, float(pl), float(dr), float(dr) - float(pl)])
+        if v.get("summary") is None:
+            sec.missing.append(f"{root}: no summary.json (loop interrupted?); lap times taken from the run files")
+        if not L["iteration"]:
+            sec.missing.append(f"{root}: no finished lap yet (no run with a lap time)")
+    lap = {k: {a: np.asarray(b) for a, b in d.items()} for k, d in lap.items() if d["iteration"]}
+    if lap:
+        sec.add_figure("lap_times", "Lap time per iteration: planned, driven and their difference (mean and "
+                       "+-1 std over trials)", lambda: F.fig_lap_times(lap))
+        iters = {n: sorted(set(d["iteration"].astype(int).tolist())) for n, d in lap.items()}
+        sec.items.append(Item("Lap times per iteration and trial", html=_table(
+            ["variant", "iteration", "trial", "planned [s]", "driven [s]", "driven - planned [s]"],
+            sorted(table_rows, key=lambda r: (r[0], r[1], r[2] if r[2] is not None else -1)))))
+        if len(lap) == 1 and len(variants) == 1:
+            sec.missing.append("only one iterate folder: exploration vs baseline comparison needs both "
+                               "(run `gprace iterate` again with `--selection random --alpha 0` into a sibling folder)")
+        del iters
+    gperr = {k: {a: np.asarray(b, float) for a, b in d.items()} for k, d in gperr.items() if len(d["iteration"])}
+    if gperr:
+        sec.add_figure("gp_errors", "GP prediction error per iteration on the diverse test run, both GPs "
+                       "(mean and +-1 std over trials)", lambda: F.fig_gp_errors(gperr))
+    elif variants:
+        sec.missing.append("GP prediction errors per iteration: not in any summary.json yet")
+    # data collected in an exploration iteration, against its plan
+    all_runs = [r for v in variants.values() for r in v["runs"]]
+    expl = [r for r in all_runs if float(r[1].attrs.get("alpha", 0) or 0) > 0]
+    if expl:
+        p, art, it, _ = sorted(expl, key=lambda r: (r[2] if r[2] is not None else 0, r[3]))[0]
+        plan_p = _nearest_plan(p, found)
+        if plan_p is not None:
+            plan = open_artifact(plan_p, "plan").arrays
+            sec.add_figure("exploration_data", f"Data collected while exploring (iteration {it}, alpha "
+                           f"{float(art.attrs.get('alpha')):.3g}): v_y and yaw rate against the plan",
+                           lambda: F.fig_exploration_data(art.arrays, plan, title=f"{p.parent.name}/{p.name}"))
+        else:
+            sec.missing.append(f"{p}: exploration run found but no plan next to it")
+    elif variants:
+        sec.missing.append("no run driven with exploration (alpha > 0) found")
+    # driven line of the latest run
+    cand = sorted(all_runs, key=lambda r: (r[2] if r[2] is not None else -1, -r[3]))
+    pick = cand[-1] if cand else None
+    if pick is None and loose_runs:
+        try:
+            pick = (loose_runs[0], open_artifact(loose_runs[0], "run"), None, 0)
+        except Exception:  # noqa: BLE001
+            pick = None
+    if pick is not None:
+        p, art, it, _ = pick
+        track = _load_track(art.attrs.get("track"), track_override)
+        if track is not None:
+            a = art.arrays
+            sec.add_figure("driven_line", f"Driven line coloured by speed, border hits marked ({p.name}"
+                           + (f", iteration {it}" if it is not None else "") + ")",
+                           lambda: F.fig_track_speed(track, a["s"], a["e_y"], a["v_x"], a.get("border_hit"),
+                                                     title=p.name))
+        else:
+            sec.missing.append(f"{p}: track {art.attrs.get('track')!r} cannot be loaded; pass --track for the map")
+    if not variants:
+        for p in loose_plans[:2]:
+            art = open_artifact(p, "plan")
+            track = _load_track(art.attrs.get("track"), track_override)
+            sec.add_figure(f"plan_{p.stem}", f"Plan {p.name}: lap time {float(art.attrs.get('lap_time', np.nan)):.2f} s",
+                           lambda art=art, track=track, p=p: F.fig_plan(art.arrays, track, title=p.name))
+    return sec
+
+
+def _nearest_plan(run_path: Path, found: Found) -> Path | None:
+    plans = found.of("plan")
+    for d in run_path.parents:
+        here = [p for p in plans if p.parent == d]
+        if here:
+            return here[0]
+        if d == found.root:
+            break
+    return None
+
+
+# ----------------------------------------------------------------------------------------------
+# head-to-head
+def h2h_section(found: Found, max_error_samples: int = 20) -> Section | None:
+    tables = found.of("h2h_table")
+    records = found.of("h2h_run")
+    if not tables and not records:
+        return None
+    sec = Section("h2h", "Head-to-head")
+    if tables:
+        tab = found.json[tables[0]]
+        err = tab.get("ey_error") or {}
+        err = {k: v for k, v in err.items() if v.get("mean")}
+        if err:
+            dt = (tab.get("settings") or {}).get("config", {}).get("dt", 0.1)
+            sec.add_figure("opponent_pred_errors", "Opponent e_y prediction error against steps ahead: mean and "
+                           "+-1 std over all closed-loop opponent trajectories", lambda: F.fig_pred_errors(err, dt))
+        else:
+            sec.missing.append(f"{tables[0]}: no offline prediction errors in the table")
+        racing = tab.get("racing") or {}
+        if racing:
+            rows = []
+            for p, r in racing.items():
+                e = (tab.get("ey_error") or {}).get(p, {})
+                m = e.get("mean") or []
+                rows.append([p, r.get("runs"), r.get("failed"), r.get("border_hits"), r.get("collisions"), r.get("overtakes"),
+                             _pm(r.get("overtake_time_mean"), r.get("overtake_time_std")),
+                             m[0] if m else float("nan"), m[-1] if m else float("nan")])
+            for p, e in (tab.get("ey_error") or {}).items():
+                if p not in racing and e.get("mean"):
+                    rows.append([p, "-", "-", "-", "-", "-", "-", e["mean"][0], e["mean"][-1]])
+            sec.items.append(Item(f"Results table ({tables[0].name}; overtake time over the "
+                                  f"{tab.get('common_inside', '?')} scenarios every raced predictor finished inside the track)",
+                                  html=_table(["predictor", "runs", "failed", "border hits", "collisions", "overtakes",
+                                               "overtake time [s]", "e_y error 1-step [m]", "e_y error last step [m]"], rows)))
+    else:
+        sec.missing.append("no table.json (the evaluation did not finish): no results table or error curves")
+    ok = []
+    for p in records:
+        try:
+            art = open_artifact(p, "h2h_run")
+        except Exception:  # noqa: BLE001
+            continue
+        if art.attrs.get("ok", True) and "ego" in art.arrays and "eval" in p.parts:
+            ok.append((p, art))
+        if len(ok) >= 1 and "explore" in str(art.attrs.get("predictor", "")):
+            break
+    if not ok:
+        for p in records:
+            try:
+                art = open_artifact(p, "h2h_run")
+            except Exception:  # noqa: BLE001
+                continue
+            if art.attrs.get("ok", True) and "ego" in art.arrays:
+                ok.append((p, art))
+                break
+    if ok:
+        p, art = ok[-1]
+        from gprace.report.single import h2h_track
+
+        track = h2h_track(art.attrs)
+        if track is not None:
+            sec.add_figure("race", f"One race on its track ({p.parent.name}/{p.name}, predictor "
+                           f"{art.attrs.get('predictor')}, end: {art.attrs.get('end_reason')})",
+                           lambda: F.fig_race(track, art.arrays["ego"], art.arrays["opp"], art.arrays.get("border_ego"),
+                                              title=f"{art.attrs.get('predictor')}"))
+            errs = _errors_along(p, art, found, max_error_samples)
+            if errs is not None:
+                t, E = errs
+                sec.add_figure("error_along_run", f"1-step and 9-step opponent e_y error along that run",
+                               lambda: F.fig_error_along_run(t, E, (1, min(9, min(e.shape[0] for e in E.values())))))
+            else:
+                sec.missing.append("error along one run: no opponent models found next to the run records")
+        else:
+            sec.missing.append(f"{p}: cannot rebuild the race's track from its task")
+    else:
+        sec.missing.append("no finished race record (eval/<predictor>/run_*.h5)")
+    return sec
+
+
+def _pm(m: Any, s: Any) -> str:
+    try:
+        m, s = float(m), float(s)
+    except (TypeError, ValueError):
+        return "-"
+    return "-" if not np.isfinite(m) else f"{m:.3f} +- {s:.3f}"
+
+
+def _errors_along(p: Path, art, found: Found, samples: int) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
+    """k-step e_y errors along one record for the constant-velocity predictor and every opponent
+    GP model of the same experiment (the head-to-head stage's offline evaluation)."""
+    try:
+        from gprace.h2h.protocol import offline_errors_task
+    except Exception:  # noqa: BLE001
+        return None
+    root = next((a for a in p.parents if (a / "models").is_dir()), None)
+    models: dict[str, Any] = {"cv": None}
+    if root is not None:
+        for m in sorted((root / "models").glob("*.h5")):
+            if m.stem in ("baseline", "explore", "select") and artifact_kind(m) in ("gp_model",):
+                models[m.stem] = str(m)
+    task = json.loads(art.attrs["task"]) if isinstance(art.attrs.get("task"), str) else {}
+    if not task:
+        return None
+    cfg = dict(task.get("config", {}))
+    cfg["samples"] = min(int(cfg.get("samples", samples)), samples)
+    try:
+        out = offline_errors_task({"record": str(p), "track": task["track"], "seed": task.get("seed", 0),
+                                   "config": cfg, "models": models})
+    except Exception:  # noqa: BLE001 - fall back to the models that work
+        models = {"cv": None}
+        try:
+            out = offline_errors_task({"record": str(p), "track": task["track"], "seed": task.get("seed", 0),
+                                       "config": cfg, "models": models})
+        except Exception:  # noqa: BLE001
+            return None
+    E = {k: np.asarray(v) for k, v in out.items() if np.ndim(v) == 2 and np.shape(v)[1]}
+    if not E:
+        return None
+    T = next(iter(E.values())).shape[1]
+    t = np.asarray(art.arrays.get("t", np.arange(T + 10) * 0.1))[:T]
+    return t, E
+
+
+# ----------------------------------------------------------------------------------------------
+# diagnosis
+def diagnosis_section(found: Found) -> Section | None:
+    reports = found.of("diagnosis")
+    residuals = found.kinds_like("diagnos") + found.kinds_like("residual")
+    if not reports and not residuals:
+        return None
+    sec = Section("diagnosis", "Diagnosis")
+    for rp in reports:
+        d = found.json[rp]
+        eff = d.get("effects") or []
+        sec.items.append(Item(f"{rp.name}: verdict", html=_diag_summary(d)))
+        res = _residual_data(rp, residuals)
+        if res is not None:
+            s, before, after, length = res
+            sec.add_figure(f"residual_{rp.stem}", "Residual along the track, nominal model and augmented model "
+                           "(located windows shaded)", lambda: F.fig_residual_track(s, before, after, d.get("regions", [])))
+        else:
+            sec.missing.append(f"{rp.name}: no residual data next to it: residual-along-track plot not drawn")
+        sec.add_figure(f"channels_{rp.stem}", "Channels with structured error and the windows where it sits",
+                       lambda d=d: F.fig_channels(d.get("channels", []), d.get("regions", [])))
+        if eff:
+            sec.add_figure(f"parameters_{rp.stem}", "Fitted parameters with 95 % intervals",
+                           lambda eff=eff: F.fig_parameters(eff))
+    if not reports:
+        sec.missing.append("no diagnosis JSON (`gprace diagnose --json > diagnosis.json`)")
+    return sec
+
+
+def _diag_summary(d: dict) -> str:
+    import html
+
+    parts = [f"<p><b>verdict:</b> {html.escape(str(d.get('verdict')))}"]
+    if "explained_share" in d:
+        parts.append(f"; share of the structured error explained: {100 * float(d['explained_share']):.0f} %")
+    if d.get("augmented_vehicle"):
+        parts.append(f"; augmented vehicle: <code>{html.escape(str(d['augmented_vehicle']))}</code>")
+    parts.append("</p>")
+    rows = [[c.get("name"), "yes" if c.get("structured") else "no", c.get("statistic"), c.get("rmse_nominal"),
+             c.get("heldout_rmse_nominal", "-"), c.get("heldout_rmse_augmented", "-")] for c in d.get("channels", [])]
+    parts.append(_table(["channel", "structured", "statistic", "RMSE nominal", "held-out RMSE before",
+                         "held-out RMSE after"], rows))
+    erow = []
+    for e in d.get("effects", []):
+        ps = "; ".join(f"{k} = {float(v['value']):.4g} [{float(v['ci95'][0]):.4g}, {float(v['ci95'][1]):.4g}] {v.get('unit', '')}"
+                       for k, v in (e.get("parameters") or {}).items() if isinstance(v, dict) and "ci95" in v)
+        erow.append([e.get("name"), ps, ", ".join(e.get("channels", [])), e.get("improvement"),
+                     ", ".join(e.get("ambiguous_with", [])) or "-"])
+    if erow:
+        parts.append(_table(["effect", "parameters (95 % interval)", "channels", "improvement", "ambiguous with"], erow))
+    if d.get("unexplained"):
+        parts.append("<p><b>unexplained:</b> " + html.escape(", ".join(f"{k}: {v:.3g}" for k, v in d["unexplained"].items()))
+                     + "</p>")
+    rg = d.get("regions") or []
+    if rg:
+        parts.append(_table(["channel", "s start [m]", "s end [m]", "description"],
+                            [[r.get("channel"), r.get("s_start"), r.get("s_end"), r.get("description", "")] for r in rg]))
+    for n in d.get("notes", []) or []:
+        parts.append(f"<p class='note'>{html.escape(str(n))}</p>")
+    return "".join(parts)
+
+
+def _residual_data(report_path: Path, residuals: list[Path]):
+    """``(s, before, after, length)`` from a residual artifact in the report's folder (arrays
+    ``s`` and ``before/<channel>``, ``after/<channel>``, or ``residual_before``/``residual_after``
+    of shape (n, channels) with attribute ``channels``)."""
+    for p in sorted(residuals, key=lambda q: (q.parent != report_path.parent, str(q))):
+        try:
+            art = open_artifact(p)
+        except Exception:  # noqa: BLE001
+            continue
+        a = dict(art.arrays)
+        for g in art.groups.values():
+            a.update(g)
+        if "s" not in a:
+            continue
+        before = {k.split("/", 1)[1]: v for k, v in a.items() if k.startswith("before/")}
+        after = {k.split("/", 1)[1]: v for k, v in a.items() if k.startswith("after/")}
+        if not before and "residual_before" in a:
+            ch = art.attrs.get("channels") or [f"c{i}" for i in range(np.shape(a["residual_before"])[1])]
+            before = {c: a["residual_before"][:, i] for i, c in enumerate(ch)}
+            if "residual_after" in a:
+                after = {c: a["residual_after"][:, i] for i, c in enumerate(ch)}
+        if before:
+            return a["s"], before, after or None, art.attrs.get("track_length")
+    return None
+
+
+# ----------------------------------------------------------------------------------------------
+# GP models and datasets
+def gp_section(found: Found, features: tuple[str, str] | None = None, max_models: int = 6) -> Section | None:
+    models = found.of("gp_model")
+    datasets = found.kinds_like("dataset")
+    if not models and not datasets:
+        return None
+    sec = Section("gp", "Gaussian processes")
+    from gprace.report.single import load_gp, pick_features
+
+    rows = []
+    for p in models:
+        try:
+            info = key_results(open_artifact(p, "gp_model"))
+        except Exception as exc:  # noqa: BLE001
+            sec.missing.append(f"{p}: unreadable model ({exc})")
+            continue
+        rows.append([str(p.relative_to(found.root)), info.get("backend"), info.get("kernel"), info.get("dictionary_size"),
+                     ", ".join(map(str, info.get("input_names", []))), ", ".join(map(str, info.get("output_names", [])))])
+    if rows:
+        sec.items.append(Item("Models", html=_table(["model", "backend", "kernel", "dictionary", "inputs", "outputs"], rows)))
+    if len(models) > max_models:
+        sec.missing.append(f"{len(models)} models found; posterior plots drawn for the last {max_models}")
+    for p in models[-max_models:]:
+        def make(p=p):
+            gp, names_in, names_out, Zd = load_gp(p)
+            if Zd is None:
+                raise ValueError("the model stores no dictionary points")
+            try:
+                i, j = pick_features(names_in, features)
+            except Exception:  # noqa: BLE001 - features of another GP
+                i, j = pick_features(names_in)
+            return F.fig_gp_posterior(gp.predict, Zd, names_in, names_out, i, j, title=str(p.relative_to(found.root)))
+
+        sec.add_figure(f"gp_{'_'.join(p.relative_to(found.root).with_suffix('').parts)}",
+                       f"{p.relative_to(found.root)}: posterior mean and standard deviation over two features "
+                       "(others at the dictionary median), dictionary points in black", make)
+    for p in datasets[:2]:
+        def make_d(p=p):
+            art = open_artifact(p)
+            names_in = [str(x) for x in art.attrs.get("inputs", art.attrs.get("input_names", []))]
+            names_out = [str(x) for x in art.attrs.get("outputs", art.attrs.get("output_names", []))]
+            return F.fig_dataset(art.arrays["Z"], art.arrays["Y"], names_in, names_out, title=str(p.relative_to(found.root)))
+
+        sec.add_figure(f"data_{'_'.join(p.relative_to(found.root).with_suffix('').parts)}",
+                       f"{p.relative_to(found.root)}: inputs of the dataset coloured by output", make_d)
+    return sec

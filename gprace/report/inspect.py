@@ -1,0 +1,376 @@
+"""Summaries of any gprace result file: HDF5 artifacts of every kind, CSV runs, result JSON.
+
+:func:`describe` never needs to know a stage's code: it reads the artifact layout of
+:mod:`gprace.io.artifacts` (root attributes, ``/data``, ``/groups``) with h5py, walking nested
+groups (an array stored as ``hyper/z_mean`` is listed under that name), and adds the key results
+of the kinds it knows (lap times of plans and runs, dictionary sizes of models and datasets,
+outcome of head-to-head races, verdict of a diagnosis). Unknown kinds still get the generic part.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gprace.errors import ArtifactError, InputError
+from gprace.io.artifacts import Artifact
+
+RESERVED = ("kind", "schema", "gprace_version", "config_hash", "seed", "created")
+
+
+# ----------------------------------------------------------------------------------------------
+# reading
+def _decode(v: Any) -> Any:
+    """An HDF5 attribute as plain Python (the encoding of :mod:`gprace.io.artifacts`)."""
+    if isinstance(v, bytes):
+        v = v.decode(errors="replace")
+    if isinstance(v, str):
+        if v == "__none__":
+            return None
+        if v.startswith("__json__"):
+            try:
+                return json.loads(v[len("__json__"):])
+            except ValueError:
+                return v
+        return v
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    return v
+
+
+def _walk(group, prefix: str = "") -> list[tuple[str, Any]]:
+    """``(name, h5py.Dataset)`` of every dataset below ``group``, names joined with '/'."""
+    import h5py
+
+    out = []
+    for k, v in group.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, h5py.Dataset):
+            out.append((name, v))
+        elif isinstance(v, h5py.Group):
+            out.extend(_walk(v, name + "/"))
+    return out
+
+
+def _open_h5(path: Path):
+    import h5py
+
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, not an artifact")
+    try:
+        return h5py.File(path, "r")
+    except OSError:
+        raise ArtifactError(f"{path}: not an HDF5 file (truncated or of another format)") from None
+
+
+def open_artifact(path: str | Path, kind: str | tuple[str, ...] | None = None, arrays: bool = True) -> Artifact:
+    """Read any artifact, nested array groups flattened to ``a/b`` names.
+
+    Like :func:`gprace.io.artifacts.read_artifact` but tolerant of arrays stored under nested
+    names; with ``arrays=False`` the arrays are not loaded (their names map to ``None``).
+    """
+    path = Path(path)
+    f = _open_h5(path)
+    with f:
+        if "kind" not in f.attrs:
+            raise ArtifactError(f"{path}: not a gprace artifact (no 'kind' attribute)")
+        got = str(_decode(f.attrs["kind"]))
+        wanted = (kind,) if isinstance(kind, str) else kind
+        if wanted is not None and got not in wanted:
+            raise ArtifactError(f"{path}: is a {got!r} artifact, expected {' or '.join(map(repr, wanted))}")
+        attrs = {k: _decode(v) for k, v in f.attrs.items() if k not in RESERVED}
+        arr = {}
+        if "data" in f:
+            arr = {k: (v[()] if arrays else None) for k, v in _walk(f["data"])}
+        groups: dict[str, dict[str, Any]] = {}
+        if "groups" in f:
+            for gname, sub in f["groups"].items():
+                if hasattr(sub, "items"):
+                    groups[gname] = {k: (v[()] if arrays else None) for k, v in _walk(sub)}
+        return Artifact(
+            kind=got, arrays=arr, attrs=attrs, groups=groups,
+            config_hash=str(_decode(f.attrs.get("config_hash", ""))), seed=int(_decode(f.attrs.get("seed", 0)) or 0),
+            schema=int(_decode(f.attrs.get("schema", 0)) or 0), created=str(_decode(f.attrs.get("created", ""))),
+            gprace_version=str(_decode(f.attrs.get("gprace_version", ""))),
+        )
+
+
+def artifact_kind(path: str | Path) -> str | None:
+    """The ``kind`` of an HDF5 artifact, or None for any other file (never raises)."""
+    try:
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            k = f.attrs.get("kind")
+            return None if k is None else str(_decode(k))
+    except Exception:  # noqa: BLE001 - any unreadable file is simply not an artifact
+        return None
+
+
+def json_kind(obj: Any) -> str:
+    """Classify a result JSON: ``diagnosis``, ``h2h_table``, ``timetrial_summary`` or ``json``."""
+    if isinstance(obj, dict):
+        if "verdict" in obj and "channels" in obj:
+            return "diagnosis"
+        if "racing" in obj or "ey_error" in obj:
+            return "h2h_table"
+        keys = set(obj)
+        if keys & {"iterations", "rows", "trials"} or any("lap" in k for k in keys):
+            return "timetrial_summary"
+    if isinstance(obj, list) and obj and isinstance(obj[0], dict) and any("lap" in k for k in obj[0]):
+        return "timetrial_summary"
+    return "json"
+
+
+# ----------------------------------------------------------------------------------------------
+# describing
+def describe(path: str | Path) -> dict[str, Any]:
+    """Summary of one result file as a JSON-ready dict.
+
+    Keys: ``path``, ``format`` (hdf5, csv, json), ``kind``, provenance (``schema``,
+    ``gprace_version``, ``config_hash``, ``seed``, ``created``), ``attrs``, ``arrays`` (name ->
+    ``{"shape", "dtype"}``), ``groups`` and ``results`` (the key numbers of the kind).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder; use `gprace report {path}` for a folder")
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        return _describe_csv(path)
+    if suffix == ".json":
+        return _describe_json(path)
+    return _describe_h5(path)
+
+
+def _describe_h5(path: Path) -> dict[str, Any]:
+    f = _open_h5(path)
+    with f:
+        if "kind" not in f.attrs:
+            raise ArtifactError(f"{path}: not a gprace artifact (no 'kind' attribute)")
+        info: dict[str, Any] = {"path": str(path), "format": "hdf5", "kind": str(_decode(f.attrs["kind"]))}
+        for k in RESERVED[1:]:
+            info[k] = _decode(f.attrs.get(k, ""))
+        info["attrs"] = {k: _decode(v) for k, v in f.attrs.items() if k not in RESERVED}
+        info["arrays"] = {}
+        if "data" in f:
+            info["arrays"] = {k: {"shape": list(v.shape), "dtype": str(v.dtype)} for k, v in _walk(f["data"])}
+        info["groups"] = {}
+        if "groups" in f:
+            for g, sub in f["groups"].items():
+                if hasattr(sub, "items"):
+                    info["groups"][g] = {k: {"shape": list(v.shape), "dtype": str(v.dtype)} for k, v in _walk(sub)}
+    art = open_artifact(path)
+    try:
+        info["results"] = key_results(art)
+    except Exception as exc:  # noqa: BLE001 - a summary must not fail on an odd payload
+        info["results"] = {"error": f"could not summarise the {art.kind!r} payload: {exc}"}
+    return info
+
+
+def _describe_csv(path: Path) -> dict[str, Any]:
+    from gprace.io.runs import read_run
+
+    run = read_run(path)
+    info: dict[str, Any] = {"path": str(path), "format": "csv", "kind": "run"}
+    for k in RESERVED[1:]:
+        info[k] = ""
+    info["attrs"] = {}
+    info["arrays"] = {k: {"shape": list(np.shape(v)), "dtype": str(np.asarray(v).dtype)} for k, v in run.data.items()}
+    info["groups"] = {}
+    info["results"] = _run_results(run.data, run.meta)
+    return info
+
+
+def _describe_json(path: Path) -> dict[str, Any]:
+    try:
+        obj = json.loads(path.read_text())
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise InputError(f"{path}: not a JSON file ({exc})") from None
+    kind = json_kind(obj)
+    info: dict[str, Any] = {"path": str(path), "format": "json", "kind": kind}
+    for k in RESERVED[1:]:
+        info[k] = ""
+    info["attrs"] = {}
+    info["arrays"] = {}
+    info["groups"] = {}
+    res: dict[str, Any] = {}
+    if kind == "diagnosis":
+        res["verdict"] = obj.get("verdict")
+        res["structured_channels"] = [c.get("name") for c in obj.get("channels", []) if c.get("structured")]
+        res["regions"] = len(obj.get("regions", []))
+        res["effects"] = [e.get("name") for e in obj.get("effects", [])]
+        res["augmented_vehicle"] = obj.get("augmented_vehicle")
+    elif kind == "h2h_table":
+        for p, row in (obj.get("racing") or {}).items():
+            res[f"{p}: border hits"] = row.get("border_hits")
+            res[f"{p}: overtake time [s]"] = row.get("overtake_time_mean")
+        for p, e in (obj.get("ey_error") or {}).items():
+            m = e.get("mean") or []
+            if m:
+                res[f"{p}: e_y error 1-step [m]"] = m[0]
+                res[f"{p}: e_y error {len(m)}-step [m]"] = m[-1]
+    elif isinstance(obj, dict):
+        res["keys"] = sorted(obj)[:30]
+    elif isinstance(obj, list):
+        res["entries"] = len(obj)
+    info["results"] = res
+    return info
+
+
+def _finite(a) -> np.ndarray:
+    a = np.asarray(a, dtype=float).ravel()
+    return a[np.isfinite(a)]
+
+
+def _run_results(data: dict[str, np.ndarray], meta: dict[str, Any]) -> dict[str, Any]:
+    t = np.asarray(data["t"], dtype=float)
+    res: dict[str, Any] = {"samples": int(len(t)), "duration_s": float(t[-1] - t[0]) if len(t) else 0.0}
+    if "lap" in data and len(data["lap"]):
+        res["laps_started"] = int(np.max(data["lap"]) - np.min(data["lap"]) + 1)
+    for k in ("lap_time", "planned_lap_time", "lap_times", "completed", "reason", "track", "plant", "alpha",
+              "fallbacks", "border_hit_steps", "solve_time_median", "solve_time_p99"):
+        if k in meta:
+            res[k] = meta[k]
+    if "lap_time" in res and "planned_lap_time" in res:
+        try:
+            res["lap_time_minus_planned_s"] = float(res["lap_time"]) - float(res["planned_lap_time"])
+        except (TypeError, ValueError):
+            pass
+    if "border_hit" in data and "border_hit_steps" not in res:
+        res["border_hit_steps"] = int(np.sum(np.asarray(data["border_hit"]) > 0))
+    vx = _finite(data.get("v_x", []))
+    if len(vx):
+        res["v_x_max_mps"] = float(vx.max())
+        res["v_x_mean_mps"] = float(vx.mean())
+    ey = _finite(data.get("e_y", []))
+    if len(ey):
+        res["e_y_range_m"] = [float(ey.min()), float(ey.max())]
+    return res
+
+
+def _dictionary_size(arrays: dict[str, Any], attrs: dict[str, Any]) -> int | None:
+    for k in ("n_points", "n_train", "dict_size", "n"):
+        if k in attrs and isinstance(attrs[k], (int, float)):
+            return int(attrs[k])
+    for k in ("state/Z", "Z", "state/Zu", "Zu"):
+        if k in arrays and arrays[k] is not None and np.ndim(arrays[k]) == 2:
+            return int(np.shape(arrays[k])[0])
+    if "n_train" in arrays:
+        return int(np.asarray(arrays["n_train"]))
+    return None
+
+
+def key_results(art: Artifact) -> dict[str, Any]:
+    """The numbers an engineer looks at first, by kind (generic for unknown kinds)."""
+    a, at = art.arrays, art.attrs
+    kind = art.kind
+    if kind == "run":
+        cols = {k: v for k, v in a.items() if np.ndim(v) == 1}
+        if "t" in cols:
+            return _run_results(cols, at)
+    if kind == "plan":
+        res: dict[str, Any] = {}
+        for k in ("lap_time", "track", "track_length", "vehicle", "method"):
+            if k in at:
+                res[k] = at[k]
+        if "s" in a:
+            res["nodes"] = int(len(a["s"]))
+        if "v_x" in a and len(a["v_x"]):
+            res["v_x_range_mps"] = [float(np.min(a["v_x"])), float(np.max(a["v_x"]))]
+        if "lap_time" in at and "track_length" in at and float(at["lap_time"]) > 0:
+            res["mean_speed_mps"] = float(at["track_length"]) / float(at["lap_time"])
+        return res
+    if kind in ("gp_model", "model"):
+        res = {}
+        for k in ("backend", "kernel", "feature_map", "input_names", "output_names"):
+            if k in at:
+                res[k] = at[k]
+        n = _dictionary_size(a, at)
+        if n is not None:
+            res["dictionary_size"] = n
+        ls = a.get("hyper/log_ls")
+        if ls is not None:
+            res["length_scales_normalised"] = np.round(np.exp(np.asarray(ls)), 4).tolist()
+        sn = a.get("hyper/log_sn2")
+        if sn is not None:
+            res["noise_variance_normalised"] = np.round(np.exp(np.asarray(sn)), 6).tolist()
+        return res
+    if "dataset" in kind:
+        res = {}
+        Z, Y = a.get("Z"), a.get("Y")
+        if Z is not None:
+            res["points"] = int(np.shape(Z)[0])
+            res["inputs"] = at.get("inputs", at.get("input_names", [f"z{i}" for i in range(np.shape(Z)[1])]))
+        if Y is not None:
+            Yf = np.asarray(Y, float).reshape(len(Y), -1)
+            res["outputs"] = at.get("outputs", at.get("output_names", [f"y{i}" for i in range(Yf.shape[1])]))
+            if len(Yf):
+                res["output_std"] = np.round(Yf.std(axis=0), 6).tolist()
+        for k in ("source", "runs", "failed", "selection", "episodes"):
+            if k in at:
+                res[k] = at[k]
+        return res
+    if kind == "h2h_run":
+        res = {}
+        for k in ("predictor", "track", "track_length", "ok", "error", "end_reason", "overtake_time", "border_hit",
+                  "border_hit_opp", "collision", "steps", "fallbacks_ego", "alpha", "stalemates"):
+            if k in at:
+                res[k] = at[k]
+        if "ego_solve_ms" in a and len(a["ego_solve_ms"]):
+            res["ego_solve_ms_median"] = float(np.median(a["ego_solve_ms"]))
+        return res
+    # generic: scalar attributes and array sizes
+    res = {k: v for k, v in at.items() if isinstance(v, (int, float, bool)) and not isinstance(v, str)}
+    res["arrays"] = len(a)
+    return res
+
+
+# ----------------------------------------------------------------------------------------------
+# text rendering
+def _short(v: Any, width: int = 90) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, (list, tuple)) and all(isinstance(x, float) for x in v):
+        s = "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
+    elif isinstance(v, (dict, list, tuple)):
+        s = json.dumps(v, default=str)
+    else:
+        s = str(v)
+    lines = s.splitlines()
+    if len(lines) > 1:
+        return f"{lines[0][:width]} ... ({len(lines)} lines, {len(s)} characters)"
+    if len(s) > width:
+        return f"{s[:width]} ... ({len(s)} characters)"
+    return s
+
+
+def summary_lines(info: dict[str, Any]) -> list[str]:
+    """A human-readable summary of :func:`describe`'s dict."""
+    out = [f"file            {info['path']} ({info['format']})", f"kind            {info['kind']}"]
+    for k in ("schema", "gprace_version", "config_hash", "seed", "created"):
+        v = info.get(k)
+        if v not in ("", None):
+            out.append(f"{k:<16}{v}")
+    res = info.get("results") or {}
+    if res:
+        out.append("results")
+        out += [f"  {k:<30}{_short(v)}" for k, v in res.items()]
+    if info.get("attrs"):
+        out.append("attributes")
+        out += [f"  {k:<30}{_short(v)}" for k, v in info["attrs"].items()]
+    if info.get("arrays"):
+        out.append("arrays")
+        out += [f"  {k:<30}{tuple(v['shape'])} {v['dtype']}" for k, v in info["arrays"].items()]
+    for g, arrays in (info.get("groups") or {}).items():
+        out.append(f"group {g}")
+        out += [f"  {k:<30}{tuple(v['shape'])} {v['dtype']}" for k, v in arrays.items()]
+    return out

@@ -1,0 +1,162 @@
+"""One figure for one result file (``gprace show FILE --plot PNG``), chosen by its kind.
+
+- run (HDF5 or CSV): states and inputs against time; on the track map coloured by speed when
+  the run names a loadable track (second figure);
+- plan: the line on the track coloured by speed when its track loads, else profiles along s;
+- dataset (any kind containing ``dataset``): scatter of the first two inputs coloured by output;
+- GP model: posterior mean and standard deviation over two features with the dictionary points;
+- h2h_run: the race on its track;
+- diagnosis JSON: channels and windows, and the fitted parameters.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gprace.errors import InputError
+from gprace.report import figures as F
+from gprace.report.inspect import artifact_kind, json_kind, open_artifact
+
+
+def try_track(name: Any):
+    """The track of that name or path, or None when it cannot be loaded (never raises)."""
+    if not name or not isinstance(name, str):
+        return None
+    try:
+        from gprace.tracks import load_track
+
+        return load_track(name)
+    except Exception:  # noqa: BLE001 - a missing track only removes the map
+        return None
+
+
+def h2h_track(attrs: dict[str, Any]):
+    """The track of a head-to-head run record (from its task's track spec), or None."""
+    try:
+        task = attrs.get("task")
+        task = json.loads(task) if isinstance(task, str) else task
+        from gprace.h2h.geometry import make_track
+
+        return make_track(task["track"])
+    except Exception:  # noqa: BLE001
+        return None
+
+
+def load_gp(path: str | Path):
+    """``(gp, input_names, output_names, Zd)`` of a ``gp_model`` artifact; ``Zd`` the dictionary
+    (training or inducing) points in input units, or None."""
+    art = open_artifact(path, ("gp_model", "model"))
+    at = dict(art.attrs)
+    try:
+        from gprace.backends import gps
+
+        cls = gps.get(str(at["backend"]))
+        gp = cls.from_arrays(art.arrays, dict(at["params"]))
+    except KeyError as exc:
+        raise InputError(f"{path}: GP model without attribute {exc}") from None
+    Zd = None
+    for k in ("state/Z", "state/Zu", "Z", "Zu"):
+        if k in art.arrays and np.ndim(art.arrays[k]) == 2:
+            Zd = np.asarray(art.arrays[k], float)
+            break
+    if Zd is not None and "hyper/z_mean" in art.arrays and Zd.shape[1] == len(art.arrays["hyper/z_mean"]):
+        # the built-in backends store their points in normalised input units
+        zm, zs = np.asarray(art.arrays["hyper/z_mean"], float), np.asarray(art.arrays["hyper/z_scale"], float)
+        Zd = Zd * zs + zm
+    names_in = [str(x) for x in at.get("input_names", [])] or [f"z{i}" for i in range(Zd.shape[1] if Zd is not None else 0)]
+    names_out = [str(x) for x in at.get("output_names", [])]
+    return gp, names_in, names_out, Zd
+
+
+def pick_features(names: list[str], wanted: tuple[str, str] | None = None) -> tuple[int, int]:
+    """Indices of the two features to draw: ``wanted`` by name, else the first two."""
+    if wanted:
+        idx = []
+        for w in wanted:
+            if w in names:
+                idx.append(names.index(w))
+            elif w.isdigit() and int(w) < len(names):
+                idx.append(int(w))
+            else:
+                raise InputError(f"--features: {w!r} is not an input of this model (inputs: {', '.join(names)})")
+        return idx[0], idx[1]
+    return 0, min(1, max(len(names) - 1, 0))
+
+
+def figures_for(path: str | Path, features: tuple[str, str] | None = None) -> list[tuple[str, Any]]:
+    """``[(caption, Figure), ...]`` for one file (first = the main figure)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        from gprace.io.runs import read_run
+
+        run = read_run(path)
+        return [(f"{path.name}: states and inputs", F.fig_run(run.data, "t", title=path.name))]
+    if suffix == ".json":
+        obj = json.loads(path.read_text())
+        if json_kind(obj) == "diagnosis":
+            return [
+                ("channels and windows", F.fig_channels(obj.get("channels", []), obj.get("regions", []))),
+                ("fitted parameters", F.fig_parameters(obj.get("effects", []))),
+            ]
+        if json_kind(obj) == "h2h_table":
+            return [("opponent prediction error", F.fig_pred_errors(obj.get("ey_error", {})))]
+        raise InputError(f"{path}: no figure for this JSON (not a diagnosis or head-to-head table)")
+    kind = artifact_kind(path)
+    if kind is None:
+        open_artifact(path)  # raises the precise error
+    art = open_artifact(path)
+    a, at = art.arrays, art.attrs
+    if kind == "run":
+        data = {k: v for k, v in a.items() if np.ndim(v) == 1}
+        out = [(f"{path.name}: states and inputs", F.fig_run(data, "t", title=path.name))]
+        track = try_track(at.get("track"))
+        if track is not None and all(c in data for c in ("s", "e_y", "v_x")):
+            out.append((f"{path.name}: driven line", F.fig_track_speed(track, data["s"], data["e_y"], data["v_x"],
+                                                                      data.get("border_hit"), title=path.name)))
+        return out
+    if kind == "plan":
+        track = try_track(at.get("track"))
+        lt = at.get("lap_time")
+        title = f"{path.name}" + (f", lap time {float(lt):.2f} s" if lt is not None else "")
+        return [(f"{path.name}: plan", F.fig_plan(a, track, title=title))]
+    if kind in ("gp_model", "model"):
+        gp, names_in, names_out, Zd = load_gp(path)
+        if Zd is None:
+            raise InputError(f"{path}: the model stores no dictionary points to span a plot")
+        i, j = pick_features(names_in, features)
+        return [(f"{path.name}: posterior", F.fig_gp_posterior(gp.predict, Zd, names_in, names_out, i, j,
+                                                               title=f"{path.name}: GP posterior"))]
+    if "dataset" in kind:
+        Z, Y = a.get("Z"), a.get("Y")
+        if Z is None or Y is None:
+            raise InputError(f"{path}: dataset without arrays 'Z' and 'Y'")
+        names_in = [str(x) for x in at.get("inputs", at.get("input_names", []))]
+        names_out = [str(x) for x in at.get("outputs", at.get("output_names", []))]
+        i, j = pick_features(names_in or [f"z{k}" for k in range(np.shape(Z)[1])], features)
+        return [(f"{path.name}: inputs", F.fig_dataset(Z, Y, names_in, names_out, i, j, title=path.name))]
+    if kind == "h2h_run":
+        track = h2h_track(at)
+        if track is None or "ego" not in a:
+            raise InputError(f"{path}: race record without a loadable track or trajectories")
+        return [(f"{path.name}: race", F.fig_race(track, a["ego"], a["opp"], a.get("border_ego"), title=path.name))]
+    raise InputError(f"{path}: no figure for artifacts of kind {kind!r}")
+
+
+def save_figures(figs: list[tuple[str, Any]], png: str | Path) -> list[Path]:
+    """Write the first figure to ``png`` and the others to ``png`` with ``_2``, ``_3`` ... suffixes."""
+    png = Path(png)
+    if png.parent and not png.parent.exists():
+        raise InputError(f"{png}: folder {png.parent} does not exist")
+    out = []
+    for k, (_, fig) in enumerate(figs):
+        p = png if k == 0 else png.with_name(f"{png.stem}_{k + 1}{png.suffix or '.png'}")
+        fig.savefig(p, dpi=100)
+        out.append(p)
+    return out
