@@ -86,11 +86,11 @@ def speed_profile(kappa_p: np.ndarray, ds: np.ndarray, a_lat: float, a_acc: floa
     return v
 
 
-def curvature_plan(track, model, ds: float = 6.0, speed_scale: float = 0.9, margin: float = 0.3,
+def curvature_plan(track, model, ds: float = 6.0, speed_scale: float = 0.85, margin: float = 0.3,
                    a_lat: float | None = None) -> Plan:
     """The minimum-curvature line with its speed profile, as a :class:`Plan` (method ``min_curvature``).
 
-    ``speed_scale`` scales the lateral limit (iteration 0 drives with the nominal MPC on a car it
+    ``speed_scale`` scales the lateral and braking limits (iteration 0 drives with the nominal MPC on a car it
     does not know exactly); ``margin`` is kept from the borders on top of half the car width.
     """
     smp = track.sample(ds)
@@ -112,7 +112,7 @@ def curvature_plan(track, model, ds: float = 6.0, speed_scale: float = 0.9, marg
     if a_lat is None:
         a_lat = lateral_limit(model)
     lim = model.vehicle.limits
-    v = speed_profile(kappa_p, ds_p * h, speed_scale * a_lat, lim.accel_max, -lim.accel_min, lim.speed_max,
+    v = speed_profile(kappa_p, ds_p * h, speed_scale * a_lat, lim.accel_max, -speed_scale * lim.accel_min, lim.speed_max,
                       model.params.cxw / model.params.m)
     vy, r, delta = steady_state_inputs(model, v, kappa_p)
     vx = v * np.cos(np.arctan2(vy, v))

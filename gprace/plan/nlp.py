@@ -19,7 +19,7 @@ GP compensation: ``mu_plan`` (n, 2) is the planning GP's mean of the errors of `
 data (a parameter), never as a function of the decision variables (paper appendix).
 
 Bounds: ``-w_r + b/2 + margin <= e_y <= w_l - b/2 - margin`` (b the car width), steering and
-acceleration limits, ``v_x`` within ``[v_low, speed_max]``, ``|e_psi| <= 1`` rad.
+acceleration limits, optionally a friction ellipse at a share ``grip`` of the model's limits, ``v_x`` within ``[v_low, speed_max]``, ``|e_psi| <= 1`` rad.
 Solved with IPOPT, exact Hessian, MUMPS.
 """
 
@@ -41,6 +41,8 @@ class PlanSettings:
     w_steer: float = 0.5          # penalty on (delta_{k+1} - delta_k)^2 [s/rad^2]
     w_accel: float = 1e-4         # penalty on (a_{k+1} - a_k)^2 [s^5/m^2]
     v_low: float = 3.0            # lower speed bound [m/s]
+    grip: float | None = None     # if set: friction ellipse (a_x/a_lim)^2 + (v_x r/a_lat)^2 <= 1 at this share of the
+                                  # model's own limits (a margin for a car the model does not know; off by default)
     max_iter: int = 1500
     tol: float = 1e-6
     print_level: int = 0
@@ -108,7 +110,17 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
     lap = h * ca.sum2(W)
     dU = ca.horzcat(U[:, 1:], U[:, :1]) - U
     reg = settings.w_steer * ca.sumsqr(dU[0, :]) + settings.w_accel * ca.sumsqr(dU[1, :])
-    nlp = {"x": w, "p": pv, "f": lap + reg, "g": ca.vec(defect)}
+    g_all = [ca.vec(defect)]
+    lbg, ubg = [np.zeros(5 * n)], [np.zeros(5 * n)]
+    if settings.grip is not None:
+        from gprace.plan.curvature import lateral_limit
+
+        a_lat = settings.grip * lateral_limit(model)
+        a_lon = ca.if_else(U[1, :] >= 0, U[1, :] / (settings.grip * lim.accel_max), U[1, :] / (settings.grip * lim.accel_min))
+        g_all.append(ca.vec(a_lon**2 + (X[0, :] * X[2, :] / a_lat) ** 2))
+        lbg.append(np.full(n, -np.inf))
+        ubg.append(np.ones(n))
+    nlp = {"x": w, "p": pv, "f": lap + reg, "g": ca.vertcat(*g_all)}
     opts = {
         "ipopt.print_level": settings.print_level, "print_time": 0, "ipopt.sb": "yes",
         "ipopt.max_iter": settings.max_iter, "ipopt.tol": settings.tol, "ipopt.linear_solver": "mumps",
@@ -127,7 +139,7 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
     guess[:, 5] = np.clip(guess[:, 5], -lim.steering_max, lim.steering_max)
     guess[:, 6] = np.clip(guess[:, 6], lim.accel_min, lim.accel_max)
     par = np.column_stack([smp.kappa, comp]).ravel()
-    sol = solver(x0=guess.ravel(), lbx=LB.ravel(), ubx=UB.ravel(), lbg=0.0, ubg=0.0, p=par)
+    sol = solver(x0=guess.ravel(), lbx=LB.ravel(), ubx=UB.ravel(), lbg=np.concatenate(lbg), ubg=np.concatenate(ubg), p=par)
     stats = solver.stats()
     if not stats["success"]:
         raise SolverError(f"plan: IPOPT did not converge on {track.name!r} ({stats['return_status']}, {stats['iter_count']} iterations)")

@@ -1,0 +1,1 @@
+"""Time trial: driving plans with the tracking MPC, exploration, the iterative double-GP loop."""

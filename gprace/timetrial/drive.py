@@ -1,0 +1,124 @@
+"""Drive a plan on a plant with the tracking MPC and record the run (``gprace run``).
+
+The car starts on the plan at ``s = 0`` with the plan's state (a flying lap), the MPC runs at
+``dt`` and the plant integrates each period. Recorded per period: the measured Frenet state, the
+applied input, curvature, lap counter, ``border_hit`` (footprint over an edge), ``solve_time``
+of the QP, ``fallback`` (the QP failed, the shifted previous solution was applied) and
+``explore`` (Algorithm 1 changed the reference). A car that leaves the track by more than twice
+its width or stalls ends the run early (``meta.completed = False``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from gprace.errors import InputError
+from gprace.io.runs import Run
+from gprace.mpc.tracking import MPCSettings, TrackingMPC
+
+
+@dataclass(frozen=True)
+class DriveSettings:
+    laps: float = 1.0
+    mpc: MPCSettings = MPCSettings()
+
+
+def start_state(plan, track, vehicle) -> tuple[np.ndarray, np.ndarray]:
+    """Plan state and input at ``s = 0``; InputError if the car would start off the track."""
+    X, U = plan.at_time(np.array([0.0]))
+    x0, u0 = X[0], U[0]
+    wl, wr = float(track.width_left(x0[5])), float(track.width_right(x0[5]))
+    half = 0.5 * vehicle.width
+    if not (-wr + half <= x0[4] <= wl - half) or x0[0] <= 0 or abs(x0[3]) > 1.0:
+        raise InputError(
+            f"plan: infeasible start state at s = {x0[5]:.1f} m (e_y = {x0[4]:.2f} m with track [-{wr:.2f}, {wl:.2f}] m, "
+            f"v_x = {x0[0]:.2f} m/s, e_psi = {x0[3]:.2f} rad)"
+        )
+    return x0, u0
+
+
+def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSettings(), gp=None, grid=None,
+          alpha: float = 0.0, seed: int = 0) -> Run:
+    """Drive ``settings.laps`` laps; ``gp`` is a callable ``Z -> (mean, var)`` (the tracking GP)."""
+    from gprace.plants import make_plant
+
+    plan.check_track(track, "plan")
+    dt = settings.mpc.dt
+    if seed:
+        plant_config = plant_config.model_copy(update={"seed": plant_config.seed + 1_000_003 * seed})
+    mpc = TrackingMPC(model, track, plan, settings.mpc, gp=gp, grid=grid, alpha=alpha)
+    x0, u0 = start_state(plan, track, model.vehicle)
+    plant = make_plant(plant_config, track, dt)
+    y = plant.reset(x0, u0)
+    mpc.reset(delta_prev=float(u0[0]))
+
+    L = track.length
+    goal = settings.laps * L
+    n_max = int(math.ceil(settings.laps * plan.lap_time * 2.0 / dt)) + 40
+    vehicle = model.vehicle
+    half_l, half_w = 0.5 * vehicle.length, 0.5 * vehicle.width
+    Y = np.empty((n_max + 1, 6))
+    U = np.empty((n_max + 1, 2))
+    cols = {k: np.zeros(n_max + 1) for k in ("lap", "border_hit", "solve_time", "fallback", "explore", "gamma")}
+    k = 0
+    reason = ""
+    wall = time.perf_counter()
+    while True:
+        u, info = mpc.step(y)
+        x = plant.state
+        Y[k], U[k] = y, u
+        ext = abs(half_l * math.sin(x[3])) + abs(half_w * math.cos(x[3]))
+        wl, wr = float(track.width_left(x[5])), float(track.width_right(x[5]))
+        cols["lap"][k] = plant.lap
+        cols["border_hit"][k] = float(x[4] + ext > wl or x[4] - ext < -wr)
+        cols["solve_time"][k] = info["solve_time"]
+        cols["fallback"][k] = float(info["fallback"])
+        cols["explore"][k] = float(alpha > 0)
+        cols["gamma"][k] = float(info["gamma"][0]) if len(info["gamma"]) else 0.0
+        k += 1
+        progress = plant.lap * L + x[5]
+        if progress >= goal:
+            break
+        if x[4] > wl + 2 * vehicle.width or x[4] < -wr - 2 * vehicle.width:
+            reason = f"the car left the track at s = {x[5]:.1f} m (e_y = {x[4]:.2f} m)"
+        elif x[0] < 1.0:
+            reason = f"the car stalled at s = {x[5]:.1f} m"
+        elif abs(x[3]) > 1.2 or abs(x[1]) > 0.6 * abs(x[0]) + 2.0:
+            reason = f"the car spun at s = {x[5]:.1f} m (e_psi = {x[3]:.2f} rad, v_y = {x[1]:.1f} m/s)"
+        elif k > n_max:
+            reason = f"no lap after {n_max} steps"
+        if reason:
+            break
+        y = plant.step(u)
+    Y, U = Y[:k], U[:k]
+    s_meas = track.wrap(Y[:, 5])
+    data = {
+        "t": dt * np.arange(k), "s": s_meas, "e_y": Y[:, 4], "e_psi": Y[:, 3], "v_x": Y[:, 0], "v_y": Y[:, 1],
+        "yaw_rate": Y[:, 2], "delta": U[:, 0], "a_x": U[:, 1], "kappa": track.kappa(s_meas),
+        **{c: v[:k] for c, v in cols.items()},
+    }
+    lap_times = _lap_times(data["t"], data["lap"])
+    st = data["solve_time"]
+    meta = {
+        "vehicle_toml": vehicle.to_toml(), "track": track.name, "dt": dt, "plant": plant_config.kind,
+        "plant_hash": plant_config.digest(), "completed": not reason, "reason": reason,
+        "lap_times": lap_times, "lap_time": lap_times[0] if lap_times else float("nan"),
+        "planned_lap_time": float(plan.lap_time), "alpha": float(alpha), "solver": settings.mpc.solver,
+        "fallbacks": int(mpc.fallbacks), "steps": int(k), "border_hit_steps": int(data["border_hit"].sum()),
+        "border_hit": bool(data["border_hit"].any()),
+        "solve_time_median": float(np.median(st)) if k else float("nan"),
+        "solve_time_p99": float(np.quantile(st, 0.99)) if k else float("nan"),
+        "wall_time": time.perf_counter() - wall, "seed": int(seed), "gp": gp is not None,
+    }
+    return Run(data, meta, source=f"drive({plant_config.kind}, {track.name})")
+
+
+def _lap_times(t: np.ndarray, lap: np.ndarray) -> list[float]:
+    """Completed lap times: from the start (s = 0 at t = 0) to each lap-counter increment."""
+    idx = np.flatnonzero(np.diff(lap) > 0) + 1
+    starts = np.concatenate([[0], idx])
+    return [float(t[b] - t[a]) for a, b in zip(starts[:-1], starts[1:])]

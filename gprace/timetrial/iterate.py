@@ -1,0 +1,337 @@
+"""``gprace iterate``: the paper's iterative double-GP time trial with active exploration.
+
+Per trial (an independent chain with its own seed; trials run in parallel through
+:func:`gprace.executor.run_batch`):
+
+- iteration 0: the nominal MPC (no GP) drives the minimum-curvature path;
+- iteration i >= 1 with ``alpha_i`` (the ``--alpha`` list, its last value repeated up to
+  ``--iterations``): (1) the measurements of iteration i-1 are streamed into the dictionaries of
+  both GPs (``diverse`` selection of the paper or the ``random`` baseline, accumulating over
+  iterations); (2) both GPs are retrained (hyperparameters by marginal likelihood on the first
+  retrain only, then posterior refits with those hyperparameters fixed; see
+  :mod:`gprace.timetrial.learning`), the exploration candidates and their weighted variances are
+  computed; (3) the lap is re-planned with the planning GP, warm-started from the previous plan;
+  (4) the tracking MPC with the tracking GP drives it with ``alpha_i``.
+
+Folder layout (``--out DIR``)::
+
+    settings.json                       the experiment (a rerun must match it)
+    heldout.h5                          a weaving run of the plant (GP test set, shared by trials)
+    trial_<j>/iter_<i>/plan.h5 run.h5 gp_tracking.h5 gp_planning.h5 data_*.h5 candidates.h5 record.json
+    trial_<j>/hyper_tracking.h5 hyper_planning.h5
+    .steps/<name>.done                  written only after the step's artifacts are on disk
+    summary.json
+
+Resuming: every step checks its marker first; artifacts are written atomically and the marker
+after them, so a run killed anywhere resumes at the first unfinished step without duplicating or
+losing data (a step interrupted half-way is simply redone: it rewrites the same files).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from gprace.errors import ConfigError, InputError, RunFailedError
+
+FAIL_ENV = "GPRACE_ITERATE_FAIL_AFTER"  # test hook: raise after the named step's marker is written
+
+
+@dataclass(frozen=True)
+class IterateSettings:
+    alphas: tuple[float, ...] = (0.857, 0.714, 0.0)
+    iterations: int = 7
+    trials: int = 3
+    selection: str = "diverse"
+    plant: str = "audi_hidden"
+    track: str = "gprace_ring"
+    vehicle: str = "audi_tt_cup"
+    dictionary_size: int = 1000
+    max_fit_points: int = 300
+    plan_ds: float = 6.0
+    first_speed_scale: float = 0.85
+    plan_grip: float = 0.9
+    solver: str = "clarabel"
+    beta: float = 0.6
+    laps: float = 1.0
+    seed: int = 0
+    grid_values: int = 7
+    heldout_laps: float = 1.0
+    heldout_weave: float = 0.7
+
+    def alpha(self, i: int) -> float:
+        """alpha of iteration i >= 1."""
+        return float(self.alphas[min(i - 1, len(self.alphas) - 1)])
+
+    def check(self) -> None:
+        if not self.alphas:
+            raise ConfigError("--alpha: give at least one value")
+        bad = [a for a in self.alphas if not 0.0 <= a <= 1.0]
+        if bad:
+            raise ConfigError(f"--alpha: values must be in [0, 1], got {bad[0]}")
+        if self.iterations < 1 or self.trials < 1:
+            raise ConfigError("--iterations and --trials must be >= 1")
+        if self.selection not in ("diverse", "random"):
+            raise ConfigError(f"--selection must be diverse or random, got {self.selection!r}")
+        if self.dictionary_size < 10:
+            raise ConfigError("dictionary size must be >= 10")
+
+
+# ------------------------------------------------------------------------------------------------
+# step bookkeeping
+
+
+class Steps:
+    def __init__(self, out: Path) -> None:
+        self.dir = out / ".steps"
+        self.dir.mkdir(parents=True, exist_ok=True)
+
+    def done(self, name: str) -> bool:
+        return (self.dir / f"{name}.done").exists()
+
+    def mark(self, name: str) -> None:
+        p = self.dir / f"{name}.done"
+        tmp = p.with_suffix(".tmp")
+        tmp.write_text(time.strftime("%Y-%m-%dT%H:%M:%S"))
+        os.replace(tmp, p)
+        if os.environ.get(FAIL_ENV) == name:
+            raise RuntimeError(f"injected failure after step {name}")
+
+
+def _write_json(path: Path, obj) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(obj, indent=1, default=float))
+    os.replace(tmp, path)
+
+
+# ------------------------------------------------------------------------------------------------
+# the loop
+
+
+def iterate(settings: IterateSettings, out: str | Path, executor: str = "local", workers: int = 1,
+            scheduler: str | None = None, progress=None) -> dict:
+    """Run (or resume) the experiment in ``out``; return the summary."""
+    from gprace.config import load_plant
+    from gprace.executor import run_batch
+    from gprace.tracks import load_track
+
+    settings.check()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    sfile = out / "settings.json"
+    mine = json.loads(json.dumps(asdict(settings)))
+    if sfile.exists():
+        old = json.loads(sfile.read_text())
+        if old != mine:
+            diff = sorted(k for k in set(old) | set(mine) if old.get(k) != mine.get(k))
+            raise InputError(f"{out}: holds an experiment with other settings ({', '.join(diff)}); use another --out")
+    else:
+        _write_json(sfile, mine)
+    load_track(settings.track)  # fail early on a bad name
+    load_plant(settings.plant)
+    steps = Steps(out)
+    if not steps.done("heldout"):
+        _heldout(settings, out)
+        steps.mark("heldout")
+    tasks = [{"out": str(out), "trial": j, "settings": mine} for j in range(settings.trials)]
+    results = run_batch(run_chain, tasks, executor=executor, workers=workers, scheduler=scheduler)
+    failed = [r for r in results if not r.ok]
+    summary = build_summary(out)
+    _write_json(out / "summary.json", summary)
+    if failed:
+        first = failed[0].error.splitlines()[0]
+        raise RunFailedError(f"iterate: {len(failed)} of {len(tasks)} trials failed ({first}); rerun the same command to resume")
+    return summary
+
+
+def _heldout(settings: IterateSettings, out: Path) -> None:
+    """A diverse test run: the reference controller weaving across the track (``simulate``)."""
+    from gprace.config import SimulateConfig, load_plant
+    from gprace.io.runs import write_run
+    from gprace.sim import simulate
+    from gprace.tracks import load_track
+
+    run = simulate(load_plant(settings.plant), load_track(settings.track),
+                   SimulateConfig(laps=settings.heldout_laps, speed_scale=0.8, weave_amplitude=settings.heldout_weave,
+                                  weave_wavelength=120.0, seed=settings.seed + 7919))
+    write_run(run, out / "heldout.h5")
+
+
+def run_chain(task: dict) -> list[dict]:
+    """One trial: iterations 0..N, each step skipped when its marker exists (module-level for pickling)."""
+    from gprace.config import load_plant, load_vehicle
+    from gprace.io.artifacts import Artifact, read_artifact, write_artifact
+    from gprace.io.runs import read_run, write_run
+    from gprace.model import NominalModel
+    from gprace.mpc.tracking import MPCSettings
+    from gprace.plan import PlanSettings, curvature_plan, plan_min_time, read_plan
+    from gprace.timetrial import learning as L
+    from gprace.timetrial.drive import DriveSettings, drive
+    from gprace.tracks import load_track
+
+    st = IterateSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in task["settings"].items()})
+    out, j = Path(task["out"]), int(task["trial"])
+    steps = Steps(out)
+    tdir = out / f"trial_{j}"
+    track = load_track(st.track)
+    vehicle = load_vehicle(st.vehicle)
+    model = NominalModel(vehicle)
+    plant = load_plant(st.plant)
+    mpc = MPCSettings(solver=st.solver, beta=st.beta)
+    dsettings = DriveSettings(laps=st.laps, mpc=mpc)
+    seed = st.seed * 1000 + j + 1
+    heldout = read_run(out / "heldout.h5")
+    H = {k: L.features(heldout, model, track, k) for k in ("tracking", "planning")}
+
+    def tag(i, name):
+        return f"t{j}_i{i}_{name}"
+
+    # iteration 0 ------------------------------------------------------------------------------
+    d0 = tdir / "iter_00"
+    if not steps.done(tag(0, "plan")):
+        curvature_plan(track, model, ds=st.plan_ds, speed_scale=st.first_speed_scale).write(d0 / "plan.h5")
+        steps.mark(tag(0, "plan"))
+    if not steps.done(tag(0, "drive")):
+        plan = read_plan(d0 / "plan.h5", track)
+        run = drive(plan, plant, track, model, dsettings, seed=seed * 100)
+        write_run(run, d0 / "run.h5")
+        _write_json(d0 / "record.json", _record(0, 0.0, j, plan, run, None, None, H, {}))
+        steps.mark(tag(0, "drive"))
+
+    for i in range(1, st.iterations + 1):
+        alpha = st.alpha(i)
+        di, dp = tdir / f"iter_{i:02d}", tdir / f"iter_{i - 1:02d}"
+        # (1) data selection ---------------------------------------------------------------------
+        if not steps.done(tag(i, "select")):
+            prev_run = read_run(dp / "run.h5")
+            sel_stats = {}
+            for kind in ("tracking", "planning"):
+                Znew, Ynew = L.features(prev_run, model, track, kind)
+                hyper_path = tdir / f"hyper_{kind}.h5"
+                if not hyper_path.exists():
+                    if len(Znew) < 20:
+                        raise RunFailedError(f"trial {j}: iteration 0 recorded only {len(Znew)} samples; cannot train the GPs")
+                    gp0 = L.fit_hyper(Znew, Ynew, seed=seed, max_fit_points=st.max_fit_points)
+                    L.save_predictor(hyper_path, gp0, kind)
+                hyper = L.load_predictor(hyper_path, kind).gp
+                old = None
+                if i > 1:
+                    a = read_artifact(dp / f"data_{kind}.h5", "dataset")
+                    old = L.Dictionary(a.arrays["Z"], a.arrays["Y"], int(a.attrs["n_seen"]))
+                d, stats = L.update_dictionary(old, Znew, Ynew, st.dictionary_size, st.selection, hyper.hyper_, seed=seed + i)
+                sel_stats[kind] = stats
+                write_artifact(di / f"data_{kind}.h5", Artifact("dataset", {"Z": d.Z, "Y": d.Y},
+                                                                 {"n_seen": int(d.n_seen), "gp": kind, "selection": st.selection,
+                                                                  "stats": stats}))
+            steps.mark(tag(i, "select"))
+        # (2) retrain ----------------------------------------------------------------------------
+        if not steps.done(tag(i, "retrain")):
+            for kind in ("tracking", "planning"):
+                a = read_artifact(di / f"data_{kind}.h5", "dataset")
+                hyper = L.load_predictor(tdir / f"hyper_{kind}.h5", kind).gp
+                gp = L.refit_fixed(hyper, a.arrays["Z"], a.arrays["Y"])
+                L.save_predictor(di / f"gp_{kind}.h5", gp, kind, {"iteration": i, "trial": j})
+                if kind == "tracking":
+                    grid = make_grid(gp, a.arrays["Z"], mpc, st.grid_values)
+                    write_artifact(di / "candidates.h5", Artifact("candidates", {"Z": grid.Z, "v": grid.v, "scale": grid.scale}))
+            steps.mark(tag(i, "retrain"))
+        # (3) plan -------------------------------------------------------------------------------
+        if not steps.done(tag(i, "plan")):
+            warm = read_plan(dp / "plan.h5", track)
+            gp_plan = L.load_predictor(di / "gp_planning.h5", "planning")
+            plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, grip=st.plan_grip), warm=warm, mu_plan=lambda Z: gp_plan(Z)[0])
+            plan.write(di / "plan.h5")
+            steps.mark(tag(i, "plan"))
+        # (4) drive ------------------------------------------------------------------------------
+        if not steps.done(tag(i, "drive")):
+            plan = read_plan(di / "plan.h5", track)
+            gp_track = L.load_predictor(di / "gp_tracking.h5", "tracking")
+            c = read_artifact(di / "candidates.h5", "candidates")
+            from gprace.explore.algorithm import CandidateGrid
+
+            grid = CandidateGrid(c.arrays["Z"], c.arrays["v"], c.arrays["scale"])
+            run = drive(plan, plant, track, model, dsettings, gp=gp_track, grid=grid, alpha=alpha, seed=seed * 100 + i)
+            write_run(run, di / "run.h5")
+            gps = {k: L.load_predictor(di / f"gp_{k}.h5", k) for k in ("tracking", "planning")}
+            sizes = {k: int(read_artifact(di / f"data_{k}.h5", "dataset").arrays["Z"].shape[0]) for k in gps}
+            _write_json(di / "record.json", _record(i, alpha, j, plan, run, gps, sizes, H, {}))
+            steps.mark(tag(i, "drive"))
+    return [json.loads((tdir / f"iter_{i:02d}" / "record.json").read_text()) for i in range(st.iterations + 1)]
+
+
+def make_grid(gp, Z: np.ndarray, mpc, n_values: int):
+    """Algorithm 1's candidates from typical values of the data, with ``S``-weighted variances.
+
+    ``S = diag(Q_vy, Q_r)``: the MPC's weights on the two compensated states.
+    """
+    from gprace.explore.algorithm import CandidateGrid, candidate_grid, weighted_variance
+
+    C = candidate_grid(Z, n_values)
+    _, var = gp.predict(C)
+    S = np.array([mpc.weights.Q[1], mpc.weights.Q[2]])
+    scale = np.maximum(Z.std(axis=0), 1e-9)
+    return CandidateGrid(C, weighted_variance(var, S), scale)
+
+
+def _gp_error(pred, data) -> float:
+    """RMS prediction error on the held-out run, each output normalised by its spread, averaged."""
+    Z, Y = data
+    if pred is None or len(Z) == 0:
+        return float("nan")
+    mean, _ = pred(Z)
+    sd = np.maximum(Y.std(axis=0), 1e-12)
+    return float(np.mean(np.sqrt(np.mean(((mean - Y) / sd) ** 2, axis=0))))
+
+
+def _record(i, alpha, trial, plan, run, gps, sizes, H, extra) -> dict:
+    m = run.meta
+    rec = {
+        "iteration": i, "trial": trial, "alpha": alpha, "planned": float(plan.lap_time),
+        "driven": float(m["lap_time"]), "completed": bool(m["completed"]), "reason": m.get("reason", ""),
+        "gap": float(m["lap_time"] - plan.lap_time), "solve_median_ms": 1e3 * m["solve_time_median"],
+        "solve_p99_ms": 1e3 * m["solve_time_p99"], "border_hits": int(m["border_hit_steps"]), "fallbacks": int(m["fallbacks"]),
+        "samples": int(run.n),
+    }
+    for k in ("tracking", "planning"):
+        rec[f"err_{k}"] = _gp_error(gps[k] if gps else None, H[k])
+        rec[f"dict_{k}"] = int(sizes[k]) if sizes else 0
+    rec.update(extra)
+    return rec
+
+
+def build_summary(out: str | Path) -> dict:
+    """All finished records of a folder, by iteration and trial (what ``evaluate iterate`` prints)."""
+    out = Path(out)
+    if not (out / "settings.json").exists():
+        raise InputError(f"{out}: not a gprace iterate folder (no settings.json)")
+    rows = []
+    for p in sorted(out.glob("trial_*/iter_*/record.json")):
+        rows.append(json.loads(p.read_text()))
+    rows.sort(key=lambda r: (r["iteration"], r["trial"]))
+    by_iter = {}
+    for r in rows:
+        by_iter.setdefault(r["iteration"], []).append(r)
+    agg = []
+    for i, rs in sorted(by_iter.items()):
+        d = np.array([r["driven"] for r in rs], float)
+        pl = np.array([r["planned"] for r in rs], float)
+        agg.append({
+            "iteration": i, "alpha": rs[0]["alpha"], "trials": len(rs),
+            "planned_mean": float(np.nanmean(pl)), "planned_std": float(np.nanstd(pl)),
+            "driven_mean": float(np.nanmean(d)) if np.isfinite(d).any() else float("nan"),
+            "driven_std": float(np.nanstd(d)) if np.isfinite(d).any() else float("nan"),
+            "gap_mean": float(np.nanmean(d - pl)) if np.isfinite(d).any() else float("nan"),
+            "err_tracking": float(np.nanmean([r["err_tracking"] for r in rs])) if i else float("nan"),
+            "err_planning": float(np.nanmean([r["err_planning"] for r in rs])) if i else float("nan"),
+            "completed": int(sum(r["completed"] for r in rs)),
+        })
+    return {"settings": json.loads((out / "settings.json").read_text()), "rows": rows, "by_iteration": agg}
+
+
+SUMMARY_COLUMNS = ["iteration", "trial", "alpha", "planned", "driven", "gap", "err_tracking", "err_planning",
+                   "dict_tracking", "dict_planning", "solve_median_ms", "solve_p99_ms", "border_hits", "fallbacks"]
