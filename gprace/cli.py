@@ -31,6 +31,7 @@ COMMAND_MODULES = (
     "gprace.tracks.commands",
     "gprace.report.commands",
     "gprace.h2h.commands",
+    "gprace.timetrial.commands",
 )
 
 

@@ -1,0 +1,186 @@
+"""Time-trial commands: ``gprace plan``, ``gprace run``, ``gprace iterate``, ``gprace evaluate iterate``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def evaluate_group(app: typer.Typer) -> typer.Typer:
+    """The shared ``evaluate`` sub-app: reuse it if another stage registered it, else create it.
+
+    Other stages add their subcommands with ``evaluate_group(app).command("name")``.
+    """
+    for g in app.registered_groups:
+        if g.name == "evaluate" and g.typer_instance is not None:
+            return g.typer_instance
+    sub = typer.Typer(help="Evaluate results: iterate folders, GP models, head-to-head.", no_args_is_help=True)
+    app.add_typer(sub, name="evaluate")
+    return sub
+
+
+def _floats(text: str, what: str) -> tuple[float, ...]:
+    from gprace.errors import ConfigError
+
+    try:
+        vals = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise ConfigError(f"{what}: expected comma-separated numbers, got {text!r}") from None
+    return vals
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("plan")
+    def plan_cmd(
+        track: str = typer.Option("gprace_ring", "--track", help="Track: shipped name or a CSV/TOML path."),
+        vehicle: str = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle: shipped name or TOML path."),
+        model: Path | None = typer.Option(None, "--model", help="Planning GP (gp_model, feature map 'planning')."),
+        warm_start: Path | None = typer.Option(None, "--warm-start", help="Previous plan of the same track (initial guess)."),
+        curvature: bool = typer.Option(False, "--curvature", help="Write the GP-free minimum-curvature path instead."),
+        ds: float = typer.Option(6.0, "--ds", help="Node spacing [m]."),
+        grip: float | None = typer.Option(None, "--grip", help="Friction-ellipse margin: share of the model's limits (e.g. 0.9)."),
+        output: Path = typer.Option(..., "--output", "-o", help="Plan file to write (.h5)."),
+    ) -> None:
+        """Plan a minimum-lap-time lap (CasADi/IPOPT), optionally compensated by a planning GP."""
+        from gprace.config import load_vehicle
+        from gprace.console import console
+        from gprace.errors import ConfigError
+        from gprace.model import NominalModel
+        from gprace.plan import PlanSettings, curvature_plan, plan_min_time, read_plan
+        from gprace.tracks import load_track
+
+        if ds <= 0:
+            raise ConfigError(f"--ds must be positive, got {ds}")
+        tr = load_track(track)
+        m = NominalModel(load_vehicle(vehicle))
+        if curvature:
+            plan = curvature_plan(tr, m, ds=ds)
+        else:
+            warm = read_plan(warm_start, tr) if warm_start else None
+            mu = None
+            if model is not None:
+                from gprace.timetrial.learning import load_predictor
+
+                gp = load_predictor(model, "planning")
+                mu = lambda Z: gp(Z)[0]  # noqa: E731
+            plan = plan_min_time(tr, m, PlanSettings(ds=ds, grip=grip), warm=warm, mu_plan=mu)
+        plan.write(output)
+        console.result(f"{output}: {plan.method} plan of {tr.name}, lap time {plan.lap_time:.3f} s, {plan.n} nodes")
+
+    @app.command("run")
+    def run_cmd(
+        plan: Path = typer.Option(..., "--plan", help="Plan file (from gprace plan)."),
+        plant: str = typer.Option("audi_hidden", "--plant", help="Plant config: shipped name or TOML path."),
+        track: str | None = typer.Option(None, "--track", help="Track (default: the plan's track by name)."),
+        vehicle: str = typer.Option("audi_tt_cup", "--vehicle", help="The controller's nominal vehicle."),
+        model: Path | None = typer.Option(None, "--model", help="Tracking GP (gp_model, feature map 'tracking')."),
+        candidates: Path | None = typer.Option(None, "--candidates", help="Exploration candidates (from iterate); default: built from the GP's data."),
+        alpha: float = typer.Option(0.0, "--alpha", help="Exploration trade-off in [0, 1] (0: plain tracking)."),
+        laps: float = typer.Option(1.0, "--laps", help="Laps to drive."),
+        solver: str = typer.Option("clarabel", "--solver", help="QP backend: clarabel, cvxpy-clarabel, casadi or a plugin."),
+        beta: float = typer.Option(0.6, "--beta", help="Risk parameter of the lateral chance constraints."),
+        seed: int = typer.Option(0, "--seed", help="Seed of the plant's sensor noise."),
+        output: Path = typer.Option(..., "--output", "-o", help="Run file to write (.h5)."),
+    ) -> None:
+        """Drive a plan on a plant with the (GP-compensated, exploring) tracking MPC; record a run."""
+        from gprace.config import load_plant, load_vehicle
+        from gprace.console import console
+        from gprace.errors import ConfigError
+        from gprace.io.runs import write_run
+        from gprace.model import NominalModel
+        from gprace.mpc.tracking import MPCSettings
+        from gprace.plan import read_plan
+        from gprace.timetrial.drive import DriveSettings, drive
+        from gprace.tracks import load_track
+
+        if not 0.0 <= alpha <= 1.0:
+            raise ConfigError(f"--alpha must be in [0, 1], got {alpha}")
+        if laps <= 0:
+            raise ConfigError(f"--laps must be positive, got {laps}")
+        p0 = read_plan(plan)
+        tr = load_track(track or p0.track)
+        p0.check_track(tr, str(plan))
+        m = NominalModel(load_vehicle(vehicle))
+        gp = grid = None
+        if model is not None:
+            from gprace.timetrial.learning import load_predictor
+
+            gp = load_predictor(model, "tracking")
+        if alpha > 0:
+            if gp is None:
+                raise ConfigError("--alpha > 0 needs --model (exploration ranks candidates by the tracking GP's variance)")
+            from gprace.explore.algorithm import CandidateGrid
+            from gprace.io.artifacts import read_artifact
+
+            if candidates is not None:
+                c = read_artifact(candidates, "candidates")
+                grid = CandidateGrid(c.arrays["Z"], c.arrays["v"], c.arrays["scale"])
+            else:
+                from gprace.timetrial.iterate import make_grid
+
+                grid = make_grid(gp.gp, gp.gp.Z_ if hasattr(gp.gp, "Z_") else None, MPCSettings(), 7)
+        settings = DriveSettings(laps=laps, mpc=MPCSettings(solver=solver, beta=beta))
+        run = drive(p0, load_plant(plant), tr, m, settings, gp=gp, grid=grid, alpha=alpha, seed=seed)
+        write_run(run, output)
+        mt = run.meta
+        console.result(
+            f"{output}: lap {mt['lap_time']:.2f} s (planned {mt['planned_lap_time']:.2f} s), completed {mt['completed']}, "
+            f"border-hit steps {mt['border_hit_steps']}, fallbacks {mt['fallbacks']}, QP median {1e3 * mt['solve_time_median']:.2f} ms"
+        )
+        if not mt["completed"]:
+            console.warn(f"run: {mt['reason']}")
+
+    @app.command("iterate")
+    def iterate_cmd(
+        alpha: str = typer.Option("0.857,0.714,0", "--alpha", help="Exploration alphas per iteration; the last repeats."),
+        iterations: int = typer.Option(7, "--iterations", help="GP iterations after the nominal iteration 0."),
+        trials: int = typer.Option(3, "--trials", help="Independent repetitions (seeds)."),
+        selection: str = typer.Option("diverse", "--selection", help="Data selection: diverse (paper) or random (baseline)."),
+        plant: str = typer.Option("audi_hidden", "--plant", help="Plant config."),
+        track: str = typer.Option("gprace_ring", "--track", help="Track."),
+        vehicle: str = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle of planner and MPC."),
+        dictionary: int = typer.Option(1000, "--dictionary-size", help="GP dictionary size M per GP."),
+        solver: str = typer.Option("clarabel", "--solver", help="QP backend."),
+        seed: int = typer.Option(0, "--seed", help="Base seed."),
+        executor: str = typer.Option("local", "--executor", help="local or dask."),
+        workers: int = typer.Option(2, "--workers", help="Parallel trials."),
+        scheduler: str | None = typer.Option(None, "--scheduler", help="Dask scheduler address."),
+        out: Path = typer.Option(Path("iterate_out"), "--out", help="Folder for every artifact (rerun to resume)."),
+        as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+    ) -> None:
+        """The iterative double-GP time trial with active exploration (resumable)."""
+        from gprace.timetrial.iterate import IterateSettings, iterate
+
+        st = IterateSettings(alphas=_floats(alpha, "--alpha"), iterations=iterations, trials=trials, selection=selection,
+                             plant=plant, track=track, vehicle=vehicle, dictionary_size=dictionary, solver=solver, seed=seed)
+        st.check()
+        summary = iterate(st, out, executor=executor, workers=workers, scheduler=scheduler)
+        _print_summary(summary, as_json)
+
+    ev = evaluate_group(app)
+
+    @ev.command("iterate")
+    def evaluate_iterate(
+        folder: Path = typer.Argument(..., help="An iterate --out folder."),
+        as_json: bool = typer.Option(False, "--json", help="Print as JSON."),
+    ) -> None:
+        """Print the summary table of an iterate folder (finished steps only)."""
+        from gprace.timetrial.iterate import build_summary
+
+        _print_summary(build_summary(folder), as_json)
+
+
+def _print_summary(summary: dict, as_json: bool) -> None:
+    from gprace.console import console
+    from gprace.timetrial.iterate import SUMMARY_COLUMNS
+
+    if as_json:
+        console.json(summary)
+        return
+    rows = [[r.get(c) for c in SUMMARY_COLUMNS] for r in summary["rows"]]
+    console.table("time trial: per iteration and trial", SUMMARY_COLUMNS, rows)
+    agg = summary["by_iteration"]
+    cols = ["iteration", "alpha", "trials", "planned_mean", "planned_std", "driven_mean", "driven_std", "gap_mean",
+            "err_tracking", "err_planning", "completed"]
+    console.table("time trial: per iteration (mean, std over trials)", cols, [[a.get(c) for c in cols] for a in agg])
