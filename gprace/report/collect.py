@@ -231,6 +231,9 @@ def timetrial_variants(found: Found) -> dict[Path, dict[str, Any]]:
         for p in found.of("plan"):
             if root in p.parents:
                 v["plans"].append(p)
+    # exploration first (blue), baseline second (orange), then the rest by folder
+    order = {"exploration": 0, "baseline": 1}
+    roots = dict(sorted(roots.items(), key=lambda kv: (order.get(kv[1]["name"], 2), str(kv[0]))))
     # unique names
     seen: dict[str, int] = {}
     for v in roots.values():
