@@ -1,0 +1,78 @@
+"""Planner: the minimum-lap-time NLP against the model's own steady-state limit on a circle."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gprace.config import load_vehicle
+from gprace.errors import ConfigError, InputError
+from gprace.model import NominalModel
+from gprace.plan import PlanSettings, curvature_plan, max_corner_speed, plan_min_time, read_plan
+from gprace.tracks import load_track
+
+
+@pytest.fixture(scope="module")
+def setup():
+    return load_track("circle_100"), NominalModel(load_vehicle("audi_tt_cup"))
+
+
+@pytest.fixture(scope="module")
+def circle_plan(setup):
+    tr, m = setup
+    return plan_min_time(tr, m, PlanSettings(ds=6.0))
+
+
+def test_circle_lap_time_matches_steady_state_limit(setup, circle_plan):
+    """Fastest lap of a circle = the model's fastest steady corner on the innermost allowed line."""
+    tr, m = setup
+    st = PlanSettings()
+    e_inner = tr.width_left(0.0) - 0.5 * m.vehicle.width - st.margin  # left = inside of an anticlockwise circle
+    ss = max_corner_speed(m, 100.0, e_y=float(e_inner))
+    assert abs(circle_plan.lap_time - ss["lap_time"]) / ss["lap_time"] < 2e-3
+    assert np.allclose(circle_plan.e_y, e_inner, atol=0.02)  # hugs the inner border
+    # the limit is the model's own (tire peak, sideslip, drive thrust), close to but not exactly mu g
+    assert 0.9 < ss["a_lat"] / (m.params.mu * m.params.g) < 1.1
+
+
+def test_min_curvature_path_takes_the_outside(setup):
+    tr, m = setup
+    cp = curvature_plan(tr, m)
+    e_outer = -(tr.width_right(0.0) - 0.5 * m.vehicle.width - 0.3)
+    assert np.allclose(cp.e_y, e_outer, atol=0.05)
+    assert cp.lap_time > 0
+
+
+def test_warm_start_and_gp_compensation(setup, circle_plan):
+    """A planning-GP compensation that removes yaw acceleration capability slows the lap."""
+    tr, m = setup
+    warm = plan_min_time(tr, m, PlanSettings(ds=6.0), warm=circle_plan)
+    assert abs(warm.lap_time - circle_plan.lap_time) < 1e-3 * circle_plan.lap_time
+    slower = plan_min_time(tr, m, PlanSettings(ds=6.0), warm=circle_plan,
+                           mu_plan=lambda Z: np.column_stack([-0.5 * np.sign(Z[:, 1]), np.zeros(len(Z))]))
+    assert slower.lap_time > circle_plan.lap_time + 0.05
+
+
+def test_plan_roundtrip_and_other_track(setup, circle_plan, tmp_path):
+    tr, m = setup
+    circle_plan.write(tmp_path / "p.h5")
+    back = read_plan(tmp_path / "p.h5", tr)
+    assert np.array_equal(back.e_y, circle_plan.e_y) and back.lap_time == circle_plan.lap_time
+    with pytest.raises(InputError, match="planned on track"):
+        read_plan(tmp_path / "p.h5", load_track("gprace_ring"))
+
+
+def test_plan_time_lookup_is_consistent(circle_plan):
+    X, U = circle_plan.at_time(circle_plan.t)
+    assert np.allclose(X[:, 5], circle_plan.s, atol=1e-9)
+    assert np.allclose(circle_plan.time_at(circle_plan.s), circle_plan.t)
+
+
+def test_open_track_rejected(setup):
+    from gprace.tracks.track import Track
+
+    _, m = setup
+    x = np.linspace(0, 300, 61)
+    tr = Track(x, 0 * x, np.full(61, 5.0), np.full(61, 5.0), closed=False, name="straight")
+    with pytest.raises(ConfigError, match="open"):
+        plan_min_time(tr, m)
