@@ -32,6 +32,7 @@ COMMAND_MODULES = (
     "gprace.report.commands",
     "gprace.h2h.commands",
     "gprace.timetrial.commands",
+    "gprace.diagnose.commands",
 )
 
 

@@ -73,7 +73,7 @@ def _stats_and_local(data, starts, H, Ed, Et, regions_by_c) -> list[locate.Chann
     for st, c in zip(cs, TESTED):
         rg = regions_by_c.get(c, [])
         laps_need = min(2, data.laps_total)
-        local = [g for g in rg if g.laps_seen >= laps_need and g.z > 5.0]
+        local = [g for g in rg if g.laps_seen >= laps_need and g.excess > 0.5 * st.rmse_twin**2]
         if local and not st.structured:
             st.structured = True
             st.statistic = max(st.statistic, max(g.z for g in local))
@@ -110,8 +110,9 @@ def diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int = HORIZON,
 
     # ---- name ----------------------------------------------------------------------------
     prob = nm.Problem(vehicle, data, H, scale, substeps=1)
-    fit_stride = max(1, len(starts) // 700)
+    fit_stride = max(1, len(starts) // 600)
     fit_w = starts[::fit_stride]
+    screen_w = starts[:: max(1, len(starts) // 300)]
     eval_w = starts[:: max(1, len(starts) // 2500)]
     fold = nm.folds(data, eval_w)
     bid = locate.blocks(data, eval_w)
@@ -135,23 +136,24 @@ def diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int = HORIZON,
                 inits = nm.starts_for(n, reg_init)
                 if not inits:
                     continue
-                f = nm.fit_effect(prob, n, fit_w, inits)
+                f = nm.fit_effect(prob, n, screen_w, inits, max_nfev=20)
                 if f is not None:
                     fits.append(f)
             if not fits:
                 break
             fits.sort(key=lambda f: f.cost)
-            top = fits[: nm.SCREEN_TOP]
+            top = [nm.refit(prob, f, fit_w, max_nfev=20) for f in fits[: nm.SCREEN_TOP]]
             cv = {}
             for f in top:
-                cv[f.name] = nm.cv_channel_losses(prob, f, eval_w, fold, fit_stride=max(1, len(eval_w) // 500))
+                cv[f.name] = nm.cv_channel_losses(prob, f, eval_w, fold, fit_stride=max(1, len(eval_w) // 400))
             best = min(top, key=lambda f: cv[f.name].mean())
             l1 = cv[best.name].mean(axis=1)
             rel, t = nm.gain_test(l0, l1, bid)
             log(f"diagnose: round {_round + 1}: best {best.name} held-out gain {100 * rel:.1f}% (t = {t:.1f})")
             searched.append({"round": _round + 1, "candidates": {f.name: float(cv[f.name].mean()) for f in top},
                              "baseline": float(l0.mean())})
-            if not (t > nm.T_GAIN and rel > nm.MIN_REL_GAIN):
+            gain = float(l0.mean() - l1.mean())
+            if not (t > nm.T_GAIN and gain > nm.MIN_GAIN and gain > nm.MIN_EXCESS_SHARE * (l0.mean() - 1.0)):
                 break
             group = [best]
             for f in top:
@@ -180,7 +182,7 @@ def diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int = HORIZON,
     for i, f in enumerate(chosen):
         prob.base = [g.effect() for j, g in enumerate(chosen) if j != i]
         chosen[i] = nm.fit_effect(prob, f.name, fit_w, [f.values()], max_nfev=30) or f
-        chosen[i].ci = nm.interval95(prob, chosen[i], fit_w) if chosen[i].jac is not None else {}
+        chosen[i].ci = nm.interval95(prob, chosen[i], fit_w)
         effects_out[i]["_fit"] = chosen[i]
 
     # ---- show: stats after, held-out RMSE before/after ------------------------------------

@@ -110,52 +110,69 @@ def track_profile(data: Dataset, starts: np.ndarray, H: int, E: np.ndarray, c: i
     return edges + 0.5 * bin_m, mean
 
 
+def _bin_z(s, e, lap, edges, H):
+    """Per-bin signed mean error, its z-score and per-lap means (windows overlap ~H-fold)."""
+    nb = len(edges)
+    bin_m = edges[1] - edges[0]
+    b = np.clip(np.digitize(s, edges) - 1, 0, nb - 1)
+    cnt = np.bincount(b, minlength=nb)
+    mean = np.bincount(b, e, nb) / np.maximum(cnt, 1)
+    sq = np.bincount(b, e * e, nb) / np.maximum(cnt, 1)
+    sd = np.sqrt(np.maximum(sq - mean**2, 0.0))
+    return b, cnt, mean, sd
+
+
 def find_regions(data: Dataset, starts: np.ndarray, H: int, Ed: np.ndarray, Et: np.ndarray, c: int,
                  bin_m: float = BIN_METRES, max_regions: int = 5) -> list[Region]:
-    """Stretches of track where channel ``c``'s excess error is significant and repeats per lap."""
+    """Stretches of track where channel ``c`` has a signed error bias that the noise twin does
+    not show, repeated lap after lap.
+
+    Per ``bin_m`` bin of track position (window middle) the mean signed error over the horizon
+    is compared with its spread in the noise twin: ``z = mean / (sd_twin / sqrt(n_eff))`` with
+    ``n_eff = count / H`` (overlapping windows). The threshold is calibrated on the twin itself:
+    ``max(4, 1.25 * max_bins |z_twin|)``, so a long track with many bins does not raise false
+    alarms. Hot bins (gaps of up to three bins bridged) merge into regions; a region counts the laps in
+    which its bias has the same sign and at least half the size.
+    """
     s = _mid_s(data, starts, H)
+    ed = Ed[:, :, c].mean(axis=1)
+    et = Et[0, :, :, c].mean(axis=1)
     md, mt = window_mse(Ed)[:, c], window_mse(Et)[:, c]
     lap = data.lap[starts]
     edges = np.arange(0.0, np.nanmax(s) + bin_m, bin_m)
     nb = len(edges)
-    b = np.clip(np.digitize(s, edges) - 1, 0, nb - 1)
-    cnt = np.bincount(b, minlength=nb)
-    ex = (np.bincount(b, md - mt, nb)) / np.maximum(cnt, 1)
-    base = float(mt.mean())
-    # per-bin significance from the spread of the window excesses inside the bin
-    sq = np.bincount(b, (md - mt) ** 2, nb) / np.maximum(cnt, 1)
-    sd = np.sqrt(np.maximum(sq - ex**2, 0.0))
-    # windows overlap H-fold: effective count ~ cnt / H
-    z = ex / np.maximum(sd / np.sqrt(np.maximum(cnt / H, 1.0)), 1e-300)
-    hot = (cnt > 0) & (z > 3.0) & (ex > 1.0 * base)
-    # laps in which the bin is hot on its own
+    b, cnt, mean_d, _ = _bin_z(s, ed, lap, edges, H)
+    _, _, mean_t, sd_t = _bin_z(s, et, lap, edges, H)
+    sd_ref = np.where(sd_t > 0, sd_t, np.nanmedian(sd_t[cnt > 1]) if np.any(cnt > 1) else 1.0)
+    neff = np.maximum(cnt / H, 1.0)
+    z = mean_d / (sd_ref / np.sqrt(neff))
+    zt = mean_t / (sd_ref / np.sqrt(neff))
+    ok = cnt >= 3
+    thr = max(4.0, 1.25 * float(np.max(np.abs(zt[ok])))) if ok.any() else 4.0
+    hot = ok & (np.abs(z) > thr)
     laps = np.unique(lap)
     seen = np.zeros(nb, dtype=int)
     for lp in laps:  # few laps: a loop over laps, not samples
         m = lap == lp
         cl = np.bincount(b[m], minlength=nb)
-        el = np.bincount(b[m], md[m] - mt[m], nb) / np.maximum(cl, 1)
-        seen += (cl > 0) & (el > 1.0 * base)
-    # merge runs of hot bins (gaps of one bin allowed)
+        el = np.bincount(b[m], ed[m], nb) / np.maximum(cl, 1)
+        seen += (cl > 0) & (np.sign(el) == np.sign(mean_d)) & (np.abs(el) > 0.5 * np.abs(mean_d))
     idx = np.flatnonzero(hot)
     regions: list[Region] = []
     if len(idx) == 0:
         return regions
-    groups = np.split(idx, np.flatnonzero(np.diff(idx) > 2) + 1)
+    groups = np.split(idx, np.flatnonzero(np.diff(idx) > 4) + 1)
     for g in groups:
         lo, hi = int(g[0]), int(g[-1])
         sel = slice(lo, hi + 1)
-        w = cnt[sel]
-        exc = float(np.sum(ex[sel] * w) / max(w.sum(), 1))
         in_r = (b >= lo) & (b <= hi)
-        dd = (md - mt)[in_r]
-        zr = float(dd.mean() / max(dd.std(ddof=1) / np.sqrt(max(in_r.sum() / H, 1.0)), 1e-300)) if in_r.sum() > 2 else 0.0
+        exc = float(np.mean(md[in_r] - mt[in_r]))
         regions.append(Region(
             channel=CHANNELS[c], s_start=float(edges[lo]), s_end=float(edges[hi] + bin_m), excess=exc,
-            laps_seen=int(np.median(seen[sel][hot[sel]])) if hot[sel].any() else 0, laps_total=len(laps),
-            description=_regime_text(data, starts[in_r], H), z=zr,
+            laps_seen=int(np.median(seen[sel][hot[sel]])), laps_total=len(laps),
+            description=_regime_text(data, starts[in_r], H), z=float(np.max(np.abs(z[sel]))),
         ))
-    regions.sort(key=lambda r: -r.excess * (r.s_end - r.s_start))
+    regions.sort(key=lambda r: -abs(r.excess) * (r.s_end - r.s_start))
     return regions[:max_regions]
 
 
