@@ -5,7 +5,8 @@ track without tuning:
 
 * **Speed profile** (:func:`speed_profile`): the friction-limited speed of the path,
   ``v^2 |kappa_path| <= a_y,max = speed_scale * mu * g``, then a forward pass (drive limit
-  ``accel_max``) and a backward pass (braking limit ``min(-accel_min, a_y,max)``), both on the
+  ``0.8 accel_max``) and a backward pass (braking limit ``0.8 min(-accel_min, a_y,max)``; the
+  remaining 20 % leave the speed feedback authority to catch up), both on the
   friction circle ``a_x <= a_lim sqrt(1 - (a_y/a_y,max)^2)``. Closed tracks are solved on three
   tiled laps and the middle one kept, so the profile is periodic. (REFERENCE.md: a profile limited
   only by curvature makes the car spin; braking must start before the corner.)
@@ -47,10 +48,13 @@ T_SPEED_PREVIEW = 0.3
 K_SPEED = 2.0
 """Speed-error gain [1/s]."""
 
+LONG_MARGIN = 0.8
+"""Share of the longitudinal limits the speed profile plans with (the rest is feedback authority)."""
+
 MIN_LONG_SHARE = 0.3
 """Share of the longitudinal limits always available, even at full lateral acceleration."""
 
-YAW_DAMPING = 8.0
+YAW_DAMPING = 16.0
 """Rate [1/s] of the yaw-rate feedback ``-k_r (r - v kappa_path)``, ``k_r = rate I_z / (l_f C_f)``."""
 
 
@@ -83,8 +87,8 @@ def speed_profile(s: np.ndarray, kappa_path: np.ndarray, vehicle: VehicleConfig,
     ay_max = speed_scale * vehicle.mu * G
     ak = np.maximum(np.abs(kappa_path), 1e-9)
     v_lat = np.minimum(np.sqrt(ay_max / ak), lim.speed_max)
-    a_drive = lim.accel_max
-    a_brake = min(-lim.accel_min, ay_max)
+    a_drive = LONG_MARGIN * lim.accel_max
+    a_brake = LONG_MARGIN * min(-lim.accel_min, ay_max)
     n = len(s)
     reps = 3 if closed else 1
     vl = np.tile(v_lat, reps)
