@@ -74,14 +74,14 @@ def print_table(tab: dict, as_json: bool) -> None:
                      f"{r['overtake_time_mean']:.3f} +- {r['overtake_time_std']:.3f} (n={r['overtake_scenarios']})",
                      r["fallbacks_ego"], f"{r['ego_solve_ms_median']:.1f}"])
     console.table(f"Head-to-head racing ({tab['common_inside']} scenarios with every predictor inside)",
-                  ["predictor", "runs", "failed", "border hits", "collisions", "overtakes", "overtake time [s]",
-                   "ego fallbacks", "ego solve median [ms]"], rows)
+                  ["predictor", "runs", "failed", "border hits", "collisions", "overtakes", "overtake time (s)",
+                   "ego fallbacks", "ego solve median (ms)"], rows)
     erows = []
     for p, e in tab["ey_error"].items():
         if e["mean"]:
             erows.append([p, e["points"]] + [f"{m:.3f} +- {s:.3f}" for m, s in zip(e["mean"], e["std"])])
     K = max((len(e["mean"]) for e in tab["ey_error"].values()), default=0)
-    console.table("Opponent e_y prediction error [m] (offline, all closed-loop opponent trajectories)",
+    console.table("Opponent e_y prediction error in metres (offline, all closed-loop opponent trajectories)",
                   ["predictor", "points"] + [f"{k}-step" for k in range(1, K + 1)], erows)
 
 
@@ -149,13 +149,13 @@ def register(app: typer.Typer) -> None:
         inducing: int = typer.Option(200, "--inducing"), as_json: bool = JSON,
     ) -> None:
         """Fit the opponent GP (Matern 1.5) on a dataset."""
-        from gprace.gp.base import load_model
+        from gprace.h2h.predictors import read_opponent_gp
         from gprace.h2h.protocol import Settings, train as run
 
         st = Settings(backend=backend, exact_max=exact_max, inducing=inducing)
         path = run(dataset, model, st, size=size, hyper_model=hyper_model, initial=initial)
-        saved = load_model(path)
-        res = {"model": str(path), "backend": saved.backend, "points": int(saved.attrs.get("n_points", 0))}
+        _, attrs = read_opponent_gp(path)
+        res = {"model": str(path), "backend": attrs["backend"], "points": int(attrs.get("n_points", 0))}
         console.json(res) if as_json else console.result(f"{res['model']}: {res['backend']} GP on {res['points']} points")
 
     @h2h.command("explore")

@@ -157,18 +157,55 @@ class GPPredictor(Predictor):
 PREDICTORS = ("gp", "cv", "oracle")
 
 
-def load_opponent_gp(path: str | Path):
-    """A saved GP with the opponent feature layout; InputError naming the mismatch otherwise."""
-    from gprace.gp.base import load_model
+def save_opponent_gp(path: str | Path, gp, meta: dict, config_hash: str = "", seed: int = 0) -> Path:
+    """Write a fitted GP as a ``gp_model`` artifact with the opponent layout.
 
-    saved = load_model(path)
-    names = tuple(saved.input_names)
-    if names != FEATURES or tuple(saved.output_names) != OUTPUTS:
+    Workaround: :func:`gprace.gp.base.save_model` stores array names containing ``/`` which
+    :func:`gprace.io.artifacts.read_artifact` cannot read back (nested groups), so names are
+    flattened here (``/`` -> ``::``); :func:`load_opponent_gp` reads both forms.
+    """
+    import json
+
+    from gprace.io.artifacts import Artifact, write_artifact
+
+    h = gp._fitted()
+    attrs = {"backend": gp.NAME, "kernel": gp.kernel, "params": json.dumps(gp.get_params()),
+             "feature_map": FEATURE_MAP, "input_names": json.dumps(list(FEATURES)),
+             "output_names": json.dumps(list(OUTPUTS)), "n_inputs": int(h.d)}
+    attrs.update({k: v for k, v in meta.items() if k not in ("feature_map", "input_names", "output_names")})
+    arrays = {k.replace("/", "::"): v for k, v in gp.to_arrays().items()}
+    return write_artifact(path, Artifact("gp_model", arrays=arrays, attrs=attrs, config_hash=config_hash, seed=seed))
+
+
+def read_opponent_gp(path: str | Path):
+    """(gp, attrs) of a saved GP; InputError naming the mismatch if the layout is not the opponent's."""
+    import json
+
+    from gprace.backends import gps
+    from gprace.errors import ArtifactError
+    from gprace.io.artifacts import read_artifact
+
+    art = read_artifact(path, "gp_model")
+    attrs = dict(art.attrs)
+    try:
+        names = tuple(json.loads(attrs["input_names"]))
+        outs = tuple(json.loads(attrs["output_names"]))
+        backend, params = str(attrs["backend"]), json.loads(attrs["params"])
+    except (KeyError, ValueError, TypeError) as exc:
+        raise ArtifactError(f"{path}: GP model attributes are incomplete ({exc})") from None
+    if names != FEATURES or outs != OUTPUTS:
         raise InputError(
-            f"{path}: GP model has inputs {list(names)} and outputs {list(saved.output_names)}; the opponent "
+            f"{path}: GP model has inputs {list(names)} and outputs {list(outs)}; the opponent "
             f"predictor needs the '{FEATURE_MAP}' layout inputs {list(FEATURES)} -> outputs {list(OUTPUTS)}"
         )
-    return saved.gp
+    arrays = {k.replace("::", "/"): v for k, v in art.arrays.items()}
+    gp = gps.get(backend).from_arrays(arrays, params)
+    return gp, attrs
+
+
+def load_opponent_gp(path: str | Path):
+    """A saved GP with the opponent feature layout; InputError naming the mismatch otherwise."""
+    return read_opponent_gp(path)[0]
 
 
 def make_predictor(kind: str, steps: int, dt: float = 0.1, model: str | Path | None = None, samples: int = 50,

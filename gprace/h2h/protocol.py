@@ -249,7 +249,8 @@ def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyp
     starting from the dictionary ``initial`` (a dataset) when given; the GP is then refitted on
     the selected dictionary.
     """
-    from gprace.gp.base import load_model, make_gp, save_model
+    from gprace.gp.base import make_gp
+    from gprace.h2h.predictors import load_opponent_gp, save_opponent_gp
 
     key = {"data": _hash_file(dataset), "size": size, "backend": st.backend, "exact_max": st.exact_max,
            "inducing": st.inducing, "seed": seed, "optimize": st.optimize,
@@ -263,7 +264,7 @@ def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyp
 
         if hyper_model is None:
             raise InputError("diverse selection needs a fitted GP for its hyperparameters")
-        hyper = load_model(hyper_model).gp.hyper_
+        hyper = load_opponent_gp(hyper_model).hyper_
         init = read_dataset(initial) if initial is not None else None
         Z, Y, stats = select_diverse(hyper, Z, Y, size, initial=init)
         extra = {f"selection_{k}": int(v) for k, v in stats.as_dict().items()}
@@ -275,7 +276,7 @@ def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyp
     meta = {"feature_map": FEATURE_MAP, "input_names": list(FEATURES), "output_names": list(OUTPUTS),
             "n_points": len(Z), "y_std": json.dumps(Y.std(axis=0).tolist()), **extra}
     model.parent.mkdir(parents=True, exist_ok=True)
-    return save_model(model, gp, meta, config_hash=config_hash(key), seed=seed)
+    return save_opponent_gp(model, gp, meta, config_hash=config_hash(key), seed=seed)
 
 
 def _hash_file(path: Path) -> str:
@@ -311,9 +312,9 @@ def models(st: Settings, out: Path) -> dict[str, Path]:
     paths = {"baseline": train(d["collect"], m / "baseline.h5", st), "init": train(d["init"], m / "init.h5", st)}
     ex = explore(st, out, paths["init"], d["init"])
     paths["explore"] = train(ex, m / "explore.h5", st, size=st.dict_size, hyper_model=paths["init"], initial=d["init"])
-    from gprace.gp.base import load_model
+    from gprace.h2h.predictors import read_opponent_gp
 
-    n_explore = int(load_model(paths["explore"]).attrs.get("n_points", st.dict_size))
+    n_explore = int(read_opponent_gp(paths["explore"])[1].get("n_points", st.dict_size))
     paths["select"] = train(d["collect"], m / "select.h5", st, size=n_explore, hyper_model=paths["baseline"])
     return paths
 
