@@ -86,6 +86,10 @@ def scan(root: str | Path) -> Found:
 
 # ----------------------------------------------------------------------------------------------
 # helpers
+ITER_RE = r"^it(?:er(?:ation)?)?[_-]?(\d+)$"  # iter_03, iteration-3, it3
+TRIAL_RE = r"^trial[_-]?(\d+)$"
+
+
 def _num(path: Path, pattern: str) -> int | None:
     """The number in the last path component matching ``pattern`` (e.g. ``iter_03`` -> 3)."""
     for part in reversed(path.parts):
@@ -99,14 +103,14 @@ def _iteration_of(path: Path, meta: dict) -> int | None:
     for k in ("iteration", "iter"):
         if k in meta and isinstance(meta[k], (int, float)):
             return int(meta[k])
-    return _num(path, r"(?:^|[_-])?it(?:er(?:ation)?)?[_-]?(\d+)")
+    return _num(path, ITER_RE)
 
 
 def _trial_of(path: Path, meta: dict) -> int:
     for k in ("trial",):
         if k in meta and isinstance(meta[k], (int, float)):
             return int(meta[k])
-    n = _num(path, r"trial[_-]?(\d+)")
+    n = _num(path, TRIAL_RE)
     if n is not None:
         return n
     return int(meta.get("seed", 0) or 0)
@@ -135,21 +139,30 @@ def _load_track(name: Any, override: str | None):
 
 # ----------------------------------------------------------------------------------------------
 # time trial
-def _variant_name(root: Path, summary: Any) -> str:
-    text = json.dumps(summary, default=str).lower() if summary is not None else ""
+def _variant_name(root: Path, settings: Any, summary: Any) -> str:
+    """``baseline`` for random selection without exploration, ``exploration`` when alphas > 0,
+    else the folder name (a folder named *baseline* or *explor* says it directly)."""
     name = root.name.lower()
-    if "baseline" in name or '"selection": "random"' in text:
+    if "baseline" in name:
         return "baseline"
-    if "explor" in name or '"alpha"' in text:
+    if "explor" in name:
         return "exploration"
+    st = settings if isinstance(settings, dict) else (summary or {}).get("settings") if isinstance(summary, dict) else None
+    if isinstance(st, dict):
+        alphas = st.get("alphas", st.get("alpha"))
+        alphas = alphas if isinstance(alphas, (list, tuple)) else [alphas] if isinstance(alphas, (int, float)) else []
+        if st.get("selection") == "random" and not any(float(x) > 0 for x in alphas):
+            return "baseline"
+        if any(float(x) > 0 for x in alphas):
+            return "exploration"
     return root.name or "time trial"
 
 
 _KEYS = {
     "iteration": ("iteration", "iter", "it"),
     "trial": ("trial", "seed"),
-    "planned": ("planned_lap_time", "lap_time_planned", "planned", "plan_lap_time"),
-    "driven": ("driven_lap_time", "lap_time_driven", "driven", "lap_time"),
+    "planned": ("planned", "planned_lap_time", "lap_time_planned", "plan_lap_time"),
+    "driven": ("driven", "driven_lap_time", "lap_time_driven", "lap_time"),
 }
 
 
@@ -180,7 +193,8 @@ def _get(row: dict, what: str) -> Any:
 
 
 def _gp_errors(row: dict) -> dict[str, float]:
-    """``{"planning": e, "tracking": e}`` from a summary row's GP-error fields (flat or nested)."""
+    """``{"planning": e, "tracking": e}`` from a summary row's GP-error fields (``err_tracking``,
+    or nested ``{"gp_error": {"tracking": e}}``)."""
     out: dict[str, float] = {}
     for k, v in row.items():
         kl = k.lower()
@@ -194,47 +208,74 @@ def _gp_errors(row: dict) -> dict[str, float]:
                         out[str(g)] = float(np.mean(vals))
         elif isinstance(v, (int, float)) and ("err" in kl or "rmse" in kl):
             for g in ("planning", "tracking"):
-                if g in kl or g[:4] in kl:
+                if g in kl:
                     out[g] = float(v)
     return out
 
 
-def timetrial_variants(found: Found) -> dict[Path, dict[str, Any]]:
-    """Per iterate folder: ``{"name", "summary", "runs": [(path, meta, it, trial)], "plans": [...]}``.
+def _read_json(p: Path) -> Any:
+    try:
+        return json.loads(p.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
 
-    A folder is an iterate folder when it holds a time-trial ``summary.json`` or run artifacts
-    under per-iteration sub-folders; its variant name is ``exploration`` or ``baseline`` when the
-    folder name or summary says so.
+
+def _iterate_root(p: Path, top: Path) -> Path | None:
+    """The iterate folder of an artifact: the nearest ancestor with settings.json or summary.json,
+    else the folder above its ``iter_<i>`` (and ``trial_<j>``) folders; None outside any."""
+    for a in p.parents:
+        if (a / "settings.json").exists() or (a / "summary.json").exists():
+            return a
+        if a == top:
+            break
+    rel = p.relative_to(top).parts[:-1]
+    for k in range(len(rel) - 1, -1, -1):
+        if re.match(ITER_RE, rel[k]):
+            up = k - 1 if k >= 1 and re.match(TRIAL_RE, rel[k - 1]) else k
+            return top.joinpath(*rel[:up])
+    return None
+
+
+def timetrial_variants(found: Found) -> dict[Path, dict[str, Any]]:
+    """Per iterate folder: ``{"name", "summary", "rows", "runs": [(path, art, it, trial)], "plans"}``.
+
+    A folder is an iterate folder when it holds ``settings.json`` / ``summary.json`` (the layout
+    of ``gprace iterate``) or run artifacts under ``iter_<i>`` folders. Rows (one per iteration and
+    trial) come from summary.json, else from the per-iteration ``record.json`` files of an
+    interrupted loop, else from the run artifacts' lap times.
     """
     roots: dict[Path, dict[str, Any]] = {}
     for p in found.of("timetrial_summary"):
-        roots.setdefault(p.parent, {"summary": found.json[p], "summary_path": p})
-    runs = found.of("run")
-    for p in runs:
-        if _num(p.relative_to(found.root), r"(?:^|[_-])?it(?:er(?:ation)?)?[_-]?(\d+)") is None:
-            continue
-        # the iterate root: the nearest ancestor that has a summary, else the parent of iter_*
-        root = next((a for a in p.parents if a in roots), None)
-        if root is None:
-            root = next(a.parent for a in p.parents if re.search(r"it(?:er(?:ation)?)?[_-]?\d+", a.name))
-            roots.setdefault(root, {"summary": None})
+        if p.name == "summary.json" or (p.parent / "settings.json").exists():
+            roots.setdefault(p.parent, {})
+    for p in found.of("run") + found.of("plan"):
+        r = _iterate_root(p, found.root)
+        if r is not None and any(re.match(ITER_RE, x) for x in p.relative_to(r).parts[:-1]):
+            roots.setdefault(r, {})
     for root, v in roots.items():
-        v["name"] = _variant_name(root, v.get("summary"))
+        v["root"] = root
+        v["summary"] = _read_json(root / "summary.json") if (root / "summary.json").exists() else None
+        settings = _read_json(root / "settings.json") if (root / "settings.json").exists() else None
+        v["name"] = _variant_name(root, settings, v["summary"])
+        v["rows"] = _rows_in(v["summary"]) if v["summary"] is not None else []
+        v["rows_from"] = "summary.json" if v["rows"] else ""
+        if not v["rows"]:
+            recs = [_read_json(q) for q in sorted(root.glob("**/record.json"))]
+            v["rows"] = [r for r in recs if isinstance(r, dict) and _get(r, "iteration") is not None]
+            v["rows_from"] = "record.json files" if v["rows"] else ""
         v["runs"], v["plans"] = [], []
-        for p in runs:
-            if root in p.parents:
+        for p in found.of("run"):
+            if root in p.parents and _iterate_root(p, found.root) == root:
+                rel = p.relative_to(root)
                 try:
                     art = open_artifact(p, "run")
                 except Exception:  # noqa: BLE001
                     continue
-                v["runs"].append((p, art, _iteration_of(p.relative_to(root), art.attrs), _trial_of(p.relative_to(root), art.attrs)))
-        for p in found.of("plan"):
-            if root in p.parents:
-                v["plans"].append(p)
+                v["runs"].append((p, art, _iteration_of(rel, art.attrs), _trial_of(rel, art.attrs)))
+        v["plans"] = [p for p in found.of("plan") if root in p.parents]
     # exploration first (blue), baseline second (orange), then the rest by folder
     order = {"exploration": 0, "baseline": 1}
     roots = dict(sorted(roots.items(), key=lambda kv: (order.get(kv[1]["name"], 2), str(kv[0]))))
-    # unique names
     seen: dict[str, int] = {}
     for v in roots.values():
         n = v["name"]
@@ -258,14 +299,17 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
         name = v["name"]
         L = lap.setdefault(name, {"iteration": [], "planned": [], "driven": []})
         E = gperr.setdefault(name, {"iteration": []})
-        rows = _rows_in(v["summary"]) if v.get("summary") is not None else []
-        for r in rows:
+        for r in v["rows"]:
             it, pl, dr = _get(r, "iteration"), _get(r, "planned"), _get(r, "driven")
             if isinstance(it, (int, float)) and isinstance(pl, (int, float)) and isinstance(dr, (int, float)):
                 L["iteration"].append(float(it))
                 L["planned"].append(float(pl))
                 L["driven"].append(float(dr))
-                table_rows.append([name, int(it), _get(r, "trial"), float(pl), float(dr), float(dr) - float(pl)])
+                table_rows.append([name, int(it), _get(r, "trial"), r.get("alpha", "-"), float(pl), float(dr),
+                                   float(dr) - float(pl), r.get("border_hits", "-")])
+            if r.get("completed") is False:
+                sec.missing.append(f"{name}, iteration {it}, trial {_get(r, 'trial')}: lap not completed"
+                                   + (f" ({r['reason']})" if r.get("reason") else ""))
             errs = _gp_errors(r)
             if errs and isinstance(it, (int, float)):
                 n = len(E["iteration"])
@@ -275,31 +319,42 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
                 for g in E:
                     if g != "iteration" and len(E[g]) < n + 1:
                         E[g].append(np.nan)
-        if not L["iteration"]:  # no usable summary: lap times from the run artifacts
+        if not L["iteration"]:  # no records: lap times from the run artifacts
             for p, art, it, trial in v["runs"]:
                 pl, dr = art.attrs.get("planned_lap_time"), art.attrs.get("lap_time")
                 if it is not None and isinstance(pl, (int, float)) and isinstance(dr, (int, float)):
                     L["iteration"].append(float(it))
                     L["planned"].append(float(pl))
                     L["driven"].append(float(dr))
-                    table_rows.append([name, it, trial, float(pl), float(dr), float(dr) - float(pl)])
+                    table_rows.append([name, it, trial, art.attrs.get("alpha", "-"), float(pl), float(dr),
+                                       float(dr) - float(pl), art.attrs.get("border_hit_steps", "-")])
+            if L["iteration"]:
+                v["rows_from"] = "run files"
         if v.get("summary") is None:
-            sec.missing.append(f"{root}: no summary.json (loop interrupted?); lap times taken from the run files")
+            sec.missing.append(f"{root}: no summary.json (loop interrupted?); lap times taken from the "
+                               f"{v['rows_from'] or 'run files'}")
         if not L["iteration"]:
             sec.missing.append(f"{root}: no finished lap yet (no run with a lap time)")
+        else:
+            done = sorted({int(x) for x in L["iteration"]})
+            want = _expected_iterations(v)
+            if want is not None and len(done) < want:
+                sec.missing.append(f"{root} ({name}): {len(done)} of {want} iterations finished")
     lap = {k: {a: np.asarray(b) for a, b in d.items()} for k, d in lap.items() if d["iteration"]}
     if lap:
         sec.add_figure("lap_times", "Lap time per iteration: planned, driven and their difference (mean and "
                        "+-1 std over trials)", lambda: F.fig_lap_times(lap))
         iters = {n: sorted(set(d["iteration"].astype(int).tolist())) for n, d in lap.items()}
         sec.items.append(Item("Lap times per iteration and trial", html=_table(
-            ["variant", "iteration", "trial", "planned [s]", "driven [s]", "driven - planned [s]"],
+            ["variant", "iteration", "trial", "alpha", "planned [s]", "driven [s]", "driven - planned [s]",
+             "border-hit steps"],
             sorted(table_rows, key=lambda r: (r[0], r[1], r[2] if r[2] is not None else -1)))))
         if len(lap) == 1 and len(variants) == 1:
             sec.missing.append("only one iterate folder: exploration vs baseline comparison needs both "
                                "(run `gprace iterate` again with `--selection random --alpha 0` into a sibling folder)")
         del iters
-    gperr = {k: {a: np.asarray(b, float) for a, b in d.items()} for k, d in gperr.items() if len(d["iteration"])}
+    gperr = {k: {a: np.asarray(b, float) for a, b in d.items()} for k, d in gperr.items()
+             if any(np.isfinite(np.asarray(e, float)).any() for g, e in d.items() if g != "iteration")}
     if gperr:
         sec.add_figure("gp_errors", "GP prediction error per iteration on the diverse test run, both GPs "
                        "(mean and +-1 std over trials)", lambda: F.fig_gp_errors(gperr))
@@ -346,6 +401,16 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
             sec.add_figure(f"plan_{p.stem}", f"Plan {p.name}: lap time {float(art.attrs.get('lap_time', np.nan)):.2f} s",
                            lambda art=art, track=track, p=p: F.fig_plan(art.arrays, track, title=p.name))
     return sec
+
+
+def _expected_iterations(v: dict) -> int | None:
+    """Iterations the experiment asked for (iteration 0 included), from its settings."""
+    st = (v.get("summary") or {}).get("settings") if isinstance(v.get("summary"), dict) else None
+    if st is None and (v["root"] / "settings.json").exists():
+        st = _read_json(v["root"] / "settings.json")
+    if isinstance(st, dict) and isinstance(st.get("iterations"), int):
+        return int(st["iterations"]) + 1
+    return None
 
 
 def _nearest_plan(run_path: Path, found: Found) -> Path | None:
@@ -572,7 +637,7 @@ def _residual_data(report_path: Path, residuals: list[Path]):
 
 # ----------------------------------------------------------------------------------------------
 # GP models and datasets
-def gp_section(found: Found, features: tuple[str, str] | None = None, max_models: int = 6) -> Section | None:
+def gp_section(found: Found, features: tuple[str, str] | None = None, max_models: int = 4) -> Section | None:
     models = found.of("gp_model")
     datasets = found.kinds_like("dataset")
     if not models and not datasets:
@@ -592,8 +657,15 @@ def gp_section(found: Found, features: tuple[str, str] | None = None, max_models
     if rows:
         sec.items.append(Item("Models", html=_table(["model", "backend", "kernel", "dictionary", "inputs", "outputs"], rows)))
     if len(models) > max_models:
-        sec.missing.append(f"{len(models)} models found; posterior plots drawn for the last {max_models}")
-    for p in models[-max_models:]:
+        sec.missing.append(f"{len(models)} models found; posterior plots drawn for {max_models} of the latest "
+                           "iteration (first trial)")
+
+    def latest(p: Path) -> tuple:
+        rel = p.relative_to(found.root)
+        it = _num(rel.parent, ITER_RE)
+        return (-(it if it is not None else -1), _num(rel.parent, TRIAL_RE) or 0, str(rel))
+
+    for p in sorted(models, key=latest)[:max_models]:
         def make(p=p):
             gp, names_in, names_out, Zd = load_gp(p)
             if Zd is None:
