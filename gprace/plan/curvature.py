@@ -115,7 +115,10 @@ def curvature_plan(track, model, ds: float = 6.0, speed_scale: float = 0.85, mar
     v = speed_profile(kappa_p, ds_p * h, speed_scale * a_lat, lim.accel_max, -speed_scale * lim.accel_min, lim.speed_max,
                       model.params.cxw / model.params.m)
     vy, r, delta = steady_state_inputs(model, v, kappa_p)
-    vx = v * np.cos(np.arctan2(vy, v))
+    beta = np.arctan2(vy, v)  # sideslip: the body points off the path by -beta
+    vx = v * np.cos(beta)
+    vy = v * np.sin(beta)
+    epsi = epsi - beta
     sdot = (vx * np.cos(epsi) - vy * np.sin(epsi)) / scale
     dt = h * 0.5 * (1 / sdot + 1 / np.roll(sdot, -1))
     t = np.concatenate([[0.0], np.cumsum(dt)])
