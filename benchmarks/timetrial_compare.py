@@ -1,0 +1,36 @@
+"""The paper's comparison: Double GP + exploration vs the Double GP baseline (random selection, alpha 0).
+
+For each plant (``audi_hidden``: frenet with hidden effects; ``commonroad-std``) runs
+``gprace iterate`` twice (3 trials each) into ``benchmarks/out/<plant>_<variant>`` (resumable) and
+prints per iteration the driven lap time (mean, std), planned-vs-driven gap and both GPs'
+errors on the held-out weaving run, as a JSON table. Long: minutes per variant.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+VARIANTS = {"exploration": dict(alphas=(0.857, 0.714, 0.0), selection="diverse"),
+            "baseline": dict(alphas=(0.0,), selection="random")}
+
+
+def main(iterations: int = 7, trials: int = 3, plants=("audi_hidden", "commonroad-std")) -> None:
+    from gprace.timetrial.iterate import IterateSettings, build_summary, iterate
+
+    out = {}
+    for plant in plants:
+        for name, kw in VARIANTS.items():
+            folder = Path(__file__).parent / "out" / f"{plant}_{name}"
+            st = IterateSettings(iterations=iterations, trials=trials, plant=plant, **kw)
+            try:
+                iterate(st, folder, workers=2)
+            except Exception as exc:  # report what finished
+                print(f"{plant}/{name}: {exc}", file=sys.stderr)
+            out[f"{plant}/{name}"] = build_summary(folder)["by_iteration"]
+    print(json.dumps(out, indent=1, default=float))
+
+
+if __name__ == "__main__":
+    main(*(int(a) for a in sys.argv[1:3]))
