@@ -206,13 +206,18 @@ class NMPC:
             args["lam_g0"], args["lam_x0"] = self._warm["lam_g"], self._warm["lam_x"]
         self.solves += 1
         t0 = time.perf_counter()
+        cold = "lam_g" not in self._warm
         try:
-            res = self._solver(**args)
-            stats = self._solver.stats()
-            status = str(stats.get("return_status", ""))
-            ok = bool(stats.get("success", False)) or status == "Solved_To_Acceptable_Level"
-            wv = np.asarray(res["x"]).ravel()
-            ok = ok and bool(np.all(np.isfinite(wv)))
+            for attempt in range(3 if cold else 1):  # a cold start may continue from its last iterate
+                res = self._solver(**args)
+                stats = self._solver.stats()
+                status = str(stats.get("return_status", ""))
+                ok = bool(stats.get("success", False)) or status == "Solved_To_Acceptable_Level"
+                wv = np.asarray(res["x"]).ravel()
+                ok = ok and bool(np.all(np.isfinite(wv)))
+                if ok or status != "Maximum_Iterations_Exceeded" or not np.all(np.isfinite(wv)):
+                    break
+                args.update(x0=wv, lam_g0=np.asarray(res["lam_g"]).ravel(), lam_x0=np.asarray(res["lam_x"]).ravel())
         except Exception as exc:  # noqa: BLE001 -- a solver failure must not end the race
             ok, status, wv, res = False, f"exception: {exc}", None, None
         dt = time.perf_counter() - t0
@@ -234,8 +239,9 @@ class NMPC:
         """Shifted previous solution (first input of the shifted plan); braking if none."""
         N = self.h2h.horizon
         last: Solution | None = self._warm.get("last")
-        if last is None:
-            U = np.tile([0.0, self.mpc.accel[0] * 0.5], (N, 1))
+        if last is None:  # nothing to shift: straight wheels, gentle braking down to a crawl
+            brake = self.mpc.accel[0] * 0.5 if x0[0] > 0.2 else 0.0
+            U = np.tile([0.0, brake], (N, 1))
             X = np.tile(np.asarray(x0, float)[:6], (N + 1, 1))
         else:
             U = np.vstack([last.U[1:], last.U[-1:]])
