@@ -218,7 +218,7 @@ def make_predictor(kind: str, steps: int, dt: float = 0.1, model: str | Path | N
         if model is None:
             raise InputError("gp predictor: needs a GP model file")
         return GPPredictor(_cached_gp(str(model)), steps, samples, seed, label or "gp")
-    raise UnknownBackendError(f"unknown predictor {kind!r}; available: {', '.join(PREDICTORS)}")
+    raise UnknownBackendError(f"unknown predictor {kind!r}; available: {', '.join(sorted(PREDICTORS))}")
 
 
 _GP_CACHE: dict[tuple[str, int], object] = {}

@@ -287,6 +287,10 @@ def _hash_file(path: Path) -> str:
 
 def explore(st: Settings, out: Path, init_model: Path, init_data: Path) -> Path:
     """Exploration episodes on the closed loop with alpha; returns the exploration dataset."""
+    from gprace.h2h.predictors import load_opponent_gp
+
+    load_opponent_gp(init_model)  # a wrong file fails here, before any run
+    read_dataset(init_data)
     n_ep = max(1, int(round(st.explore_minutes * 60.0 / st.episode_seconds)))
     tasks = [{"id": f"explore-{i}", "track": {"kind": "loop"}, "seed": SEED_EXPLORE + i, "predictor": "gp",
               "model": str(init_model), "alpha": st.alpha, "explore_data": str(init_data),

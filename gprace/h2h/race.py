@@ -9,8 +9,7 @@ it pickles for local processes and Dask alike, and everything random in it deriv
 * ``predictor``: ``gp`` | ``cv`` | ``oracle``; ``model``: GP model path for ``gp``,
 * ``alpha``: exploration weight (> 0 needs ``explore_data``: a dataset file with Z, Y),
 * ``config``: :class:`H2HConfig` fields (optional), ``duration``: run length for exploration
-  episodes (then the race does not stop at the overtake),
-* ``crash_at``: none in normal use.
+  episodes (then the race does not stop at the overtake).
 
 Starts (REFERENCE.md): opponent ``s`` in [0.9, 1.2] m, ego in [0.2, 0.4] m, lateral offset within
 +-0.3 x width, heading error +-0.02 rad, speed 0.65 to 1.3 m/s; on a closed track the whole grid is
@@ -25,6 +24,7 @@ inputs are applied together.
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -48,7 +48,7 @@ def _model():
 
 def controllers(cfg: H2HConfig) -> tuple[NMPC, NMPC]:
     """(ego, opponent) NMPCs, built once per process and configuration."""
-    key = ("mpc", cfg.model_dump_json())
+    key = ("mpc", cfg.model_dump_json(), threading.get_ident())  # one per thread (Dask threads)
     if key not in _CACHE:
         m = _model()
         _CACHE[key] = (NMPC(m, cfg.ego, cfg, collision=True), NMPC(m, cfg.opponent, cfg, collision=False))
@@ -123,7 +123,6 @@ def run_race(task: dict) -> dict:
     ego, opp = start_states(track, rng)
     duration = task.get("duration")
     max_time = float(duration) if duration else cfg.max_time
-    crash_at = task.get("crash_at")
 
     X = np.vstack([ego, opp])
     Uprev = np.zeros((2, 2))
@@ -132,8 +131,6 @@ def run_race(task: dict) -> dict:
     t_overtake, end_reason = np.nan, "time"
     n_steps = int(round(max_time / dt))
     for step in range(n_steps):
-        if crash_at is not None and step == int(crash_at):
-            raise RuntimeError(f"injected crash at step {step}")
         ego, opp = X[0], X[1]
         # ---- opponent: contouring MPC with the blocking term while the ego is behind
         gap = float(gap_s(track, opp[5], ego[5]))

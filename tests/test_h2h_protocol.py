@@ -1,0 +1,117 @@
+"""Head-to-head protocol: executors agree, failed runs are recorded and skipped, bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gprace.cli import main
+from gprace.errors import InputError, UnknownBackendError
+from gprace.h2h import protocol as P
+from gprace.h2h.predictors import make_predictor, read_opponent_gp
+
+TINY = dict(tracks=2, raced=("cv",), offline=("cv",), max_time=1.5, samples=5)
+
+
+def _batch(out: Path, **kw) -> tuple[dict, dict]:
+    st = P.Settings(**{**TINY, **kw})
+    raced = P.race_predictors(st, out, {})
+    errors = P.offline_errors(st, out, raced, {})
+    return P.table(st, raced, errors), raced
+
+
+def _comparable(tab: dict) -> dict:
+    tab = json.loads(json.dumps(tab))
+    for row in tab["racing"].values():
+        row.pop("ego_solve_ms_median")  # wall-clock time: the only thing allowed to differ
+    return tab
+
+
+def test_local_and_dask_give_identical_tables(tmp_path):
+    from dask.distributed import LocalCluster
+
+    local, rec_local = _batch(tmp_path / "local")
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        dask, rec_dask = _batch(tmp_path / "dask", executor="dask", scheduler=cluster.scheduler_address)
+    assert _comparable(local) == _comparable(dask)
+    for a, b in zip(rec_local["cv"], rec_dask["cv"]):
+        np.testing.assert_array_equal(a["arrays"]["ego"], b["arrays"]["ego"])
+        np.testing.assert_array_equal(a["arrays"]["opp"], b["arrays"]["opp"])
+    assert local["racing"]["cv"]["runs"] == 2 and local["racing"]["cv"]["failed"] == 0
+    assert local["ey_error"]["cv"]["points"] > 0
+    # per-run records are HDF5 artifacts
+    rec = P._read_record(tmp_path / "local" / "eval" / "cv" / "run_00000.h5")
+    assert rec["attrs"]["ok"] and rec["arrays"]["ego"].shape[1] == 6
+
+
+def test_failed_run_is_recorded_skipped_and_resumed(tmp_path):
+    st = P.Settings(**{**TINY, "tracks": 3})
+    tasks = P.eval_tasks(st, "cv", None)
+    tasks[1].update(predictor="gp", model=str(tmp_path / "missing.h5"))  # this run raises
+    recs = P.run_tasks(tasks, tmp_path / "runs", st, "test")
+    assert [r["attrs"]["ok"] for r in recs] == [True, False, True]
+    assert "missing.h5" in recs[1]["attrs"]["error"]
+    on_disk = P._read_record(tmp_path / "runs" / "run_00001.h5")
+    assert on_disk["attrs"]["ok"] is False or on_disk["attrs"]["ok"] == 0
+    tab = P.table(st, {"cv": recs}, {})
+    assert tab["racing"]["cv"]["failed"] == 1 and tab["racing"]["cv"]["runs"] == 3
+    # resume: only the failed run is attempted again
+    calls = []
+
+    def counting(task):
+        calls.append(task["seed"])
+        return P.race_with_data(task)
+
+    st.resume = True
+    again = P.run_tasks(tasks, tmp_path / "runs", st, "test", fn=counting)
+    assert calls == [tasks[1]["seed"]]
+    np.testing.assert_array_equal(again[0]["arrays"]["ego"], recs[0]["arrays"]["ego"])
+
+
+def test_unknown_predictor():
+    with pytest.raises(UnknownBackendError, match="cv, gp, oracle"):
+        make_predictor("kalman", 9)
+    assert main(["eval", "head2head", "--tracks", "1", "--predictors", "kalman", "--out", "/tmp/unused_h2h"]) == 2
+
+
+def test_model_with_wrong_feature_layout(tmp_path):
+    from gprace.gp import make_gp
+    from gprace.io.artifacts import Artifact, write_artifact
+
+    rng = np.random.default_rng(0)
+    Z, Y = rng.normal(size=(30, 3)), rng.normal(size=(30, 2))
+    gp = make_gp("exact", kernel="matern15", optimize=False).fit(Z, Y)
+    attrs = {"backend": "exact", "params": json.dumps(gp.get_params()), "feature_map": "tracking",
+             "input_names": json.dumps(["v_y", "yaw_rate", "delta"]), "output_names": json.dumps(["e_vy", "e_r"])}
+    bad = tmp_path / "tracking.h5"
+    write_artifact(bad, Artifact("gp_model", arrays={k.replace("/", "::"): v for k, v in gp.to_arrays().items()}, attrs=attrs))
+    with pytest.raises(InputError, match="opponent"):
+        read_opponent_gp(bad)
+    data = tmp_path / "d.h5"
+    P._write_dataset(data, rng.normal(size=(5, 11)), rng.normal(size=(5, 5)), np.zeros(5), {}, {})
+    rc = main(["h2h", "explore", "--out", str(tmp_path / "o"), "--init-model", str(bad), "--init-data", str(data),
+               "--explore-minutes", "0.01"])
+    assert rc == 2
+    assert not (tmp_path / "o" / "explore" / "runs").exists()  # nothing ran
+
+
+def test_unreachable_scheduler_loses_nothing(tmp_path, capsys):
+    out = tmp_path / "out"
+    (out / "collect").mkdir(parents=True)
+    keep = out / "collect" / "dataset.h5"
+    keep.write_bytes(b"finished work")
+    rc = main(["eval", "head2head", "--tracks", "2", "--out", str(out), "--executor", "dask",
+               "--scheduler", "tcp://127.0.0.1:1"])
+    assert rc == 2
+    assert "cannot reach Dask scheduler" in capsys.readouterr().err
+    assert keep.read_bytes() == b"finished work"
+
+
+def test_zero_tracks(capsys):
+    assert main(["eval", "head2head", "--tracks", "0", "--out", "/tmp/unused_h2h"]) == 2
+    assert "--tracks must be >= 1" in capsys.readouterr().err
+    with pytest.raises(InputError):
+        P.Settings(tracks=0).check()
