@@ -128,7 +128,11 @@ def race_with_data(task: dict) -> dict:
     from gprace.h2h.predictors import training_pairs
     from gprace.h2h.race import run_race
 
+    import time
+
+    t0 = time.perf_counter()
     out = run_race(task)
+    out["attrs"]["wall_s"] = time.perf_counter() - t0
     Z, Y = training_pairs(make_track(task["track"]), out["arrays"]["ego"], out["arrays"]["opp"])
     out["arrays"]["Z"], out["arrays"]["Y"] = Z, Y
     return out
