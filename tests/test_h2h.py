@@ -151,3 +151,40 @@ def test_random_track_spec_and_loop():
     a = make_track({"kind": "random", "seed": 5, "width": 0.75})
     b = make_track({"kind": "random", "seed": 5, "width": 0.75})
     assert a.length == b.length and not a.closed
+
+
+def test_exploration_targets_uncertainty_and_breaks_stalemates(straight, toy_gp):
+    from gprace.h2h.explore import Explorer
+    from gprace.h2h.predictors import CONTROLLABLE
+
+    rng = np.random.default_rng(3)
+    n = 200
+    opp = np.column_stack([np.ones(n), np.zeros(n), np.zeros(n), np.zeros(n), rng.uniform(-0.2, 0.2, n), rng.uniform(2, 6, n)])
+    ego = opp.copy()
+    ego[:, 4] = rng.uniform(-0.25, 0.25, n)
+    ego[:, 5] -= rng.uniform(0.3, 1.0, n)
+    Z = features(straight, ego, opp)
+    Y = toy_gp.predict(Z)[0]
+    e_state, o_state = ego[0], opp[0]
+    ex = Explorer.from_data(toy_gp, Z, Y, alpha=1.0, stalemate_steps=3, stalemate_tol=1e-6, hold_steps=2)
+    # alpha = 1: the candidate of largest weighted variance
+    z = features(straight, e_state, o_state)[0]
+    Zc = np.tile(z, (len(ex.grid), 1))
+    Zc[:, list(CONTROLLABLE)] = ex.grid
+    v = toy_gp.predict(Zc)[1]
+    w = v[:, 0] ** 2 * ex.S[0] + v[:, 1] ** 2 * ex.S[1]
+    assert np.allclose(ex.target_gaps(straight, e_state, o_state), ex.grid[np.argmax(w)])
+    # alpha = 0 keeps the nearest configuration; a frozen relative configuration (stalemate)
+    # reverses the distance ranking: the farthest candidate is chosen and held
+    ex0 = Explorer.from_data(toy_gp, Z, Y, alpha=0.0, stalemate_steps=3, stalemate_tol=1e-6, hold_steps=2)
+    zc = z[list(CONTROLLABLE)]
+    d = np.linalg.norm((ex0.grid - zc) / ex0.scale, axis=1)
+    targets = [ex0.target_gaps(straight, e_state, o_state).copy() for _ in range(7)]
+    assert np.allclose(targets[0], ex0.grid[np.argmin(d)])
+    assert ex0.stalemates >= 1
+    far = ex0.grid[np.argmax(d)]
+    assert any(np.allclose(t, far) for t in targets)
+    i = next(k for k, t in enumerate(targets) if np.allclose(t, far))
+    assert np.allclose(targets[i + 1], far) and np.allclose(targets[i + 2], far)  # held
+    ref = ex0.reference(straight, e_state, np.tile(o_state, (10, 1)), 0.13)
+    assert ref.shape == (10, 3) and np.all(np.abs(ref[:, 1]) <= 0.375 - 0.13 + 1e-12)
