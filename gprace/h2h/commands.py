@@ -100,13 +100,13 @@ def register(app: typer.Typer) -> None:
         alpha: float = typer.Option(0.9, "--alpha", help="Exploration weight during exploration."),
         dict_size: int = typer.Option(600, "--dict-size", help="Dictionary size of the exploration GP."),
         width: float = typer.Option(0.75, "--width", help="Width of the random tracks [m]."),
-        stretches: int = typer.Option(3, "--stretches", help="Stretches per random track."),
+        stretches: int = typer.Option(5, "--stretches", help="Stretches per random track."),
         predictors: str = typer.Option("baseline,explore", "--predictors", help="Predictors raced (baseline, explore, select, init, cv, oracle)."),
         backend: str = typer.Option("auto", "--gp-backend", help="exact | sparse | auto (sparse above --exact-max points)."),
         exact_max: int = typer.Option(1500, "--exact-max"),
         inducing: int = typer.Option(200, "--inducing", help="Inducing points of the sparse GP."),
         samples: int = typer.Option(50, "--samples", help="GP rollout samples."),
-        max_time: float = typer.Option(40.0, "--max-time", help="Longest race [s]."),
+        max_time: float = typer.Option(60.0, "--max-time", help="Longest race [s]."),
         workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
         resume: bool = RESUME, as_json: bool = JSON,
     ) -> None:
@@ -124,8 +124,8 @@ def register(app: typer.Typer) -> None:
     def collect(
         out: Path = OUT,
         runs: int = typer.Option(500, "--runs"), init_runs: int = typer.Option(20, "--init-runs"),
-        width: float = typer.Option(0.75, "--width"), stretches: int = typer.Option(3, "--stretches"),
-        max_time: float = typer.Option(40.0, "--max-time"),
+        width: float = typer.Option(0.75, "--width"), stretches: int = typer.Option(5, "--stretches"),
+        max_time: float = typer.Option(60.0, "--max-time"),
         workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
         resume: bool = RESUME, as_json: bool = JSON,
     ) -> None:

@@ -96,5 +96,5 @@ def make_track(spec: dict):
     if kind == "random":
         from gprace.tracks.random import random_track
 
-        return random_track(int(spec["seed"]), n_stretches=int(spec.get("stretches", 3)), width=float(spec.get("width", 0.75)))
+        return random_track(int(spec["seed"]), n_stretches=int(spec.get("stretches", 5)), width=float(spec.get("width", 0.75)))
     raise InputError(f"track spec: unknown kind {kind!r} (valid: random, loop)")

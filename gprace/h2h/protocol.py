@@ -52,7 +52,7 @@ class Settings:
     episode_seconds: float = 60.0
     alpha: float = 0.9
     dict_size: int = 600
-    stretches: int = 3
+    stretches: int = 5
     width: float = 0.75
     raced: tuple[str, ...] = RACED
     offline: tuple[str, ...] = OFFLINE
@@ -61,7 +61,7 @@ class Settings:
     inducing: int = 200
     optimize: bool = True
     samples: int = 50
-    max_time: float = 40.0
+    max_time: float = 60.0
     config: dict = field(default_factory=dict)
     # execution (not part of any result)
     workers: int = 1
