@@ -29,6 +29,7 @@ app = typer.Typer(
 # stages that contribute commands, in the order --help lists them
 COMMAND_MODULES = (
     "gprace.tracks.commands",
+    "gprace.sim.commands",
     "gprace.report.commands",
     "gprace.h2h.commands",
     "gprace.timetrial.commands",
