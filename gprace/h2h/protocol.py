@@ -360,7 +360,7 @@ def offline_errors_task(task: dict) -> dict:
     """
     from gprace.h2h.config import H2HConfig
     from gprace.h2h.geometry import make_track
-    from gprace.h2h.predictors import GPPredictor, make_predictor
+    from gprace.h2h.predictors import make_predictor
 
     cfg = H2HConfig(**task.get("config", {}))
     K = cfg.pred_steps
@@ -373,19 +373,14 @@ def offline_errors_task(task: dict) -> dict:
         return {name: np.zeros((K, 0)) for name in task["models"]}
     truth = np.stack([O[k + 1:k + 1 + T, 4] for k in range(K)])  # (K, T)
     for name, path in task["models"].items():
-        if name == "cv":
-            pred = make_predictor("cv", K, cfg.dt)
+        if name == "cv":  # ConstantVelocityPredictor for every start time at once
             x = O[:T]
-            kap = track.kappa(track.wrap(x[:, 5]))
             eyd = x[:, 0] * np.sin(x[:, 3]) + x[:, 1] * np.cos(x[:, 3])
             mean = x[None, :, 4] + cfg.dt * np.arange(1, K + 1)[:, None] * eyd[None, :]
-            del pred, kap
-        else:
+        else:  # GPPredictor.rollout for every start time at once (n samples each)
             gp = make_predictor("gp", K, cfg.dt, path, cfg.samples, seed=int(task["seed"]))
-            assert isinstance(gp, GPPredictor)
             n = cfg.samples
-            gp.samples = n * T
-            # ego plan per sample: the true ego states from each start time t
+            # ego part per sample: the true ego states from each start time t
             starts = np.repeat(np.arange(T), n)
             rng = np.random.default_rng(int(task["seed"]))
             S = np.repeat(O[:T], n, axis=0)
