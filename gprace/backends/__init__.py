@@ -85,6 +85,8 @@ plants.builtin("frenet", "gprace.plants.frenet:FrenetPlant")
 plants.builtin("commonroad-std", "gprace.plants.commonroad:CommonRoadSTDPlant")
 
 gps = Registry("gprace.gp", "GP backend")
+gps.builtin("exact", "gprace.backends.gp_exact:ExactGP")
+gps.builtin("sparse", "gprace.backends.gp_sparse:SparseGP")
 solvers = Registry("gprace.solver", "QP solver")
 solvers.builtin("cvxpy-clarabel", "gprace.backends.qp_cvxpy:CvxpyClarabelQP")
 solvers.builtin("clarabel", "gprace.backends.qp_clarabel:ClarabelQP")
