@@ -149,9 +149,8 @@ def lag_states(model: NominalModel, data: Dataset) -> np.ndarray:
             m = np.flatnonzero(data.rec == r)
             u = data.U[m, idx]
             # z[k+1] = a z[k] + (1-a) u[k], z[0] = u[0]
-            y, _ = lfilter([0.0, 1.0 - a], [1.0, -a], u, zi=[a * u[0]])
+            y, _ = lfilter([0.0, 1.0 - a], [1.0, -a], u, zi=[u[0]])
             z[m] = y
-            z[m[0]] = u[0]
         cols.append(z[:, None])
     if not cols:
         return np.zeros((data.n, 0))

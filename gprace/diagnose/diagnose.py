@@ -25,7 +25,7 @@ one-step sensor noise, short enough that open-loop predictions stay on the recor
 
 MAX_EFFECTS = 3
 MIN_WINDOWS = 150
-UNEXPLAINED_SHARE = 0.3
+UNEXPLAINED_SHARE = 0.1
 """A named effect whose channels keep more than this share of their structured error is not
 trusted: the residual says the physics is something else (reported unexplained, not misnamed)."""
 
@@ -72,8 +72,8 @@ def _stats_and_local(data, starts, H, Ed, Et, regions_by_c) -> list[locate.Chann
     cs = locate.channel_stats(data, starts, Ed, Et)
     for st, c in zip(cs, TESTED):
         rg = regions_by_c.get(c, [])
-        laps_need = min(2, data.laps_total)
-        local = [g for g in rg if g.laps_seen >= laps_need and g.excess > 0.5 * st.rmse_twin**2]
+        # a localised error counts only when it repeats: seen in at least two laps
+        local = [g for g in rg if g.laps_seen >= 2 and g.excess > 0.5 * st.rmse_twin**2]
         if local and not st.structured:
             st.structured = True
             st.statistic = max(st.statistic, max(g.z for g in local))
@@ -110,9 +110,9 @@ def diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int = HORIZON,
 
     # ---- name ----------------------------------------------------------------------------
     prob = nm.Problem(vehicle, data, H, scale, substeps=1)
-    fit_stride = max(1, len(starts) // 600)
+    fit_stride = max(1, len(starts) // 400)
     fit_w = starts[::fit_stride]
-    screen_w = starts[:: max(1, len(starts) // 300)]
+    screen_w = starts[:: max(1, len(starts) // 200)]
     eval_w = starts[:: max(1, len(starts) // 2500)]
     fold = nm.folds(data, eval_w)
     bid = locate.blocks(data, eval_w)
@@ -127,6 +127,14 @@ def diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int = HORIZON,
         for _round in range(MAX_EFFECTS):
             prob.base = [f.effect() for f in chosen]
             cur = prob.model()
+            if chosen:  # stop when what is left is noise (against the same twin floor)
+                Ec = core.errors(data, starts, core.predict(cur, data, starts, H, _sub(cur, sub)))
+                rc = {c: locate.find_regions(data, starts, H, Ec, Et0, c) for c in TESTED}
+                left = {_ALIAS.get(c, c) for st, c in zip(_stats_and_local(data, starts, H, Ec, Et0, rc), TESTED)
+                        if st.structured}
+                if not left:
+                    break
+                dyn_struct = left
             l0_ch = np.mean(prob.residuals(cur, eval_w) ** 2, axis=1)
             l0 = l0_ch.mean(axis=1)
             names = [n for n in EFFECTS if n not in {f.name for f in chosen} and n not in not_ident

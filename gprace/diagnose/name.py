@@ -35,7 +35,7 @@ that pure sensor noise gives 1 per channel)."""
 MIN_EXCESS_SHARE = 0.1
 """... and at least this share of the remaining excess over the noise floor."""
 AMBIGUOUS_SHARE = 0.1
-SCREEN_TOP = 4
+SCREEN_TOP = 3
 
 # starting values (no effect, or a small one where "none" is a bound) per effect parameter
 START = {
