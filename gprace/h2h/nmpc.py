@@ -142,7 +142,7 @@ class NMPC:
             "ipopt": {
                 "print_level": 0, "sb": "yes", "max_iter": c.max_iter, "tol": 1e-6,
                 "acceptable_tol": 1e-4, "acceptable_iter": 3, "warm_start_init_point": "yes",
-                "warm_start_bound_push": 1e-6, "warm_start_mult_bound_push": 1e-6, "mu_init": 1e-3,
+                "warm_start_bound_push": 1e-6, "warm_start_mult_bound_push": 1e-6, "mu_strategy": "adaptive",
                 "linear_solver": "mumps",
             },
         }
