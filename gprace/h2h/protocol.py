@@ -276,8 +276,11 @@ def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyp
     settings: dict[str, Any] = {"kernel": "matern15", "seed": seed, "optimize": st.optimize}
     if backend == "sparse":
         settings["n_inducing"] = min(st.inducing, len(Z))
+    import time
+
+    t0 = time.perf_counter()
     gp = make_gp(backend, **settings).fit(Z, Y)
-    meta = {"feature_map": FEATURE_MAP, "input_names": list(FEATURES), "output_names": list(OUTPUTS),
+    meta = {"fit_s": time.perf_counter() - t0, "feature_map": FEATURE_MAP, "input_names": list(FEATURES), "output_names": list(OUTPUTS),
             "n_points": len(Z), "y_std": json.dumps(Y.std(axis=0).tolist()), **extra}
     model.parent.mkdir(parents=True, exist_ok=True)
     return save_opponent_gp(model, gp, meta, config_hash=config_hash(key), seed=seed)
