@@ -106,7 +106,7 @@ class TrackingDriver:
 def record(vehicle: VehicleConfig, track, effects: Sequence[EffectConfig | Effect] = (), *,
            laps: float = 2.0, dt: float = 0.05, noise: NoiseConfig = DEFAULT_NOISE, seed: int = 0,
            speed_scale: float = 0.7, weave: float = 0.35, excitation: float = 1.0,
-           substeps: int = 10, s0: float = 0.0) -> Run:
+           substeps: int = 10, s0: float = 0.0, plant: str = "frenet") -> Run:
     """Drive ``track`` for ``laps`` laps with hidden ``effects``; return the recording.
 
     ``effects`` may hold catalogue configs or arbitrary Effect objects (effects outside the
@@ -114,8 +114,13 @@ def record(vehicle: VehicleConfig, track, effects: Sequence[EffectConfig | Effec
     """
     cat = tuple(e for e in effects if isinstance(e, EffectConfig))
     other = [e for e in effects if not isinstance(e, EffectConfig)]
-    cfg = PlantConfig(vehicle=vehicle, effects=cat, noise=noise, substeps=substeps, seed=seed)
-    plant = FrenetPlant(cfg, track, dt)
+    cfg = PlantConfig(kind=plant, vehicle=vehicle, effects=cat, noise=noise, substeps=substeps, seed=seed)
+    if plant == "frenet":
+        plant = FrenetPlant(cfg, track, dt)
+    else:  # e.g. commonroad-std: physics nobody here wrote, against the nominal ``vehicle``
+        from gprace.plants import make_plant
+
+        plant = make_plant(cfg, track, dt)
     if other:
         from gprace.model import NominalModel
 
@@ -144,5 +149,5 @@ def record(vehicle: VehicleConfig, track, effects: Sequence[EffectConfig | Effec
             "v_y": Y[:, 1], "yaw_rate": Y[:, 2], "delta": U[:, 0], "a_x": U[:, 1],
             "kappa": track.kappa(s), "lap": lap[:k]}
     meta = {"vehicle_toml": vehicle.to_toml(), "track": str(getattr(track, "source", None) or track.name),
-            "dt": dt, "plant": "frenet", "track_length": float(L)}
+            "dt": dt, "plant": cfg.kind, "track_length": float(L)}
     return Run(data, meta, source=f"synthetic({track.name}, seed {seed})")
