@@ -134,8 +134,8 @@ class CommonRoadSTDPlant(Plant):
             prev = self._s_cont - L * math.floor(self._s_cont / L)
             ds = (s - prev + 0.5 * L) % L - 0.5 * L
             self._s_cont += ds
-            self.lap = int(math.floor(self._s_cont / L))
-            s = self._s_cont - L * self.lap
+            self.lap = int(math.floor((self._s_cont + 1e-6) / L))  # a hair before the line is on it
+            s = max(self._s_cont - L * self.lap, 0.0)
         else:
             self._s_cont = s
         epsi = z[4] - float(tr.heading(s))
