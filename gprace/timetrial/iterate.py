@@ -56,6 +56,7 @@ class IterateSettings:
     plan_ds: float = 6.0
     first_speed_scale: float = 0.85
     plan_grip: float = 0.9
+    plan_grip_brake: float = 0.7
     solver: str = "clarabel"
     beta: float = 0.6
     laps: float = 1.0
@@ -244,7 +245,7 @@ def run_chain(task: dict) -> list[dict]:
         if not steps.done(tag(i, "plan")):
             warm = read_plan(dp / "plan.h5", track)
             gp_plan = L.load_predictor(di / "gp_planning.h5", "planning")
-            plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, grip=st.plan_grip), warm=warm, mu_plan=lambda Z: gp_plan(Z)[0])
+            plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, grip=st.plan_grip, grip_brake=st.plan_grip_brake), warm=warm, mu_plan=lambda Z: gp_plan(Z)[0])
             plan.write(di / "plan.h5")
             steps.mark(tag(i, "plan"))
         # (4) drive ------------------------------------------------------------------------------

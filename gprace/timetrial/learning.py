@@ -11,8 +11,9 @@ Both GPs take ``z = [v_y, yaw_rate, delta]`` (REFERENCE.md). Targets, from conse
 
 Training (project decision, to fit the 10-minute budget of ``gprace iterate``): hyperparameters
 are fitted once, by marginal likelihood on at most ``max_fit_points`` points of the first data
-set; every later retrain keeps them FIXED (in physical units) and only recomputes the posterior
-on the current dictionary (a Cholesky factorisation, a fraction of a second at M = 2000).
+set, with one kernel shared by both outputs; every later retrain keeps them FIXED and only
+recomputes the posterior on the current dictionary (a Cholesky factorisation, a fraction of a
+second at M = 2000).
 """
 
 from __future__ import annotations
@@ -100,23 +101,27 @@ def fit_hyper(Z: np.ndarray, Y: np.ndarray, seed: int = 0, max_fit_points: int =
 
     kw = {"kernel": "se", "optimize": True, "seed": seed}
     if backend == "exact":
-        kw["max_fit_points"] = max_fit_points
+        # one kernel for both outputs: one Cholesky factor, half the prediction cost in the MPC loop
+        kw.update(max_fit_points=max_fit_points, shared_kernel=True)
     return make_gp(backend, **kw).fit(Z, Y)
 
 
 def refit_fixed(ref, Z: np.ndarray, Y: np.ndarray, backend: str = "exact"):
-    """Posterior on ``(Z, Y)`` with the hyperparameters of ``ref`` held fixed in physical units."""
+    """Posterior on ``(Z, Y)`` with the hyperparameters of ``ref`` held fixed.
+
+    Length scales are kept in physical units (the inputs are re-standardised on the new data);
+    signal and noise variances are kept relative to the outputs' spread (the backend standardises
+    the outputs), so outputs that shared one kernel still share one Cholesky factor.
+    """
     from gprace.gp import make_gp
     from gprace.gp.base import fit_scalers
 
     h = ref.hyper_
     ls_phys = np.exp(h.log_ls) * h.z_scale[None, :]
-    sf2_phys = np.exp(h.log_sf2) * h.y_scale**2
-    sn2_phys = np.exp(h.log_sn2) * h.y_scale**2
-    _, z_scale, _, y_scale = fit_scalers(np.asarray(Z, float), np.asarray(Y, float))
-    gp = make_gp(backend, kernel=h.kernel, optimize=False, seed=ref.seed,
-                 length_scale=ls_phys / z_scale[None, :], signal_variance=sf2_phys / y_scale**2,
-                 noise=np.maximum(sn2_phys / y_scale**2, 1e-8))
+    _, z_scale, _, _ = fit_scalers(np.asarray(Z, float), np.asarray(Y, float))
+    kw = {"shared_kernel": bool(getattr(ref, "shared_kernel", False))} if backend == "exact" else {}
+    gp = make_gp(backend, kernel=h.kernel, optimize=False, seed=ref.seed, length_scale=ls_phys / z_scale[None, :],
+                 signal_variance=np.exp(h.log_sf2), noise=np.maximum(np.exp(h.log_sn2), 1e-8), **kw)
     return gp.fit(Z, Y)
 
 
