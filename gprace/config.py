@@ -7,6 +7,7 @@ Every model forbids unknown keys; :func:`load_toml` turns a validation failure i
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 import json
 import tomllib
@@ -173,11 +174,17 @@ def validate(model: type[M], data: dict[str, Any], where: str) -> M:
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
+        errs = exc.errors()
+        # a misspelt key shows up as "unknown" plus "missing": report the unknown one first
+        err = next((e for e in errs if e["type"] == "extra_forbidden"), errs[0])
         loc = ".".join(str(p) for p in err["loc"]) or "(root)"
         msg = err["msg"]
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
+            missing = [str(e["loc"][-1]) for e in errs if e["type"] == "missing" and e["loc"][:-1] == err["loc"][:-1]]
+            close = difflib.get_close_matches(str(err["loc"][-1]), missing, n=1)
+            if close:
+                msg += f" (did you mean {close[0]!r}?)"
         elif err["type"] == "missing":
             msg = "required key missing"
         elif err["type"] == "value_error":
