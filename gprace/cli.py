@@ -55,6 +55,20 @@ for _mod in COMMAND_MODULES:
     importlib.import_module(_mod).register(app)
 
 
+def _click_exceptions() -> tuple[type, ...]:
+    """Usage errors: click's, and those of the click copy that typer >= 0.20 vendors."""
+    import click
+
+    out: list[type] = [click.exceptions.ClickException]
+    try:
+        from typer._click.exceptions import ClickException as _Vendored
+
+        out.append(_Vendored)
+    except ImportError:  # older typer uses click itself
+        pass
+    return tuple(out)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (also used by tests)."""
     debug = os.environ.get("GPRACE_DEBUG") == "1"
@@ -74,9 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         console.error("interrupted; finished artifacts are kept, rerun the same command to resume")
         return 130
     except Exception as exc:  # click usage errors and anything unexpected
-        import click
-
-        if isinstance(exc, click.exceptions.ClickException):
+        if isinstance(exc, _click_exceptions()):
             exc.show()
             return 2
         if debug:
