@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
 
-from gprace.gp.base import BOUNDS, GPBackend
+from gprace.gp.base import BOUNDS, GPBackend, best_start
 from gprace.gp.kernels import from_sqdist, kernel
 from gprace.gp.linalg import cholesky, pack_lower, unpack_lower
 
@@ -79,12 +79,14 @@ class ExactGP(GPBackend):
         log_ls, log_sf2, log_sn2 = log_ls.copy(), log_sf2.copy(), log_sn2.copy()
         for g in groups:
             o = g[0]
-            k = self._sk_kernel(np.exp(log_ls[o]), float(np.exp(log_sf2[o])), float(np.exp(log_sn2[o])))
+            y = Ys[:, g] if len(g) > 1 else Ys[:, o]
+            th = best_start(self.kernel, np.concatenate([log_ls[o], [log_sf2[o], log_sn2[o]]]), Zs, y)
+            d = Zs.shape[1]
+            k = self._sk_kernel(np.exp(th[:d]), float(np.exp(th[d])), float(np.exp(th[d + 1])))
             gpr = GaussianProcessRegressor(
                 kernel=k, alpha=1e-10, normalize_y=False, n_restarts_optimizer=self.n_restarts,
                 random_state=int(rng.integers(2**31 - 1)), copy_X_train=False,
             )
-            y = Ys[:, g] if len(g) > 1 else Ys[:, o]
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", ConvergenceWarning)
                 gpr.fit(Zs, y)

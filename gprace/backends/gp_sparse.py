@@ -20,7 +20,7 @@ import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
 from scipy.optimize import minimize
 
-from gprace.gp.base import GPBackend, optimisation_bounds
+from gprace.gp.base import GPBackend, best_start, optimisation_bounds
 from gprace.gp.inducing import kmeanspp_indices
 from gprace.gp.kernels import kernel
 from gprace.gp.linalg import cholesky
@@ -44,7 +44,7 @@ class SparseGP(GPBackend):
         signal_variance: Any = 1.0,
         n_inducing: int = 200,
         max_iter: int = 200,
-        jitter: float = 1e-6,
+        jitter: float = 1e-8,
         init_points: int = 500,
     ) -> None:
         super().__init__(kernel, noise, optimize, seed, length_scale, signal_variance)
@@ -65,6 +65,7 @@ class SparseGP(GPBackend):
         for o in range(Yn.shape[1]):
             y = np.ascontiguousarray(Yn[:, o])
             theta0 = np.concatenate([log_ls[o], [log_sf2[o], log_sn2[o]]])
+            theta0 = best_start(self.kernel, theta0, Zn[sub], y[sub])
             theta0 = _exact_init(self.kernel, theta0, Zn[sub], y[sub], bounds)
 
             def neg(theta: np.ndarray) -> tuple[float, np.ndarray]:

@@ -321,6 +321,30 @@ class GPBackend(ABC):
         """Restore from :meth:`_state_arrays` output; ``self.hyper_`` is already set."""
 
 
+def best_start(kernel_name: str, theta0: np.ndarray, Z: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """The better start for hyperparameter optimisation: ``theta0`` or the default
+    ``[log 1 (ls), log 1 (sf2), log 1e-2 (sn2)]``, judged by the exact log marginal likelihood on
+    ``(Z, Y)`` (``Y (n,)`` or ``(n, q)`` summed over columns).
+
+    A start at an extreme (say noise at its lower bound with duplicate inputs) can lead L-BFGS-B
+    into the broad optimum that explains everything as noise; two likelihood evaluations avoid it.
+    """
+    from gprace.gp.objectives import exact_lml
+
+    d = Z.shape[1]
+    default = np.concatenate([np.zeros(d), [0.0, np.log(1e-2)]])
+    if np.allclose(theta0, default):
+        return theta0
+    Y = Y.reshape(len(Y), -1)
+    scores = []
+    for th in (theta0, default):
+        try:
+            scores.append(sum(exact_lml(kernel_name, th, Z, Y[:, i])[0] for i in range(Y.shape[1])))
+        except Exception:  # an unusable start (not positive definite) scores worst
+            scores.append(-np.inf)
+    return theta0 if scores[0] >= scores[1] else default
+
+
 def optimisation_bounds(d: int) -> list[tuple[float, float]]:
     """L-BFGS-B bounds for ``theta = [log ls (d), log sf2, log sn2]``."""
     b = [tuple(np.log(BOUNDS["length_scale"]))] * d
