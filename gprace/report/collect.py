@@ -560,12 +560,15 @@ def diagnosis_section(found: Found) -> Section | None:
         eff = d.get("effects") or []
         sec.items.append(Item(f"{rp.name}: verdict", html=_diag_summary(d)))
         res = _residual_data(rp, residuals)
+        why = ""
+        if res is None:
+            res, why = _recompute_residuals(rp, d)
         if res is not None:
             s, before, after, length = res
             sec.add_figure(f"residual_{rp.stem}", "Residual along the track, nominal model and augmented model "
                            "(located windows shaded)", lambda: F.fig_residual_track(s, before, after, d.get("regions", [])))
         else:
-            sec.missing.append(f"{rp.name}: no residual data next to it: residual-along-track plot not drawn")
+            sec.missing.append(f"{rp.name}: residual-along-track plot not drawn ({why or 'no residual data'})")
         sec.add_figure(f"channels_{rp.stem}", "Channels with structured error and the windows where it sits",
                        lambda d=d: F.fig_channels(d.get("channels", []), d.get("regions", [])))
         if eff:
@@ -607,6 +610,72 @@ def _diag_summary(d: dict) -> str:
     for n in d.get("notes", []) or []:
         parts.append(f"<p class='note'>{html.escape(str(n))}</p>")
     return "".join(parts)
+
+
+def _recompute_residuals(report_path: Path, d: dict) -> tuple[Any, str]:
+    """Mean multi-step prediction error along the track, nominal and augmented model, from the
+    recordings next to the diagnosis JSON (run artifacts or CSV runs in the same folder).
+
+    The nominal vehicle is the one the recordings embed (else the augmented file without the
+    named effects); the augmented one is the JSON's ``augmented_vehicle`` file (looked up next
+    to the JSON, then from the working folder). Returns ``((s, before, after, None), "")`` or
+    ``(None, reason)``.
+    """
+    try:
+        from gprace.config import load_vehicle
+        from gprace.diagnose import core
+        from gprace.diagnose.locate import track_profile
+        from gprace.io.runs import read_run
+        from gprace.model import NominalModel
+    except Exception as exc:  # noqa: BLE001
+        return None, f"diagnosis code unavailable: {exc}"
+    folder = report_path.parent
+    recs = sorted(p for p in folder.iterdir() if p.is_file() and (
+        (p.suffix.lower() in (".h5", ".hdf5") and artifact_kind(p) == "run") or p.suffix.lower() == ".csv"))
+    runs = []
+    for p in recs:
+        try:
+            runs.append(read_run(p))
+        except Exception:  # noqa: BLE001 - a CSV that is not a run
+            continue
+    if not runs:
+        return None, f"no recordings next to {report_path.name}"
+    aug = None
+    name = d.get("augmented_vehicle")
+    if name:
+        for cand in (Path(name), folder / Path(name).name, folder / name):
+            if cand.exists():
+                try:
+                    aug = load_vehicle(str(cand))
+                except Exception:  # noqa: BLE001
+                    aug = None
+                break
+    try:
+        nom = runs[0].vehicle()
+    except Exception:  # noqa: BLE001
+        nom = None
+    if nom is None and aug is not None:
+        k = len(d.get("effects") or [])
+        nom = aug.model_copy(update={"effects": tuple(aug.effects)[: len(aug.effects) - k]})
+    if nom is None:
+        return None, "the recordings embed no vehicle and no augmented vehicle file was found"
+    try:
+        H = int(d.get("horizon", 15))
+        data = core.build_dataset(runs, min_samples=max(2 * H, 10))
+        starts = data.windows(H)
+        starts = starts[:: max(1, len(starts) // 4000)]
+        out = {}
+        for key, veh in (("before", nom), ("after", aug)):
+            if veh is None:
+                continue
+            E = core.errors(data, starts, core.predict(NominalModel(veh), data, starts, H, 2))
+            out[key] = {}
+            for c, ch in enumerate(("v_x", "v_y", "yaw_rate")):
+                sb, e = track_profile(data, starts, H, E, c)
+                out[key][ch] = e
+        return (sb, out["before"], out.get("after"), None), ""
+    except Exception as exc:  # noqa: BLE001
+        return None, f"recomputing the residuals failed: {type(exc).__name__}: {exc}"
 
 
 def _residual_data(report_path: Path, residuals: list[Path]):

@@ -379,10 +379,13 @@ def fig_residual_track(s: np.ndarray, before: Mapping[str, np.ndarray], after: M
     chans = list(before)
     fig, axes = _figure(len(chans), 1, size=(9.0, 2.3 * len(chans) + 0.6), sharex=True)
     s = np.asarray(s, float)
+    o = np.argsort(s, kind="stable")
+    # binned profiles (a few hundred points) as lines, raw residuals as dots
+    style = {"ls": "-", "lw": 1.0, "marker": ".", "ms": 3} if len(s) <= 600 else {"ls": "none", "marker": ".", "ms": 2}
     for ax, c in zip(axes[:, 0], chans):
-        ax.plot(s, np.asarray(before[c], float), ".", ms=2, color=PALETTE[1], label="nominal model")
+        ax.plot(s[o], np.asarray(before[c], float)[o], color=PALETTE[1], label="nominal model", **style)
         if after is not None and c in after:
-            ax.plot(s, np.asarray(after[c], float), ".", ms=2, color=PALETTE[0], label="augmented model")
+            ax.plot(s[o], np.asarray(after[c], float)[o], color=PALETTE[0], label="augmented model", **style)
         for r in regions:
             if r.get("channel") in (c, None):
                 ax.axvspan(float(r["s_start"]), float(r["s_end"]), color="tab:red", alpha=0.12)
