@@ -13,7 +13,9 @@ Each control period:
    tracking MPC. **Decision:** only candidates within ``explore_radius`` (distance scaled by the
    data's standard deviation per feature) of ``z~`` compete: on the hidden-effects Audi the full
    grid's extreme corners (e.g. large lateral velocity with opposite steering) spun the car within
-   two seconds at alpha = 0.857; the paper's GT Sport car evidently tolerated more.
+   two seconds at alpha = 0.857; the paper's GT Sport car evidently tolerated more. Nor does it
+   explore while the reference brakes harder than ``explore_brake`` of the braking limit over the
+   horizon (the hidden-effects car spun at the hairpin entry when it did).
 3. **Linearisation** of the Euler-discretised nominal model along the previous solution shifted by
    one step (first period: the reference), all horizon points in one compiled CasADi call.
 4. **GP compensation**: the tracking GP's mean of the one-step errors of ``[v_y, yaw_rate]`` at the
@@ -50,6 +52,7 @@ class MPCSettings:
     margin: float = 0.1            # distance kept from the border on top of half the car width [m]
     integrator: str = "rk4"        # prediction step: "rk4" (default) or "euler" (the paper's)
     explore_radius: float = 1.0    # exploration trust region: candidates within this scaled distance of z~
+    explore_brake: float = 0.5     # no exploration while the reference brakes harder than this share of the limit
     weights: Weights = field(default_factory=Weights)
 
 
@@ -135,6 +138,8 @@ class TrackingMPC:
             return xref, uref
         from gprace.explore.algorithm import CandidateGrid, select_target
 
+        if uref[:, 1].min() < self.s.explore_brake * self.u_lo[1]:
+            return xref, uref  # braking zone: perform, do not explore
         z_tilde = np.array([xref[0, 1], xref[0, 2], uref[0, 0]])
         g = self.grid
         near = np.linalg.norm((g.Z - z_tilde) / g.scale, axis=1) <= self.s.explore_radius
@@ -152,6 +157,7 @@ class TrackingMPC:
         N = self.N
         s0 = float(x_meas[5])
         xref, uref = self.reference(s0)
+        xr0 = xref
         xref, uref = self.explore(xref, uref)
         # nominal trajectory: previous solution shifted (or the reference), from the measured state
         if self.prev_x is None:
@@ -186,7 +192,7 @@ class TrackingMPC:
         x0 = x_meas.copy()
         x0[5] = 0.0
         pb = LtvProblem(A, B, c, x0, xref, uref, lo, hi, self.u_lo, self.u_hi, self.delta_prev, self.s.weights)
-        return pb, {"gamma": gamma, "s0": s0, "xref": xref, "uref": uref}
+        return pb, {"gamma": gamma, "s0": s0, "xref": xref, "uref": uref, "explored": xref is not xr0}
 
     def step(self, x_meas: np.ndarray) -> tuple[np.ndarray, dict]:
         """Input for the measured state (6,); info has solve time, status, fallback flag."""
