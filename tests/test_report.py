@@ -271,3 +271,35 @@ def test_h2h_only_report(tmp_path):
     out = tmp_path / "r.html"
     assert main(["report", str(tmp_path / "e"), "-o", str(out)]) == 0
     assert len(_data_uri_images(out.read_text())) == 3
+
+
+def test_report_recomputes_residuals_from_recording_and_augmented_vehicle(tmp_path):
+    """A recording with a hidden road grade, the augmented vehicle carrying exactly that grade:
+    the recomputed v_x residual inside the window is large before and near zero after."""
+    from gprace.config import EffectConfig, load_vehicle
+    from gprace.diagnose.synth import record
+    from gprace.io.runs import write_run
+    from gprace.report.collect import _recompute_residuals
+    from gprace.tracks import load_track
+
+    veh = load_vehicle("audi_tt_cup")
+    grade = EffectConfig(name="road_grade", params={"angle": 0.08, "s_start": 200.0, "s_end": 350.0})
+    run = record(veh, load_track("circle_100"), [grade], laps=1.2, seed=1)
+    d = tmp_path / "diag"
+    write_run(run, d / "rec.h5")
+    (d / "aug.toml").write_text(veh.model_copy(update={"effects": (grade,)}).to_toml())
+    rep = {"verdict": "mismatch", "channels": [], "regions": [], "horizon": 15, "augmented_vehicle": "aug.toml",
+           "effects": [{"name": "road_grade", "parameters": {}}]}
+    (d / "diagnosis.json").write_text(json.dumps(rep))
+    res, why = _recompute_residuals(d / "diagnosis.json", rep)
+    assert res is not None, why
+    s, before, after, _ = res
+    inside = (s > 230) & (s < 330) & np.isfinite(before["v_x"])
+    outside = ((s < 170) | (s > 400)) & np.isfinite(before["v_x"])
+    # uphill: the car is slower than the flat-road model predicts, by about g sin(angle) * horizon time
+    assert np.mean(before["v_x"][inside]) < -0.3
+    assert abs(np.mean(before["v_x"][outside])) < 0.1
+    assert np.max(np.abs(after["v_x"][inside])) < 0.25 * abs(np.mean(before["v_x"][inside]))
+    out = tmp_path / "r.html"
+    assert main(["report", str(d), "-o", str(out), "--png", str(tmp_path / "png")]) == 0
+    assert (tmp_path / "png" / "diagnosis_residual_diagnosis.png").exists()
