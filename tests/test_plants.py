@@ -186,3 +186,12 @@ def test_simulate_completes_a_lap_of_the_default_track(plant):
 
     run = simulate(load_plant(plant), load_track("gprace_ring"), SimulateConfig(laps=1))
     assert run.meta["completed"] and np.abs(run["e_y"]).max() < 5.5
+
+
+def test_simulate_stops_early_when_the_car_cannot_follow(audi, capsys):
+    """A car with a third of the grip the controller assumes slides off; the run ends cleanly."""
+    slippery = PlantConfig(vehicle=audi, effects=(EffectConfig(name="tire_friction", params={"front": 0.3, "rear": 0.3}),))
+    run = simulate(slippery, make_circle(100.0, 6.0), SimulateConfig(laps=1.0, speed_scale=1.0))
+    assert not run.meta["completed"]
+    assert run["t"][-1] < 30.0 and run.n >= 2
+    assert "simulate: the car" in capsys.readouterr().err

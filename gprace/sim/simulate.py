@@ -7,8 +7,8 @@ from the *true* state, crosses a track edge: half-extent
 ``|l/2 sin e_psi| + |w/2 cos e_psi|`` beyond ``w_left`` or ``w_right``).
 
 Stops after ``laps`` laps (closed tracks) or at the track end (open tracks). A car that leaves the
-track by more than twice its width, or almost stops, ends the run early with a warning: the
-recording up to that point is kept.
+track by more than twice its width, spins (``|e_psi| > 1 rad``) or almost stops ends the run early
+with a warning; the recording up to one second before that is kept (``meta["completed"]`` False).
 """
 
 from __future__ import annotations
@@ -63,6 +63,8 @@ def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Ru
             break
         if x[4] > wl + 2 * vehicle.width or x[4] < -wr - 2 * vehicle.width:
             reason = f"the car left the track at s = {x[5]:.1f} m (e_y = {x[4]:.2f} m)"
+        elif abs(x[3]) > 1.0 or abs(x[1]) > 0.5 * abs(x[0]) + 1.0:
+            reason = f"the car spun at s = {x[5]:.1f} m (e_psi = {x[3]:.2f} rad, v_y = {x[1]:.1f} m/s)"
         elif x[0] < v_stall:
             reason = f"the car almost stopped at s = {x[5]:.1f} m (v_x = {x[0]:.2f} m/s)"
         elif k > n_max:
@@ -74,7 +76,8 @@ def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Ru
     if reason:
         if k < 2:
             raise RunFailedError(f"simulate: {reason} at the first step")
-        console.warn(f"simulate: {reason}; recording stops after {k} samples")
+        k = max(k - int(round(1.0 / dt)), 2)  # drop the last second: the slide, not driving data
+        console.warn(f"simulate: {reason}; the recording keeps the {k} samples up to 1 s before")
     Y, U = Y[:k], U[:k]
     s_meas = track.wrap(Y[:, 5])
     data = {
