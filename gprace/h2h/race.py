@@ -17,6 +17,9 @@ shifted by a random arc length. The plant integrates both cars with RK4 and 10 s
 0.1 s. The race ends 1.5 s after the ego's centre passes the opponent's, when a car reaches the end
 of an open track, when a car leaves the track by more than half a metre, or at ``max_time``.
 
+The opponent avoids the ego too (the same soft ellipse constraint, around the ego's constant-velocity
+prediction): a blocker steers across the ego's path but does not drive into it.
+
 Per step the opponent solves first (it sees the ego's current state), then the ego's predictor
 forecasts the opponent (the oracle reads the opponent's fresh plan), then the ego solves, then both
 inputs are applied together.
@@ -51,7 +54,7 @@ def controllers(cfg: H2HConfig) -> tuple[NMPC, NMPC]:
     key = ("mpc", cfg.model_dump_json(), threading.get_ident())  # one per thread (Dask threads)
     if key not in _CACHE:
         m = _model()
-        _CACHE[key] = (NMPC(m, cfg.ego, cfg, collision=True), NMPC(m, cfg.opponent, cfg, collision=False))
+        _CACHE[key] = (NMPC(m, cfg.ego, cfg, collision=True), NMPC(m, cfg.opponent, cfg, collision=True))
     ego, opp = _CACHE[key]
     ego.reset(), opp.reset()
     ego.failures = ego.solves = opp.failures = opp.solves = 0
@@ -119,6 +122,7 @@ def run_race(task: dict) -> dict:
                                       stalemate_steps=cfg.stalemate_steps, stalemate_tol=cfg.stalemate_tol,
                                       hold_steps=cfg.hold_steps)
     ego_mpc, opp_mpc = controllers(cfg)
+    cv_ego = make_predictor("cv", N, dt)
     model = _model()
     ego, opp = start_states(track, rng)
     duration = task.get("duration")
@@ -139,8 +143,12 @@ def run_race(task: dict) -> dict:
         wblock = cfg.opponent.q_block / (1.0 + gap) ** 2 if gap > cfg.car_length else 0.0
         Go = opp_mpc.guess_states(opp)
         wl, wr = usable_widths(track, Go[1:, 5])
-        st_o = StageData(kappa=kfun(Go[:-1, 5]), wl=wl, wr=wr,
-                         ey_other=np.full(N, ego[4]), w_block=np.full(N, wblock))
+        sig_o = Go[1:, 5]
+        cxo, cyo = track.to_global(sig_o, np.zeros(N))
+        ego_cv = cv_ego.predict(Context(track, Go, ego)).mean  # the opponent sees the ego at constant velocity
+        st_o = StageData(kappa=kfun(Go[:-1, 5]), wl=wl, wr=wr, ey_other=np.full(N, ego[4]), w_block=np.full(N, wblock),
+                         lin=np.column_stack([cxo, cyo, track.heading(sig_o), sig_o, kfun(sig_o)]),
+                         opp=ellipse_data(track, cfg, extend(ego_cv, N), np.zeros((N, 2))))
         sol_o = opp_mpc.solve(opp, Uprev[1], 0.0, st_o)
         # ---- ego: prediction from the previous open-loop plan, then the NMPC
         Ge = ego_mpc.guess_states(ego)
