@@ -116,7 +116,7 @@ class PlantConfig(Frozen):
     """"The real car": a registered plant, the vehicle it starts from, and what it hides.
 
     For ``frenet`` the hidden ``effects`` are added to the vehicle's own; ``commonroad-std`` uses
-    its own BMW 320i parameters and ignores ``effects``.
+    its own BMW 320i parameters and rejects ``effects``.
     """
 
     kind: str = Field("frenet", description="plant backend name (registry gprace.plant)")

@@ -195,3 +195,11 @@ def test_simulate_stops_early_when_the_car_cannot_follow(audi, capsys):
     assert not run.meta["completed"]
     assert run["t"][-1] < 30.0 and run.n >= 2
     assert "simulate: the car" in capsys.readouterr().err
+
+
+def test_commonroad_plant_rejects_effects(bmw, circle_track):
+    from gprace.errors import ConfigError
+
+    cfg = PlantConfig(kind="commonroad-std", vehicle=bmw, effects=(EffectConfig(name="downforce", params={"c_l": 1.0}),))
+    with pytest.raises(ConfigError, match=r"effects \(downforce\) work only with 'frenet'"):
+        make_plant(cfg, circle_track, 0.05)

@@ -21,7 +21,7 @@ parameter set (``parameters_vehicle2``). It lives in the global frame on the tra
   ``(-pi, pi]``, plus the configuration's sensor noise.
 
 The configured ``vehicle`` (``bmw_320i``) is only the *nominal* approximation that controllers
-use; this plant ignores it and the hidden ``effects`` (its physics are the package's).
+use; this plant ignores it, and rejects hidden ``effects`` (its physics are the package's).
 """
 
 from __future__ import annotations
@@ -48,6 +48,9 @@ class CommonRoadSTDPlant(Plant):
 
     def __init__(self, config, track, dt):
         super().__init__(config, track, dt)
+        if config.effects:
+            names = ", ".join(e.name for e in config.effects)
+            raise ConfigError(f"plant 'commonroad-std' has its own physics; effects ({names}) work only with 'frenet'")
         try:
             from vehiclemodels.init_std import init_std
             from vehiclemodels.parameters_vehicle2 import parameters_vehicle2
