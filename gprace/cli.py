@@ -30,6 +30,7 @@ app = typer.Typer(
 COMMAND_MODULES = (
     "gprace.tracks.commands",
     "gprace.sim.commands",
+    "gprace.gp.commands",
     "gprace.report.commands",
     "gprace.h2h.commands",
     "gprace.timetrial.commands",
