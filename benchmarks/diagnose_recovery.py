@@ -94,12 +94,15 @@ def run_case(case: dict, laps: float) -> dict:
         effects.append(EffectConfig(name=name, params=p))
     case["effects"] = [[e.name, dict(e.params)] for e in effects]
     t0 = time.perf_counter()
-    if case["kind"] == "commonroad":
-        vehicle = load_vehicle("bmw_320i")
-        run = record(vehicle, track, laps=laps, seed=case["seed"], plant="commonroad-std")
-    else:
-        vehicle = load_vehicle("audi_tt_cup")
-        run = record(vehicle, track, effects, laps=laps, seed=case["seed"], substeps=10)
+    try:
+        if case["kind"] == "commonroad":
+            vehicle = load_vehicle("bmw_320i")
+            run = record(vehicle, track, laps=laps, seed=case["seed"], plant="commonroad-std")
+        else:
+            vehicle = load_vehicle("audi_tt_cup")
+            run = record(vehicle, track, effects, laps=laps, seed=case["seed"], substeps=10)
+    except Exception as exc:
+        return {**case, "error": f"recording: {type(exc).__name__}: {exc}"}
     t_rec = time.perf_counter() - t0
     t0 = time.perf_counter()
     try:
@@ -200,8 +203,11 @@ def main() -> int:
     args = ap.parse_args()
     cases = build_cases(args.quick, args.seed)
     t0 = time.perf_counter()
+    rows = []
     with ProcessPoolExecutor(max_workers=args.workers) as ex:
-        rows = list(ex.map(run_case, cases, [args.laps] * len(cases)))
+        for row in ex.map(run_case, cases, [args.laps] * len(cases)):
+            rows.append(row)
+            print(json.dumps(row, default=str), file=sys.stderr, flush=True)  # progress, one row a line
     out = {"summary": summarise(rows), "wall_s": round(time.perf_counter() - t0, 1)}
     if not args.no_timing:
         out["timing_6000_samples"] = timing()

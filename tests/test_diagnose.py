@@ -189,6 +189,21 @@ def test_road_grade_window_located_and_fitted(vehicle, track):
     assert any(r["channel"] == "v_x" and r["s_end"] > 900 and r["s_start"] < 1150 for r in rep["regions"])
 
 
+def test_concealed_downforce_named_with_interval_and_channels(vehicle, track):
+    """A lateral effect: all lateral candidates compete; the right one wins on held-out data."""
+    rep = diagnose([rec(vehicle, track, [EffectConfig(name="downforce", params={"c_l": 2.5})], seed=6)],
+                   vehicle).report
+    assert [e["name"] for e in rep["effects"]] == ["downforce"], rep["effects"]
+    e = rep["effects"][0]
+    c_l = e["parameters"]["c_l"]
+    assert abs(c_l["value"] - 2.5) < 0.25 and c_l["ci95"][0] < 2.5 < c_l["ci95"][1] + 0.1
+    assert c_l["unit"] == "N s^2/m^2" and e["channels"] == ["v_y", "yaw_rate"]
+    structured = {c["name"] for c in rep["channels"] if c["structured"]}
+    assert {"v_y", "yaw_rate"} <= structured and "v_x" not in structured
+    assert e["heldout_rmse_after"]["v_y"] < 0.6 * e["heldout_rmse_before"]["v_y"]
+    assert rep["explained_share"] > 0.9 and rep["unexplained"] == {}
+
+
 def test_effect_outside_catalogue_is_unexplained_and_located(vehicle, track):
     eff = LongitudinalRamp(a0=1.0, L=track.length)
     rep = diagnose([rec(vehicle, track, [eff], seed=3)], vehicle).report
@@ -266,7 +281,6 @@ def test_no_excitation_says_what_cannot_be_identified(vehicle):
 
 
 SLOW_CASES = [
-    ("downforce", {"c_l": 2.0}, "c_l"),
     ("steering_lag", {"tau": 0.12}, "tau"),
     ("gyro_bias", {"bias": 0.02}, "bias"),
     ("steering_offset", {"offset": 0.004}, "offset"),

@@ -137,8 +137,12 @@ def record(vehicle: VehicleConfig, track, effects: Sequence[EffectConfig | Effec
     for k in range(n):
         u = drv(y)
         Y[k], U[k], lap[k] = y, u, plant.lap
-        if plant.lap * L + plant.state[5] - s0 >= laps * L or abs(plant.state[4]) > 30 or plant.state[0] < 2.0:
+        x = plant.state
+        if plant.lap * L + x[5] - s0 >= laps * L:
             k += 1
+            break
+        if abs(x[4]) > 15.0 or x[0] < 2.0 or abs(x[1]) > 0.25 * max(x[0], 1.0):
+            k = max(k - int(2.0 / dt), 2)  # spun or left the track: keep what came before
             break
         y = plant.step(u)
     else:
