@@ -303,3 +303,20 @@ def test_report_recomputes_residuals_from_recording_and_augmented_vehicle(tmp_pa
     out = tmp_path / "r.html"
     assert main(["report", str(d), "-o", str(out), "--png", str(tmp_path / "png")]) == 0
     assert (tmp_path / "png" / "diagnosis_residual_diagnosis.png").exists()
+
+
+@pytest.mark.skipif(__import__("shutil").which("script") is None, reason="needs util-linux `script` for a pseudo-terminal")
+def test_report_progress_on_terminal_only(tmp_path):
+    """Progress bars appear on a terminal (a pseudo-terminal through `script`), not with
+    --quiet and not when stderr is a file or pipe."""
+    import subprocess
+
+    make_diagnosis(tmp_path / "d")
+    cmd = f"gprace {{q}} report {tmp_path / 'd'} -o {tmp_path / 'r.html'}"
+    tty = subprocess.run(["script", "-qec", cmd.format(q=""), "/dev/null"], capture_output=True, text=True, timeout=120)
+    assert tty.returncode == 0 and "report: rendering figures" in tty.stdout
+    quiet = subprocess.run(["script", "-qec", cmd.format(q="--quiet"), "/dev/null"], capture_output=True, text=True,
+                           timeout=120)
+    assert quiet.returncode == 0 and "rendering figures" not in quiet.stdout
+    pipe = subprocess.run(cmd.format(q="").split(), capture_output=True, text=True, timeout=120)
+    assert pipe.returncode == 0 and "rendering figures" not in pipe.stderr
