@@ -99,6 +99,7 @@ def register(app: typer.Typer) -> None:
         episode_seconds: float = typer.Option(60.0, "--episode-seconds", help="Length of one exploration episode."),
         alpha: float = typer.Option(0.9, "--alpha", help="Exploration weight during exploration."),
         dict_size: int = typer.Option(600, "--dict-size", help="Dictionary size of the exploration GP."),
+        points_per_run: int = typer.Option(10, "--points-per-run", help="Evenly spaced steps kept per collection run."),
         width: float = typer.Option(0.75, "--width", help="Width of the random tracks [m]."),
         stretches: int = typer.Option(5, "--stretches", help="Stretches per random track."),
         predictors: str = typer.Option("baseline,explore", "--predictors", help="Predictors raced (baseline, explore, select, init, cv, oracle)."),
@@ -114,7 +115,7 @@ def register(app: typer.Typer) -> None:
         from gprace.h2h.protocol import head2head as run
 
         st = _settings(tracks=tracks, runs=runs, init_runs=init_runs, explore_minutes=explore_minutes,
-                       episode_seconds=episode_seconds, alpha=alpha, dict_size=dict_size, width=width,
+                       episode_seconds=episode_seconds, alpha=alpha, dict_size=dict_size, points_per_run=points_per_run, width=width,
                        stretches=stretches, predictors=predictors, backend=backend, exact_max=exact_max,
                        inducing=inducing, samples=samples, max_time=max_time, workers=workers, executor=executor,
                        scheduler=scheduler, resume=resume)
@@ -124,6 +125,7 @@ def register(app: typer.Typer) -> None:
     def collect(
         out: Path = OUT,
         runs: int = typer.Option(500, "--runs"), init_runs: int = typer.Option(20, "--init-runs"),
+        points_per_run: int = typer.Option(10, "--points-per-run"),
         width: float = typer.Option(0.75, "--width"), stretches: int = typer.Option(5, "--stretches"),
         max_time: float = typer.Option(60.0, "--max-time"),
         workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
@@ -132,7 +134,7 @@ def register(app: typer.Typer) -> None:
         """Race random tracks with the oracle predictor; write the (Z, Y) datasets."""
         from gprace.h2h.protocol import collect as run, read_dataset
 
-        st = _settings(runs=runs, init_runs=init_runs, width=width, stretches=stretches, max_time=max_time,
+        st = _settings(runs=runs, init_runs=init_runs, points_per_run=points_per_run, width=width, stretches=stretches, max_time=max_time,
                        workers=workers, executor=executor, scheduler=scheduler, resume=resume)
         paths = run(st, out)
         res = {k: {"path": str(v), "points": len(read_dataset(v)[0])} for k, v in paths.items()}
