@@ -524,7 +524,8 @@ def _errors_along(p: Path, art, found: Found, samples: int) -> tuple[np.ndarray,
         for m in sorted((root / "models").glob("*.h5")):
             if m.stem in ("baseline", "explore", "select") and artifact_kind(m) in ("gp_model",):
                 models[m.stem] = str(m)
-    task = json.loads(art.attrs["task"]) if isinstance(art.attrs.get("task"), str) else {}
+    task = art.attrs.get("task")
+    task = json.loads(task) if isinstance(task, str) else task if isinstance(task, dict) else {}
     if not task:
         return None
     cfg = dict(task.get("config", {}))

@@ -49,6 +49,14 @@ def png_bytes(fig, dpi: int = 90) -> bytes:
     return buf.getvalue()
 
 
+def _map_size(track, width: float = 7.0) -> tuple[float, float]:
+    """Figure size that fits the track's aspect ratio (plus room for title and labels)."""
+    (xl, yl), (xr, yr) = track.borders()
+    dx = max(np.ptp(np.concatenate([xl, xr])), 1e-9)
+    dy = max(np.ptp(np.concatenate([yl, yr])), 1e-9)
+    return width, float(np.clip(width * dy / dx * 0.85 + 1.2, 2.8, 7.0))
+
+
 def _track_outline(ax, track) -> None:
     (xl, yl), (xr, yr) = track.borders()
     if track.closed:
@@ -122,7 +130,7 @@ def fig_run(data: Mapping[str, np.ndarray], x: str = "t", plan: Mapping[str, np.
 def fig_track_speed(track, s: np.ndarray, e_y: np.ndarray, v_x: np.ndarray, border_hit: np.ndarray | None = None,
                     title: str = "driven line"):
     """The line ``(s, e_y)`` on the track map coloured by speed; border hits marked with red crosses."""
-    fig, axes = _figure(1, 1, size=(7.0, 6.0))
+    fig, axes = _figure(1, 1, size=_map_size(track, 7.5))
     ax = axes[0, 0]
     _track_outline(ax, track)
     x, y = track.to_global(np.asarray(s, float), np.asarray(e_y, float))
@@ -352,7 +360,7 @@ def fig_race(track, ego: np.ndarray, opp: np.ndarray, border_ego: np.ndarray | N
              title: str = "race"):
     """Both cars' paths on the track (states ``(T, 6)``, ``e_y`` column 4, ``s`` column 5),
     dots every second of 0.1-s steps, start marked, ego border hits as red crosses."""
-    fig, axes = _figure(1, 1, size=(7.0, 6.0))
+    fig, axes = _figure(1, 1, size=_map_size(track))
     ax = axes[0, 0]
     _track_outline(ax, track)
     for X, name, c in ((ego, "ego", PALETTE[0]), (opp, "opponent", PALETTE[1])):

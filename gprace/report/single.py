@@ -48,27 +48,40 @@ def h2h_track(attrs: dict[str, Any]):
 
 def load_gp(path: str | Path):
     """``(gp, input_names, output_names, Zd)`` of a ``gp_model`` artifact; ``Zd`` the dictionary
-    (training or inducing) points in input units, or None."""
+    (training or inducing) points in input units, or None.
+
+    The model comes from the GP layer's own reader (:func:`gprace.gp.load_model`); the points
+    from the stored state (``state/Z`` of the exact backend, ``state/Zu`` of the sparse one,
+    whatever separator the layer uses), mapped back from the normalised units they are kept in.
+    """
     art = open_artifact(path, ("gp_model", "model"))
     at = dict(art.attrs)
+    arrays = {k.replace("::", "/").replace("__", "/"): v for k, v in art.arrays.items()}
     try:
-        from gprace.backends import gps
+        from gprace.gp import load_model
 
-        cls = gps.get(str(at["backend"]))
-        gp = cls.from_arrays(art.arrays, dict(at["params"]))
-    except KeyError as exc:
-        raise InputError(f"{path}: GP model without attribute {exc}") from None
+        saved = load_model(path)
+        gp, names_in, names_out = saved.gp, list(saved.input_names), list(saved.output_names)
+    except Exception:  # noqa: BLE001 - an older layout: rebuild from the flattened arrays
+        try:
+            from gprace.backends import gps
+
+            cls = gps.get(str(at["backend"]))
+            gp = cls.from_arrays(arrays, dict(at["params"]))
+        except KeyError as exc:
+            raise InputError(f"{path}: GP model without attribute {exc}") from None
+        names_in = [str(x) for x in at.get("input_names", [])]
+        names_out = [str(x) for x in at.get("output_names", [])]
     Zd = None
     for k in ("state/Z", "state/Zu", "Z", "Zu"):
-        if k in art.arrays and np.ndim(art.arrays[k]) == 2:
-            Zd = np.asarray(art.arrays[k], float)
+        if k in arrays and np.ndim(arrays[k]) == 2:
+            Zd = np.asarray(arrays[k], float)
             break
-    if Zd is not None and "hyper/z_mean" in art.arrays and Zd.shape[1] == len(art.arrays["hyper/z_mean"]):
+    if Zd is not None and "hyper/z_mean" in arrays and Zd.shape[1] == len(arrays["hyper/z_mean"]):
         # the built-in backends store their points in normalised input units
-        zm, zs = np.asarray(art.arrays["hyper/z_mean"], float), np.asarray(art.arrays["hyper/z_scale"], float)
-        Zd = Zd * zs + zm
-    names_in = [str(x) for x in at.get("input_names", [])] or [f"z{i}" for i in range(Zd.shape[1] if Zd is not None else 0)]
-    names_out = [str(x) for x in at.get("output_names", [])]
+        Zd = Zd * np.asarray(arrays["hyper/z_scale"], float) + np.asarray(arrays["hyper/z_mean"], float)
+    if not names_in:
+        names_in = [f"z{i}" for i in range(Zd.shape[1] if Zd is not None else 0)]
     return gp, names_in, names_out, Zd
 
 
