@@ -69,6 +69,61 @@ def bench_rollout(models: dict[str, Path], reps: int = 30) -> dict:
     return res
 
 
+def compare(tab: dict) -> dict:
+    """Measured next to the paper, per predictor: border hits, overtake time, e_y error at 1, 2, 8, 9."""
+    rows = {}
+    for p in ("baseline", "explore", "select", "cv"):
+        row: dict = {}
+        r = tab["racing"].get(p)
+        if r:
+            row["border_hits"] = f"{r['border_hits']}/{r['runs']} (paper {PAPER.get(p, {}).get('border_hits', '-')}/100)"
+            row["collisions"] = r["collisions"]
+            row["overtakes"] = f"{r['overtakes']}/{r['runs']}"
+            pt = PAPER.get(p, {}).get("overtake_time")
+            row["overtake_time"] = (f"{r['overtake_time_mean']:.2f} +- {r['overtake_time_std']:.2f} over {r['overtake_scenarios']}"
+                                    + (f" (paper {pt[0]} +- {pt[1]})" if pt else ""))
+        e = tab["ey_error"].get(p)
+        if e and e["mean"]:
+            for k in (1, 2, 8, 9):
+                pe = PAPER.get(p, {}).get("ey_error", {}).get(str(k))
+                row[f"ey_err_{k}"] = f"{e['mean'][k - 1]:.3f} +- {e['std'][k - 1]:.3f}" + (f" (paper {pe[0]} +- {pe[1]})" if pe else "")
+        if row:
+            rows[p] = row
+    return rows
+
+
+def estimate(out: Path, st) -> dict:
+    """Default-size runtime from this run's measured per-run costs (2 workers)."""
+    from gprace.h2h.protocol import _read_record
+    from gprace.h2h.predictors import read_opponent_gp
+
+    def walls(folder: Path):
+        recs = [_read_record(p) for p in sorted(folder.glob("run_*.h5"))]
+        return [r["attrs"] for r in recs if r and r["attrs"].get("ok") and "wall_s" in r["attrs"]]
+
+    col = walls(out / "collect" / "runs")
+    exp = walls(out / "explore" / "runs")
+    ev = [a for p in st.raced for a in walls(out / "eval" / p)]
+    fits = {}
+    for name in ("baseline", "init", "explore", "select"):
+        try:
+            a = read_opponent_gp(out / "models" / f"{name}.h5")[1]
+            fits[name] = {"points": int(a.get("n_points", 0)), "fit_s": float(a.get("fit_s", float("nan")))}
+        except Exception:  # noqa: BLE001
+            pass
+    w = 2
+    c = float(np.mean([a["wall_s"] for a in col])) if col else float("nan")
+    e_per_sim_s = float(np.sum([a["wall_s"] for a in exp]) / max(1e-9, np.sum([a["steps"] * 0.1 for a in exp]))) if exp else float("nan")
+    r = float(np.mean([a["wall_s"] for a in ev])) if ev else float("nan")
+    est = {"collect_500_runs_min": 500 * c / w / 60, "explore_10_min_min": 600 * e_per_sim_s / w / 60,
+           "race_100_tracks_x2_min": 200 * r / w / 60, "per_collect_run_s": c, "per_race_run_s": r,
+           "explore_wall_per_sim_s": e_per_sim_s, "fits": fits,
+           "note": "wall times on a shared 2-core machine (other jobs running); GP fits at the default sizes "
+                   "(5000-point baseline, ~600-point dictionaries) are not included"}
+    est["total_without_fits_min"] = est["collect_500_runs_min"] + est["explore_10_min_min"] + est["race_100_tracks_x2_min"]
+    return est
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default="/tmp/h2h_bench")
@@ -111,6 +166,8 @@ def main() -> None:
         cached = all((out / "eval" / p).exists() for p in st.raced)
         result["protocol"] = {"settings": tab["settings"], "stages_wall_s": stages, "table": tab,
                               "paper": PAPER, "eval_runs": n_race, "reused_cache": cached}
+        result["comparison"] = compare(tab)
+        result["estimate_default_run"] = estimate(out, st)
     print(json.dumps(result, indent=2, default=lambda o: o.item() if hasattr(o, "item") else str(o)))
 
 
