@@ -80,8 +80,8 @@ def compare(tab: dict) -> dict:
             row["collisions"] = r["collisions"]
             row["overtakes"] = f"{r['overtakes']}/{r['runs']}"
             pt = PAPER.get(p, {}).get("overtake_time")
-            row["overtake_time"] = (f"{r['overtake_time_mean']:.2f} +- {r['overtake_time_std']:.2f} over {r['overtake_scenarios']}"
-                                    + (f" (paper {pt[0]} +- {pt[1]})" if pt else ""))
+            mine = "-" if r["overtake_time_mean"] is None else f"{r['overtake_time_mean']:.2f} +- {r['overtake_time_std']:.2f}"
+            row["overtake_time"] = f"{mine} over {r['overtake_scenarios']}" + (f" (paper {pt[0]} +- {pt[1]})" if pt else "")
         e = tab["ey_error"].get(p)
         if e and e["mean"]:
             for k in (1, 2, 8, 9):

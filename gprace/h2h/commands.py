@@ -70,9 +70,10 @@ def print_table(tab: dict, as_json: bool) -> None:
         return
     rows = []
     for p, r in tab["racing"].items():
+        ot = "-" if r["overtake_time_mean"] is None else f"{r['overtake_time_mean']:.3f} +- {r['overtake_time_std']:.3f}"
+        ms = "-" if r["ego_solve_ms_median"] is None else f"{r['ego_solve_ms_median']:.1f}"
         rows.append([p, r["runs"], r["failed"], r["border_hits"], r["collisions"], r["overtakes"],
-                     f"{r['overtake_time_mean']:.3f} +- {r['overtake_time_std']:.3f} (n={r['overtake_scenarios']})",
-                     r["fallbacks_ego"], f"{r['ego_solve_ms_median']:.1f}"])
+                     f"{ot} (n={r['overtake_scenarios']})", r["fallbacks_ego"], ms])
     console.table(f"Head-to-head racing ({tab['common_inside']} scenarios with every predictor inside)",
                   ["predictor", "runs", "failed", "border hits", "collisions", "overtakes", "overtake time (s)",
                    "ego fallbacks", "ego solve median (ms)"], rows)

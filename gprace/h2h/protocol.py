@@ -457,11 +457,11 @@ def table(st: Settings, raced: dict[str, list[dict]], errors: dict[str, np.ndarr
             "border_hits": int(sum(bool(r["attrs"].get("border_hit")) for r in ok)),
             "collisions": int(sum(bool(r["attrs"].get("collision")) for r in ok)),
             "overtakes": int(np.isfinite(ot).sum()),
-            "overtake_time_mean": float(common.mean()) if len(common) else float("nan"),
-            "overtake_time_std": float(common.std()) if len(common) else float("nan"),
+            "overtake_time_mean": float(common.mean()) if len(common) else None,
+            "overtake_time_std": float(common.std()) if len(common) else None,
             "overtake_scenarios": int(len(common)),
             "fallbacks_ego": int(sum(int(r["attrs"].get("fallbacks_ego", 0)) for r in ok)),
-            "ego_solve_ms_median": float(np.median(ms)) if len(ms) else float("nan"),
+            "ego_solve_ms_median": float(np.median(ms)) if len(ms) else None,
         }
     err = {}
     for p, E in errors.items():
