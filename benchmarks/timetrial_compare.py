@@ -16,14 +16,17 @@ VARIANTS = {"exploration": dict(alphas=(0.857, 0.714, 0.0), selection="diverse")
             "baseline": dict(alphas=(0.0,), selection="random")}
 
 
-def main(iterations: int = 7, trials: int = 3, plants=("audi_hidden", "commonroad-std")) -> None:
+PLANTS = (("audi_hidden", "audi_tt_cup"), ("bmw_commonroad", "bmw_320i"))  # (plant, nominal vehicle)
+
+
+def main(iterations: int = 7, trials: int = 3, plants=PLANTS) -> None:
     from gprace.timetrial.iterate import IterateSettings, build_summary, iterate
 
     out = {}
-    for plant in plants:
+    for plant, vehicle in plants:
         for name, kw in VARIANTS.items():
             folder = Path(__file__).parent / "out" / f"{plant}_{name}"
-            st = IterateSettings(iterations=iterations, trials=trials, plant=plant, **kw)
+            st = IterateSettings(iterations=iterations, trials=trials, plant=plant, vehicle=vehicle, **kw)
             try:
                 iterate(st, folder, workers=2)
             except Exception as exc:  # report what finished

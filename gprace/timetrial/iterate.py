@@ -164,7 +164,18 @@ def _heldout(settings: IterateSettings, out: Path) -> None:
 
 
 def run_chain(task: dict) -> list[dict]:
-    """One trial: iterations 0..N, each step skipped when its marker exists (module-level for pickling)."""
+    """One trial: iterations 0..N, each step skipped when its marker exists (module-level for pickling).
+
+    BLAS is limited to one thread per chain: chains run one per core (REFERENCE.md measured
+    everything that way; several multi-threaded chains on two cores only fight over them).
+    """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        return _run_chain(task)
+
+
+def _run_chain(task: dict) -> list[dict]:
     from gprace.config import load_plant, load_vehicle
     from gprace.io.artifacts import Artifact, read_artifact, write_artifact
     from gprace.io.runs import read_run, write_run
