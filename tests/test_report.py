@@ -320,3 +320,17 @@ def test_report_progress_on_terminal_only(tmp_path):
     assert quiet.returncode == 0 and "rendering figures" not in quiet.stdout
     pipe = subprocess.run(cmd.format(q="").split(), capture_output=True, text=True, timeout=120)
     assert pipe.returncode == 0 and "rendering figures" not in pipe.stderr
+
+
+def test_show_plots_unknown_kinds_generically(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    cand = write_artifact(tmp_path / "c.h5", Artifact("candidates", arrays={"Z": rng.normal(size=(30, 3)), "v": rng.random(30)}))
+    assert main(["show", str(cand), "--plot", str(tmp_path / "c.png")]) == 0
+    assert (tmp_path / "c.png").stat().st_size > 5000
+    series = write_artifact(tmp_path / "s.h5", Artifact("telemetry", arrays={"t": np.arange(10.0), "load": np.ones(10)}))
+    assert main(["show", str(series), "--plot", str(tmp_path / "s.png")]) == 0
+    nothing = write_artifact(tmp_path / "n.h5", Artifact("blob", arrays={"x": np.ones((2, 2, 2))}))
+    assert main(["show", str(nothing), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["arrays"]["x"]["shape"] == [2, 2, 2]
+    assert main(["show", str(nothing), "--plot", str(tmp_path / "n.png")]) == 2
+    assert "no figure for artifacts of kind 'blob'" in capsys.readouterr().err

@@ -107,6 +107,7 @@ def fig_run(data: Mapping[str, np.ndarray], x: str = "t", plan: Mapping[str, np.
     """States and inputs of a run against time (``x='t'``) or arc length (``x='s'``), with the
     plan overlaid when given (against ``s`` only)."""
     cols = [c for c in ("v_x", "v_y", "yaw_rate", "e_y", "delta", "a_x") if c in data]
+    cols = cols or [c for c in data if c not in ("t", "s", x)][:6]
     fig, axes = _figure((len(cols) + 1) // 2, 2, size=(9.0, 1.9 * ((len(cols) + 1) // 2) + 0.6), sharex=True)
     xs = np.asarray(data[x], float)
     order = np.arange(len(xs))

@@ -29,7 +29,7 @@ header h1{margin:0;font-size:22px} header p{margin:4px 0 0;color:#c8cdd8;font-si
 nav{padding:8px 28px;background:#e9ecf2;font-size:14px} nav a{margin-right:18px;color:#1d4ed8;text-decoration:none}
 main{padding:8px 28px 40px;max-width:1300px}
 section{background:#fff;border:1px solid #dde1e8;border-radius:6px;padding:6px 20px 16px;margin:18px 0}
-h2{font-size:19px;border-bottom:2px solid #1d4ed8;padding-bottom:4px}
+h2{font-size:19px;border-bottom:2px solid #1d4ed8;padding-bottom:4px} h3{font-size:15px;margin:14px 0 4px}
 figure{margin:14px 0;display:inline-block;max-width:100%;vertical-align:top}
 figure img{max-width:100%;height:auto;border:1px solid #eceef2}
 figcaption{font-size:13px;color:#4b5565;max-width:900px}

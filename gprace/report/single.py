@@ -159,7 +159,22 @@ def figures_for(path: str | Path, features: tuple[str, str] | None = None) -> li
         if track is None or "ego" not in a:
             raise InputError(f"{path}: race record without a loadable track or trajectories")
         return [(f"{path.name}: race", F.fig_race(track, a["ego"], a["opp"], a.get("border_ego"), title=path.name))]
-    raise InputError(f"{path}: no figure for artifacts of kind {kind!r}")
+    # any other kind: points Z coloured by a per-point array, or columns against t or s
+    Z = a.get("Z")
+    if Z is not None and np.ndim(Z) == 2 and len(Z):
+        other = next((v for k, v in a.items() if k != "Z" and np.ndim(v) in (1, 2) and len(v) == len(Z)), None)
+        if other is not None:
+            names_in = [str(x) for x in at.get("inputs", at.get("input_names", []))]
+            i, j = pick_features(names_in or [f"z{k}" for k in range(np.shape(Z)[1])], features)
+            return [(f"{path.name}: points", F.fig_dataset(Z, np.reshape(other, (len(Z), -1)), names_in,
+                                                          [next(k for k, v in a.items() if v is other)], i, j,
+                                                          title=f"{path.name} ({kind})"))]
+    for x in ("t", "s"):
+        if x in a and np.ndim(a[x]) == 1:
+            cols = {k: v for k, v in a.items() if np.ndim(v) == 1 and len(v) == len(a[x])}
+            if len(cols) > 1:
+                return [(f"{path.name}: arrays", F.fig_run(cols, x, title=f"{path.name} ({kind})"))]
+    raise InputError(f"{path}: no figure for artifacts of kind {kind!r} (no point set Z and no t or s column)")
 
 
 def save_figures(figs: list[tuple[str, Any]], png: str | Path) -> list[Path]:
