@@ -330,6 +330,7 @@ def test_show_plots_unknown_kinds_generically(tmp_path, capsys):
     series = write_artifact(tmp_path / "s.h5", Artifact("telemetry", arrays={"t": np.arange(10.0), "load": np.ones(10)}))
     assert main(["show", str(series), "--plot", str(tmp_path / "s.png")]) == 0
     nothing = write_artifact(tmp_path / "n.h5", Artifact("blob", arrays={"x": np.ones((2, 2, 2))}))
+    capsys.readouterr()
     assert main(["show", str(nothing), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["arrays"]["x"]["shape"] == [2, 2, 2]
     assert main(["show", str(nothing), "--plot", str(tmp_path / "n.png")]) == 2
