@@ -15,7 +15,7 @@ import numpy as np
 from gprace.errors import ConfigError, InputError
 
 SELECTIONS = ("diverse", "random")
-QUICK_FIT_POINTS = 500
+QUICK_FIT_POINTS = 300
 
 
 def _load_vehicle(vehicle: str | None):
@@ -44,7 +44,7 @@ def select_data(
     ``inputs`` are runs (HDF5 or CSV) and at most one existing dataset to continue from (its
     points are the initial dictionary, and for ``diverse`` its selection hyperparameters are
     reused). Hyperparameters for ``diverse`` come, in this order, from ``model`` (a gp_model),
-    the continued dataset, or a quick exact-GP fit on at most 500 points of all the data.
+    the continued dataset, or a quick exact-GP fit on at most 300 points of all the data.
     """
     from gprace.gp.dataset import GPDataset, is_dataset, read_dataset, write_dataset
     from gprace.gp.features import feature_map, run_features
