@@ -461,17 +461,19 @@ def h2h_section(found: Found, max_error_samples: int = 20) -> Section | None:
     else:
         sec.missing.append("no table.json (the evaluation did not finish): no results table or error curves")
     ok = []
-    for p in records:
+    evals = [p for p in records if "eval" in p.relative_to(found.root).parts]
+    # prefer a race of the exploring predictor, else the first evaluation race
+    evals = sorted(evals, key=lambda q: ("explore" not in q.parent.name, str(q)))[:20]
+    for p in evals:
         try:
             art = open_artifact(p, "h2h_run")
         except Exception:  # noqa: BLE001
             continue
-        if art.attrs.get("ok", True) and "ego" in art.arrays and "eval" in p.parts:
+        if art.attrs.get("ok", True) and "ego" in art.arrays:
             ok.append((p, art))
-        if len(ok) >= 1 and "explore" in str(art.attrs.get("predictor", "")):
             break
     if not ok:
-        for p in records:
+        for p in records[:20]:
             try:
                 art = open_artifact(p, "h2h_run")
             except Exception:  # noqa: BLE001

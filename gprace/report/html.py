@@ -41,6 +41,9 @@ td:first-child,th:first-child{text-align:left}
 """
 
 
+MAX_INDEX = 25  # artifacts listed per kind in the index
+
+
 @dataclass
 class Report:
     path: Path
@@ -134,7 +137,7 @@ def _close(fig: Any) -> None:
 def _index_html(found: collect.Found) -> str:
     rows = []
     for kind, paths in sorted(found.files.items()):
-        for p in paths:
+        for p in paths[:MAX_INDEX]:
             res: dict[str, Any] = {}
             if p.suffix.lower() in (".h5", ".hdf5"):
                 try:
@@ -143,10 +146,13 @@ def _index_html(found: collect.Found) -> str:
                     res = {"error": str(exc)}
             short = ", ".join(f"{k}={_fmt(v)}" for k, v in list(res.items())[:5])
             rows.append([str(p.relative_to(found.root)), kind, short])
+        if len(paths) > MAX_INDEX:
+            rows.append([f"... and {len(paths) - MAX_INDEX} more", kind, ""])
     if not rows:
         return ("<section id='artifacts' data-section='artifacts'><h2>Artifacts</h2>"
                 "<div class='missing'>No gprace results under this folder.</div></section>")
-    return (f"<section id='artifacts' data-section='artifacts'><h2>Artifacts ({len(rows)})</h2>"
+    total = sum(len(v) for v in found.files.values())
+    return (f"<section id='artifacts' data-section='artifacts'><h2>Artifacts ({total})</h2>"
             + _table(["file", "kind", "key results"], rows) + "</section>")
 
 
