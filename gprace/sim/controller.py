@@ -14,6 +14,7 @@ track without tuning:
   ``e_y,ref(s) = A h(s) sin(2 pi s / lambda)`` with ``h = min(w_left, w_right) - width/2`` the
   usable half width; its curvature ``e_y,ref''`` is added to the track's in the speed profile.
 * **Lateral law**: steady-state feed-forward ``delta_ff = L kappa_path + K_us v^2 kappa_path``
+  (curvature read ``T_FF = 0.2 s`` ahead: the yaw rate builds up after the wheels turn)
   (understeer gradient ``K_us = m (l_r/C_f - l_f/C_r) / L`` of the nominal linear tires,
   ``C = mu F_z B C``) plus a pure-pursuit-like PD on the lateral error and the course-angle error
   ``chi = e_psi + atan(v_y/v_x) - e_psi,ref`` at a look-ahead ``L_a = max(v T_la, 3 L)``:
@@ -44,6 +45,9 @@ T_LOOKAHEAD = 0.5
 
 T_SPEED_PREVIEW = 0.3
 """How far ahead the speed reference is read [s]."""
+
+T_FF = 0.2
+"""Preview of the curvature feed-forward [s] (yaw builds up after the steering moves)."""
 
 K_SPEED = 2.0
 """Speed-error gain [1/s]."""
@@ -171,7 +175,7 @@ class ReferenceController:
         v = max(vx, self.v_floor)
         pr = self.profile
         # lateral
-        kp = self._at(pr.kappa_path, s)
+        kp = self._at(pr.kappa_path, s + v * T_FF)
         beta_ss = self.vehicle.l_r * kp - self.k_beta * v * v * kp  # steady-state side slip
         chi = epsi + beta_ss - self._at(pr.epsi_ref, s)
         e = ey - self._at(pr.ey_ref, s)
