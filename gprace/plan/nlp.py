@@ -144,8 +144,15 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
     guess[:, 5] = np.clip(guess[:, 5], -lim.steering_max, lim.steering_max)
     guess[:, 6] = np.clip(guess[:, 6], lim.accel_min, lim.accel_max)
     par = np.column_stack([smp.kappa, comp]).ravel()
-    sol = solver(x0=guess.ravel(), lbx=LB.ravel(), ubx=UB.ravel(), lbg=np.concatenate(lbg), ubg=np.concatenate(ubg), p=par)
+    args = dict(x0=guess.ravel(), lbx=LB.ravel(), ubx=UB.ravel(), lbg=np.concatenate(lbg), ubg=np.concatenate(ubg), p=par)
+    sol = solver(**args)
     stats = solver.stats()
+    if not stats["success"]:
+        # the fast settings failed (seen with a strong GP compensation): IPOPT's robust defaults
+        opts.update({"ipopt.mu_strategy": "adaptive", "ipopt.mu_init": 0.1, "ipopt.bound_push": 1e-2, "ipopt.bound_frac": 1e-2})
+        solver = ca.nlpsol("plan", "ipopt", nlp, opts)
+        sol = solver(**args)
+        stats = solver.stats()
     if not stats["success"]:
         raise SolverError(f"plan: IPOPT did not converge on {track.name!r} ({stats['return_status']}, {stats['iter_count']} iterations)")
     z = np.asarray(sol["x"]).reshape(n, 7)

@@ -172,15 +172,36 @@ def register(app: typer.Typer) -> None:
 
 
 def _print_summary(summary: dict, as_json: bool) -> None:
+    """Plain fixed-width tables (readable in pipes and logs at any terminal width)."""
     from gprace.console import console
-    from gprace.timetrial.iterate import SUMMARY_COLUMNS
 
     if as_json:
         console.json(summary)
         return
-    rows = [[r.get(c) for c in SUMMARY_COLUMNS] for r in summary["rows"]]
-    console.table("time trial: per iteration and trial", SUMMARY_COLUMNS, rows)
-    agg = summary["by_iteration"]
-    cols = ["iteration", "alpha", "trials", "planned_mean", "planned_std", "driven_mean", "driven_std", "gap_mean",
-            "err_tracking", "err_planning", "completed"]
-    console.table("time trial: per iteration (mean, std over trials)", cols, [[a.get(c) for c in cols] for a in agg])
+    head = ("iter", "trial", "alpha", "planned", "driven", "gap", "errTrk", "errPln", "Mtrk", "Mpln", "qp50ms", "qp99ms",
+            "hits", "fallb")
+    keys = ("iteration", "trial", "alpha", "planned", "driven", "gap", "err_tracking", "err_planning", "dict_tracking",
+            "dict_planning", "solve_median_ms", "solve_p99_ms", "border_hits", "fallbacks")
+    lines = ["per iteration and trial (lap times [s]; GP errors: RMS on the held-out weaving run, per output / its std)",
+             " ".join(f"{h:>7}" for h in head)]
+    for r in summary["rows"]:
+        lines.append(" ".join(_cell(r.get(k)) for k in keys) + ("" if r.get("completed", True) else f"  ({r.get('reason')})"))
+    lines.append("")
+    lines.append("per iteration, mean +- std over trials")
+    head2 = ("iter", "alpha", "trials", "planned", "+-", "driven", "+-", "gap", "errTrk", "errPln", "done")
+    keys2 = ("iteration", "alpha", "trials", "planned_mean", "planned_std", "driven_mean", "driven_std", "gap_mean",
+             "err_tracking", "err_planning", "completed")
+    lines.append(" ".join(f"{h:>7}" for h in head2))
+    for a in summary["by_iteration"]:
+        lines.append(" ".join(_cell(a.get(k)) for k in keys2))
+    console.result("\n".join(lines))
+
+
+def _cell(v) -> str:
+    if isinstance(v, bool):
+        return f"{str(v):>7}"
+    if isinstance(v, int):
+        return f"{v:>7d}"
+    if isinstance(v, float):
+        return f"{v:>7.3f}" if abs(v) < 1000 else f"{v:>7.0f}"
+    return f"{str(v):>7}"

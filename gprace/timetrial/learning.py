@@ -6,8 +6,8 @@ Both GPs take ``z = [v_y, yaw_rate, delta]`` (REFERENCE.md). Targets, from conse
 - ``tracking``: the one-step errors of ``[v_y, yaw_rate]`` of the MPC's prediction step
   (``y = x_{k+1} - step(x_k, u_k)``; the paper's definition with its Euler step, here with the
   MPC's RK4 step so the compensation matches the prediction it corrects);
-- ``planning``: the same errors divided by ``dt``: errors of ``d v_y/dt`` and ``d yaw_rate/dt``, the
-  units of the planner's continuous dynamics.
+- ``planning``: the errors of ``d v_y/dt`` and ``d yaw_rate/dt`` of the continuous model, the
+  planner's dynamics: the central difference of the measurements minus ``f(x_k, u_k)``.
 
 Training (project decision, to fit the 10-minute budget of ``gprace iterate``): hyperparameters
 are fitted once, by marginal likelihood on at most ``max_fit_points`` points of the first data
@@ -37,13 +37,17 @@ def features(run, model, track, kind: str, step: str = "rk4") -> tuple[np.ndarra
     if len(X) < 3:
         return np.zeros((0, 3)), np.zeros((0, 2))
     t = run["t"]
-    ok = np.abs(np.diff(t) - dt) < 1e-6 * max(dt, 1.0)
-    x0, u0, x1 = X[:-1][ok], U[:-1][ok], X[1:][ok]
-    kap = track.kappa(x0[:, 5])
-    pred = model.rk4(x0, u0, kap, dt) if step == "rk4" else model.euler(x0, u0, kap, dt)
-    Y = (x1 - pred)[:, 1:3]
     if kind == "planning":
-        Y = Y / dt
+        # derivative errors at each interior sample: central difference of the measurement minus f
+        ok = (np.abs(t[2:] - t[:-2] - 2 * dt) < 1e-6 * max(dt, 1.0))
+        xm, x0, xp, u0 = X[:-2][ok], X[1:-1][ok], X[2:][ok], U[1:-1][ok]
+        Y = ((xp - xm) / (2 * dt) - model.f(x0, u0, track.kappa(x0[:, 5])))[:, 1:3]
+    else:
+        ok = np.abs(np.diff(t) - dt) < 1e-6 * max(dt, 1.0)
+        x0, u0, x1 = X[:-1][ok], U[:-1][ok], X[1:][ok]
+        kap = track.kappa(x0[:, 5])
+        pred = model.rk4(x0, u0, kap, dt) if step == "rk4" else model.euler(x0, u0, kap, dt)
+        Y = (x1 - pred)[:, 1:3]
     Z = np.column_stack([x0[:, 1], x0[:, 2], u0[:, 0]])
     good = np.all(np.isfinite(Z), axis=1) & np.all(np.isfinite(Y), axis=1)
     return Z[good], Y[good]
