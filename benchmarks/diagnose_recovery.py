@@ -34,7 +34,7 @@ MAGNITUDES = {
     "road_grade": [{"angle": 0.03}, {"angle": 0.06}],
     "drivetrain_lag": [{"tau": 0.15}, {"tau": 0.4}],
     "downforce": [{"c_l": 1.0}, {"c_l": 3.0}],
-    "load_transfer": [{"cog_height": 0.5}, {"cog_height": 0.8}],
+    "load_transfer": [{"cog_height": 0.35}, {"cog_height": 0.55}],
     "tire_load_sensitivity": [{"k": 0.1}, {"k": 0.25}],
     "tire_friction": [{"front": 0.85, "rear": 1.0}, {"front": 1.0, "rear": 0.85}],
     "cornering_stiffness": [{"front": 0.75, "rear": 1.0}, {"front": 1.0, "rear": 1.3}],

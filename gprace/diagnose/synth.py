@@ -37,7 +37,7 @@ def _speed_profile(track, vehicle: VehicleConfig, speed_scale: float, ds: float 
     v_lat = np.minimum(np.sqrt(ay / k), 0.8 * vehicle.limits.speed_max)
     reps = 3 if track.closed else 1
     v = np.tile(v_lat, reps)
-    a_drive, a_brake = 0.8 * vehicle.limits.accel_max, 0.6 * min(-vehicle.limits.accel_min, ay)
+    a_drive, a_brake = 0.8 * vehicle.limits.accel_max, min(0.4 * min(-vehicle.limits.accel_min, ay), 5.0)
     for i in range(1, len(v)):  # one-off forward/backward pass over ~10^3 points
         v[i] = min(v[i], math.sqrt(v[i - 1] ** 2 + 2 * h * a_drive))
     for i in range(len(v) - 2, -1, -1):
@@ -50,7 +50,7 @@ def _speed_profile(track, vehicle: VehicleConfig, speed_scale: float, ds: float 
 class TrackingDriver:
     """Frenet tracking driver: feed-forward curvature steering plus look-ahead PD, speed profile."""
 
-    def __init__(self, vehicle: VehicleConfig, track, dt: float, speed_scale: float = 0.7,
+    def __init__(self, vehicle: VehicleConfig, track, dt: float, speed_scale: float = 0.6,
                  weave: float = 0.35, wavelength: float = 150.0, excitation: float = 1.0, seed: int = 0):
         self.v, self.track, self.dt = vehicle, track, dt
         self.s_grid, self.v_grid = _speed_profile(track, vehicle, speed_scale)
@@ -87,6 +87,7 @@ class TrackingDriver:
         k_ff = float(self.track.kappa(s + 0.25 * v)) - self.amp * w * w * math.sin(w * (s + 0.25 * v))
         chi = epsi + math.atan2(vy, v) - chi_ref
         delta = (self.wb + self.k_us * v * v) * k_ff - 2 * self.wb * ((ey - ey_ref) + la * chi) / (la * la)
+        delta -= 2.0 * self.wb / v * (r - v * k_ff)  # yaw damping: catches oversteer before it spins
         # coloured excitation (first-order filtered white noise, ~1 s correlation)
         a = math.exp(-self.dt / 0.5)
         self.n_d = a * self.n_d + math.sqrt(1 - a * a) * self.rng.standard_normal()
@@ -99,13 +100,15 @@ class TrackingDriver:
         self.delta_prev = delta
         vr = self.v_ref(s + 0.4 * v)
         ax = 1.5 * (vr - vx) + self.exc * 0.6 * self.n_a
-        ax = float(np.clip(ax, 0.8 * lim.accel_min, 0.9 * lim.accel_max))
+        # friction circle: less drive and braking while the car is cornering hard
+        circle = math.sqrt(max(1.0 - (v * r / (self.v.mu * G)) ** 2, 0.1))
+        ax = float(np.clip(ax, max(0.5 * lim.accel_min, -7.0) * circle, 0.9 * lim.accel_max * circle))
         return np.array([delta, ax])
 
 
 def record(vehicle: VehicleConfig, track, effects: Sequence[EffectConfig | Effect] = (), *,
            laps: float = 2.0, dt: float = 0.05, noise: NoiseConfig = DEFAULT_NOISE, seed: int = 0,
-           speed_scale: float = 0.7, weave: float = 0.35, excitation: float = 1.0,
+           speed_scale: float = 0.6, weave: float = 0.35, excitation: float = 1.0,
            substeps: int = 10, s0: float = 0.0, plant: str = "frenet") -> Run:
     """Drive ``track`` for ``laps`` laps with hidden ``effects``; return the recording.
 
