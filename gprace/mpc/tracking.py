@@ -10,7 +10,7 @@ Each control period:
    ``delta`` references over the horizon (the inverse feature map). **Decision:** one target per
    control period, held over the horizon (the paper changes it "at each iteration of the MPC").
    With ``alpha = 0`` the reference is left untouched, so the controller is exactly the plain
-   tracking MPC. **Decision:** only candidates within ``explore_radius`` (distance scaled by the
+   tracking MPC. **Decision:** only candidates within ``explore_radius`` = 0.5 (distance scaled by the
    data's standard deviation per feature) of ``z~`` compete: on the hidden-effects Audi the full
    grid's extreme corners (e.g. large lateral velocity with opposite steering) spun the car within
    two seconds at alpha = 0.857; the paper's GT Sport car evidently tolerated more. Nor does it
@@ -51,7 +51,7 @@ class MPCSettings:
     solver: str = "clarabel"
     margin: float = 0.1            # distance kept from the border on top of half the car width [m]
     integrator: str = "rk4"        # prediction step: "rk4" (default) or "euler" (the paper's)
-    explore_radius: float = 1.0    # exploration trust region: candidates within this scaled distance of z~
+    explore_radius: float = 0.5    # exploration trust region: candidates within this scaled distance of z~
     explore_brake: float = 0.5     # no exploration while the reference brakes harder than this share of the limit
     weights: Weights = field(default_factory=Weights)
 

@@ -80,6 +80,7 @@ def register(app: typer.Typer) -> None:
         laps: float = typer.Option(1.0, "--laps", help="Laps to drive."),
         solver: str = typer.Option("clarabel", "--solver", help="QP backend: clarabel, cvxpy-clarabel, casadi or a plugin."),
         beta: float = typer.Option(0.6, "--beta", help="Risk parameter of the lateral chance constraints."),
+        radius: float = typer.Option(0.5, "--explore-radius", help="Exploration trust region (scaled feature distance)."),
         seed: int = typer.Option(0, "--seed", help="Seed of the plant's sensor noise."),
         output: Path = typer.Option(..., "--output", "-o", help="Run file to write (.h5)."),
     ) -> None:
@@ -120,7 +121,7 @@ def register(app: typer.Typer) -> None:
                 from gprace.timetrial.iterate import make_grid
 
                 grid = make_grid(gp.gp, gp.gp.Z_ if hasattr(gp.gp, "Z_") else None, MPCSettings(), 7)
-        settings = DriveSettings(laps=laps, mpc=MPCSettings(solver=solver, beta=beta))
+        settings = DriveSettings(laps=laps, mpc=MPCSettings(solver=solver, beta=beta, explore_radius=radius))
         run = drive(p0, load_plant(plant), tr, m, settings, gp=gp, grid=grid, alpha=alpha, seed=seed)
         write_run(run, output)
         mt = run.meta
