@@ -36,4 +36,8 @@ def main(iterations: int = 7, trials: int = 3, plants=PLANTS) -> None:
 
 
 if __name__ == "__main__":
-    main(*(int(a) for a in sys.argv[1:3]))
+    # usage: timetrial_compare.py [ITERATIONS [TRIALS [PLANT,PLANT]]]
+    it = int(sys.argv[1]) if len(sys.argv) > 1 else 7
+    tr = int(sys.argv[2]) if len(sys.argv) > 2 else 3
+    chosen = sys.argv[3].split(",") if len(sys.argv) > 3 else [p for p, _ in PLANTS]
+    main(it, tr, tuple(pv for pv in PLANTS if pv[0] in chosen))
