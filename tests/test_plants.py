@@ -23,14 +23,15 @@ def test_frenet_plant_without_effects_is_the_nominal_model(audi, circle_track):
     np.testing.assert_array_equal(y, x)  # no noise configured
     rng = np.random.default_rng(1)
     L = circle_track.length
+    # the plant reads kappa from the track's CasADi B-spline table: use the same curvature here
+    table = circle_track.casadi_kappa()
+    kappa = lambda s: np.asarray(table(np.mod(s, L))).ravel()  # noqa: E731
     for _ in range(30):
         u = np.array([0.03, 0.5]) + rng.normal(0, [0.01, 0.5])
-        x = m.rk4(x, u, circle_track.kappa, dt, sub)
+        x = m.rk4(x, u, kappa, dt, sub)
         y = plant.step(u)
-        # the plant reads kappa from a CasADi B-spline table of the track (1e-8 off the exact
-        # spline), hence 1e-5 rather than machine precision; any effect would differ by >1e-3
-        np.testing.assert_allclose(y[:5], x[:5], rtol=0, atol=1e-5)
-        assert y[5] == pytest.approx(x[5] % L, abs=1e-5)
+        np.testing.assert_allclose(y[:5], x[:5], rtol=0, atol=1e-10)
+        assert y[5] == pytest.approx(x[5] % L, abs=1e-9)
     assert plant.lap == 1
 
 
