@@ -64,6 +64,10 @@ def test_fig_run_axes_units_and_plan_overlay():
     assert [ln.get_label() for ln in fig.axes[0].get_lines()] == ["driven", "plan"]
     fig_t = F.fig_run(data, "t")
     assert _labels(fig_t)[-1][0] == "time [s]"
+    # two laps against s: the line breaks at the start line instead of stroking back across it
+    two = {k: np.concatenate([v, v]) for k, v in data.items()}
+    xd = F.fig_run(two, "s").axes[0].get_lines()[0].get_xdata()
+    assert np.isnan(xd).sum() == 1 and np.all(np.diff(xd[np.isfinite(xd)][:50]) > 0)
 
 
 def test_fig_track_speed_places_line_on_map_and_marks_hits():

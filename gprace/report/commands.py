@@ -13,6 +13,7 @@ def register(app: typer.Typer) -> None:
         file: Path = typer.Argument(..., help="An artifact (.h5 of any kind), a CSV run, or a result JSON."),
         plot: Path | None = typer.Option(None, "--plot", help="Write a figure of it to this PNG (more than one: _2, _3 ...)."),
         features: str | None = typer.Option(None, "--features", help="Two input names (or indices) for dataset/GP plots, e.g. v_y,delta."),
+        against: str = typer.Option("t", "--against", help="Runs: draw against time 't' or arc length 's'."),
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
     ) -> None:
         """Summarise FILE: kind, schema, provenance, attributes, arrays and its key results."""
@@ -30,7 +31,7 @@ def register(app: typer.Typer) -> None:
                 if len(parts) != 2:
                     raise InputError(f"--features: give two names separated by a comma, got {features!r}")
                 feats = (parts[0], parts[1])
-            info["plots"] = [str(p) for p in save_figures(figures_for(file, feats), plot)]
+            info["plots"] = [str(p) for p in save_figures(figures_for(file, feats, against), plot)]
         if as_json:
             console.json(info)
             return

@@ -110,9 +110,11 @@ def fig_run(data: Mapping[str, np.ndarray], x: str = "t", plan: Mapping[str, np.
     cols = cols or [c for c in data if c not in ("t", "s", x)][:6]
     fig, axes = _figure((len(cols) + 1) // 2, 2, size=(9.0, 1.9 * ((len(cols) + 1) // 2) + 0.6), sharex=True)
     xs = np.asarray(data[x], float)
-    order = np.arange(len(xs))
+    # against s: one line per lap (no stroke back across the start line)
+    cut = np.flatnonzero(np.diff(xs) < -0.5 * max(np.ptp(xs), 1e-12)) + 1 if x == "s" else np.zeros(0, int)
     for ax, c in zip(axes.flat, cols):
-        ax.plot(xs[order], np.asarray(data[c], float)[order], lw=0.9, color=PALETTE[0], label="driven")
+        ax.plot(np.insert(xs, cut, np.nan), np.insert(np.asarray(data[c], float), cut, np.nan), lw=0.9,
+                color=PALETTE[0], label="driven")
         if plan is not None and x == "s" and c in plan:
             o = np.argsort(plan["s"])
             ax.plot(np.asarray(plan["s"])[o], np.asarray(plan[c])[o], lw=0.9, color="0.4", ls="--", label="plan")

@@ -100,8 +100,11 @@ def pick_features(names: list[str], wanted: tuple[str, str] | None = None) -> tu
     return 0, min(1, max(len(names) - 1, 0))
 
 
-def figures_for(path: str | Path, features: tuple[str, str] | None = None) -> list[tuple[str, Any]]:
-    """``[(caption, Figure), ...]`` for one file (first = the main figure)."""
+def figures_for(path: str | Path, features: tuple[str, str] | None = None, against: str = "t") -> list[tuple[str, Any]]:
+    """``[(caption, Figure), ...]`` for one file (first = the main figure); runs are drawn
+    against time (``against='t'``) or arc length (``'s'``)."""
+    if against not in ("t", "s"):
+        raise InputError(f"--against: 't' (time) or 's' (arc length), got {against!r}")
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
@@ -110,7 +113,7 @@ def figures_for(path: str | Path, features: tuple[str, str] | None = None) -> li
         from gprace.io.runs import read_run
 
         run = read_run(path)
-        return [(f"{path.name}: states and inputs", F.fig_run(run.data, "t", title=path.name))]
+        return [(f"{path.name}: states and inputs", F.fig_run(run.data, against, title=path.name))]
     if suffix == ".json":
         obj = json.loads(path.read_text())
         if json_kind(obj) == "diagnosis":
@@ -128,7 +131,9 @@ def figures_for(path: str | Path, features: tuple[str, str] | None = None) -> li
     a, at = art.arrays, art.attrs
     if kind == "run":
         data = {k: v for k, v in a.items() if np.ndim(v) == 1}
-        out = [(f"{path.name}: states and inputs", F.fig_run(data, "t", title=path.name))]
+        if against not in data:
+            raise InputError(f"{path}: run without column {against!r}")
+        out = [(f"{path.name}: states and inputs", F.fig_run(data, against, title=path.name))]
         track = try_track(at.get("track"))
         if track is not None and all(c in data for c in ("s", "e_y", "v_x")):
             out.append((f"{path.name}: driven line", F.fig_track_speed(track, data["s"], data["e_y"], data["v_x"],
