@@ -338,3 +338,31 @@ def test_show_plots_unknown_kinds_generically(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["arrays"]["x"]["shape"] == [2, 2, 2]
     assert main(["show", str(nothing), "--plot", str(tmp_path / "n.png")]) == 2
     assert "no figure for artifacts of kind 'blob'" in capsys.readouterr().err
+
+
+def test_report_reads_interrupted_iterate_layout(tmp_path):
+    """The `gprace iterate` layout (settings.json, trial_<j>/iter_<i>/ with record.json), killed
+    before its summary: a baseline variant, lap times from the records, the missing iterations named."""
+    from gprace.report.collect import scan, timetrial_variants
+
+    root = tmp_path / "loop"
+    root.mkdir()
+    (root / "settings.json").write_text(json.dumps({"alphas": [0.0], "selection": "random", "iterations": 2, "trials": 2}))
+    make_run(root / "heldout.h5", 18.0)  # the weaving GP test run: not a lap of the loop
+    for j in range(2):
+        d = root / f"trial_{j}" / "iter_00"
+        make_plan(d / "plan.h5")
+        make_run(d / "run.h5", 19.0 + 0.1 * j, seed=j, planned=31.5)
+        (d / "record.json").write_text(json.dumps({"iteration": 0, "trial": j, "alpha": 0.0, "planned": 31.5,
+                                                   "driven": L / (19.0 + 0.1 * j), "err_tracking": float("nan"),
+                                                   "err_planning": float("nan"), "completed": True}))
+    v = timetrial_variants(scan(root))
+    assert list(v) == [root] and v[root]["name"] == "baseline"
+    assert v[root]["rows_from"] == "record.json files" and len(v[root]["rows"]) == 2
+    assert sorted((it, tr) for _, _, it, tr in v[root]["runs"]) == [(0, 0), (0, 1)]
+    out = tmp_path / "r.html"
+    assert main(["report", str(root), "-o", str(out), "--png", str(tmp_path / "png")]) == 0
+    html = out.read_text()
+    assert "1 of 3 iterations finished" in html and "lap times taken from the record.json files" in html
+    assert "GP prediction errors per iteration: not in any summary.json yet" in html  # all NaN at iteration 0
+    assert (tmp_path / "png" / "timetrial_lap_times.png").exists()

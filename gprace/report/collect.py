@@ -271,7 +271,9 @@ def timetrial_variants(found: Found) -> dict[Path, dict[str, Any]]:
                     art = open_artifact(p, "run")
                 except Exception:  # noqa: BLE001
                     continue
-                v["runs"].append((p, art, _iteration_of(rel, art.attrs), _trial_of(rel, art.attrs)))
+                it = _iteration_of(rel, art.attrs)
+                if it is not None:  # runs outside iter_<i> (the held-out test run) are no laps of the loop
+                    v["runs"].append((p, art, it, _trial_of(rel, art.attrs)))
         v["plans"] = [p for p in found.of("plan") if root in p.parents]
     # exploration first (blue), baseline second (orange), then the rest by folder
     order = {"exploration": 0, "baseline": 1}
