@@ -272,10 +272,16 @@ def test_report_diagnosis_only_without_residuals(tmp_path):
 
 
 def test_h2h_only_report(tmp_path):
-    make_h2h(tmp_path / "e")
+    d = make_h2h(tmp_path / "e")
     out = tmp_path / "r.html"
     assert main(["report", str(tmp_path / "e"), "-o", str(out)]) == 0
     assert len(_data_uri_images(out.read_text())) == 3
+    # interrupted before the table: the race is still drawn, the page says what is missing
+    (d / "table.json").unlink()
+    assert main(["report", str(tmp_path / "e"), "-o", str(out)]) == 0
+    html = out.read_text()
+    assert "no table.json (the evaluation did not finish)" in html
+    assert len(_data_uri_images(html)) == 2  # the race and the errors along it
 
 
 def test_report_recomputes_residuals_from_recording_and_augmented_vehicle(tmp_path):
