@@ -124,10 +124,14 @@ def record(vehicle: VehicleConfig, track, effects: Sequence[EffectConfig | Effec
         from gprace.plants import make_plant
 
         plant = make_plant(cfg, track, dt)
-    if other:
+    if other:  # effects outside the catalogue: rebuild the plant's model and its step
         from gprace.model import NominalModel
+        from gprace.plants import frenet
 
         plant.model = NominalModel(vehicle, list(cat) + other)
+        plant._x = np.zeros(plant.model.nx)
+        if hasattr(frenet, "_compiled_step"):
+            plant._step = frenet._compiled_step(plant.model, track, dt, substeps)
     drv = TrackingDriver(vehicle, track, dt, speed_scale, weave, excitation=excitation, seed=seed)
     v0 = drv.v_ref(s0)
     u0 = np.array([vehicle.l_f * 0 + (vehicle.l_f + vehicle.l_r) * float(track.kappa(s0)), 0.0])
