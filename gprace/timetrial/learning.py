@@ -9,6 +9,11 @@ Both GPs take ``z = [v_y, yaw_rate, delta]`` (REFERENCE.md). Targets, from conse
 - ``planning``: the errors of ``d v_y/dt`` and ``d yaw_rate/dt`` of the continuous model, the
   planner's dynamics: the central difference of the measurements minus ``f(x_k, u_k)``.
 
+Samples of a car out of control (``|e_psi| > 0.5`` rad or ``|v_y| > 0.2 |v_x| + 1`` m/s, i.e. a
+spin in progress) are left out: the diverse selection otherwise fills the dictionary with them
+(they are the most "novel" points) and the compensated MPC then spun on laps the nominal MPC
+completed.
+
 Training (project decision, to fit the 10-minute budget of ``gprace iterate``): hyperparameters
 are fitted once, by marginal likelihood on at most ``max_fit_points`` points of the first data
 set, with one kernel shared by both outputs; every later retrain keeps them FIXED and only
@@ -25,6 +30,8 @@ import numpy as np
 from gprace.errors import InputError
 
 FEATURE_NAMES = ["v_y", "yaw_rate", "delta"]
+SPIN_EPSI = 0.5   # |e_psi| [rad] beyond which a sample counts as out of control
+SPIN_SLIP = 0.2   # |v_y| / |v_x| beyond which a sample counts as out of control
 OUTPUTS = {"tracking": ["v_y", "yaw_rate"], "planning": ["dv_y_dt", "dyaw_rate_dt"]}
 
 
@@ -50,6 +57,8 @@ def features(run, model, track, kind: str, step: str = "rk4") -> tuple[np.ndarra
         Y = (x1 - pred)[:, 1:3]
     Z = np.column_stack([x0[:, 1], x0[:, 2], u0[:, 0]])
     good = np.all(np.isfinite(Z), axis=1) & np.all(np.isfinite(Y), axis=1)
+    # a car out of control (spinning) is not the dynamics the GPs compensate: leave it out
+    good &= (np.abs(x0[:, 3]) < SPIN_EPSI) & (np.abs(x0[:, 1]) < SPIN_SLIP * np.abs(x0[:, 0]) + 1.0)
     return Z[good], Y[good]
 
 
