@@ -152,3 +152,24 @@ def test_gp_compensated_model_predicts_plant_better():
     err_gp = np.sqrt(np.mean((Yt - mean) ** 2, axis=0))
     err_nom = np.sqrt(np.mean(Yt**2, axis=0))  # the nominal step predicts zero error
     assert np.all(err_gp < 0.7 * err_nom)
+
+
+def test_failed_solve_falls_back_to_shifted_solution(circle):
+    from gprace.mpc.qp import QPStatus, fail_result
+    from gprace.timetrial.drive import start_state
+
+    tr, m, plan = circle
+    mpc = TrackingMPC(m, tr, plan, MPCSettings())
+    x0, u0 = start_state(plan, tr, m.vehicle)
+    mpc.reset(u0[0])
+    mpc.step(x0)
+    expected = mpc.prev_u[1].copy()
+
+    class Broken:
+        def solve(self, pb):
+            return fail_result(pb.N, QPStatus.FAILED, "injected")
+
+    mpc.qp = Broken()
+    u, info = mpc.step(x0)
+    assert info["fallback"] and mpc.fallbacks == 1
+    assert np.array_equal(u, np.clip(expected, mpc.u_lo, mpc.u_hi))
