@@ -125,6 +125,11 @@ def diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int = HORIZON,
     searched: list[dict[str, Any]] = []
     if dyn_struct:
         for _round in range(MAX_EFFECTS):
+            if len(chosen) >= 2:  # the earlier effects were fitted without the latest one: refit
+                for i, f in enumerate(chosen):
+                    prob.base = [g.effect() for j, g in enumerate(chosen) if j != i]
+                    chosen[i] = nm.refit(prob, f, fit_w)
+                    effects_out[i]["_fit"] = chosen[i]
             prob.base = [f.effect() for f in chosen]
             cur = prob.model()
             if chosen:  # stop when what is left is noise (against the same twin floor)
