@@ -11,7 +11,9 @@ Per trial (an independent chain with its own seed; trials run in parallel throug
   retrain only, then posterior refits with those hyperparameters fixed; see
   :mod:`gprace.timetrial.learning`), the exploration candidates and their weighted variances are
   computed; (3) the lap is re-planned with the planning GP, warm-started from the previous plan;
-  (4) the tracking MPC with the tracking GP drives it with ``alpha_i``.
+  (4) the tracking MPC with the tracking GP drives it with ``alpha_i``. If the re-plan fails (IPOPT
+  reports infeasible or runs out of iterations, seen with strong GP compensations), the previous
+  plan is driven again and the record says ``replan_failed``.
 
 Folder layout (``--out DIR``)::
 
@@ -37,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gprace.errors import ConfigError, InputError, RunFailedError
+from gprace.errors import ConfigError, InputError, RunFailedError, SolverError
 
 FAIL_ENV = "GPRACE_ITERATE_FAIL_AFTER"  # test hook: raise after the named step's marker is written
 
@@ -256,7 +258,13 @@ def _run_chain(task: dict) -> list[dict]:
         if not steps.done(tag(i, "plan")):
             warm = read_plan(dp / "plan.h5", track)
             gp_plan = L.load_predictor(di / "gp_planning.h5", "planning")
-            plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, grip=st.plan_grip, grip_brake=st.plan_grip_brake), warm=warm, mu_plan=lambda Z: gp_plan(Z)[0])
+            try:
+                plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, grip=st.plan_grip, grip_brake=st.plan_grip_brake),
+                                     warm=warm, mu_plan=lambda Z: gp_plan(Z)[0])
+            except SolverError as exc:
+                # a failed re-plan must not end the experiment: drive the previous plan again
+                plan = warm
+                plan.meta = {**plan.meta, "replan_failed": str(exc)}
             plan.write(di / "plan.h5")
             steps.mark(tag(i, "plan"))
         # (4) drive ------------------------------------------------------------------------------
@@ -307,7 +315,7 @@ def _record(i, alpha, trial, plan, run, gps, sizes, H, extra) -> dict:
         "driven": float(m["lap_time"]), "completed": bool(m["completed"]), "reason": m.get("reason", ""),
         "gap": float(m["lap_time"] - plan.lap_time), "solve_median_ms": 1e3 * m["solve_time_median"],
         "solve_p99_ms": 1e3 * m["solve_time_p99"], "border_hits": int(m["border_hit_steps"]), "fallbacks": int(m["fallbacks"]),
-        "samples": int(run.n),
+        "samples": int(run.n), "replan_failed": bool(plan.meta.get("replan_failed")),
     }
     for k in ("tracking", "planning"):
         rec[f"err_{k}"] = _gp_error(gps[k] if gps else None, H[k])
