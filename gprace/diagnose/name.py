@@ -47,6 +47,8 @@ START = {
 }
 FIXED = {"ramp"}  # window edge width stays at its default
 SCALE = {"s_start": 10.0, "s_end": 10.0}
+NEAR_MARGIN = 150.0
+"""How far [m] a window edge may move from its located region during one fit."""
 WINDOW_CHANNELS = {"road_grade": (0,), "road_bank": (1,), "friction_patch": (1, 2)}
 
 
@@ -130,13 +132,20 @@ def starts_for(name: str, regions: dict[int, list[tuple[float, float]]]) -> list
         return [base]
     out = []
     amp = "angle" if "angle" in cls.params else "factor"
+    spans = []
     for c in WINDOW_CHANNELS[name]:
-        for (a, b) in regions.get(c, [])[:2]:
-            for sgn in ((1, -1) if amp == "angle" else (1,)):
-                d = dict(base)
-                d["s_start"], d["s_end"] = a, b
-                d[amp] = 0.02 * sgn if amp == "angle" else 0.85
-                out.append(d)
+        rs = regions.get(c, [])
+        spans += rs[:2]
+        if len(rs) > 1:  # fragments of one window: also try the span around the strongest one
+            a0, b0 = rs[0]
+            near = [(a, b) for a, b in rs if a < b0 + 300.0 and b > a0 - 300.0]
+            spans.append((min(a for a, _ in near), max(b for _, b in near)))
+    for (a, b) in dict.fromkeys(spans):
+        for sgn in ((1, -1) if amp == "angle" else (1,)):
+            d = dict(base)
+            d["s_start"], d["s_end"] = a, b
+            d[amp] = 0.02 * sgn if amp == "angle" else 0.85
+            out.append(d)
     return out
 
 
@@ -165,12 +174,19 @@ def fit_effect(prob: Problem, name: str, starts: np.ndarray, inits: list[dict[st
         return r
 
     full = starts
+    lo_all, hi_all = lo, hi
     for init in inits:
         starts = full
+        lo, hi = lo_all.copy(), hi_all.copy()
         if "s_start" in init:
-            starts = _near(prob, full, init["s_start"], init["s_end"])
+            a, b = init["s_start"], init["s_end"]
+            starts = _near(prob, full, a, b, margin=NEAR_MARGIN)
             if len(starts) < 5:
                 continue
+            # edges stay where the selected windows can see them
+            i0, i1 = free.index("s_start"), free.index("s_end")
+            lo[i0], hi[i0] = a - NEAR_MARGIN, max(a + 1.0, 0.5 * (a + b))
+            lo[i1], hi[i1] = min(b - 1.0, 0.5 * (a + b) + 1.0), b + NEAR_MARGIN
         x0 = np.clip(np.array([init[k] for k in free], dtype=float), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         try:
             sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=xs, method="trf", max_nfev=max_nfev,
