@@ -39,7 +39,7 @@ def bench_nmpc(seconds: float = 20.0) -> dict:
     from gprace.h2h.race import run_race
 
     out = run_race({"track": {"kind": "random", "seed": 3, "width": 0.75, "stretches": 4}, "seed": 1,
-                    "predictor": "oracle", "config": {"max_time": seconds}})
+                    "predictor": "oracle", "duration": seconds, "config": {"max_time": seconds}})
     ms = out["arrays"]["ego_solve_ms"]
     return {"steps": int(len(ms)), "median_ms": float(np.median(ms)), "p99_ms": float(np.percentile(ms, 99)),
             "max_ms": float(ms.max()), "fallbacks": int(out["attrs"]["fallbacks_ego"]),
