@@ -47,6 +47,13 @@ def bench_nmpc(seconds: float = 20.0) -> dict:
 
 
 def bench_rollout(models: dict[str, Path], reps: int = 30) -> dict:
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):  # as in the race workers
+        return _bench_rollout(models, reps)
+
+
+def _bench_rollout(models: dict[str, Path], reps: int = 30) -> dict:
     from gprace.h2h.predictors import GPPredictor, read_opponent_gp
     from gprace.h2h.geometry import make_track
 

@@ -364,6 +364,12 @@ def race_predictors(st: Settings, out: Path, model_paths: dict[str, Path]) -> di
 
 
 def offline_errors_task(task: dict) -> dict:
+    from gprace.h2h.race import single_thread_blas
+
+    return single_thread_blas(_offline_errors)(task)
+
+
+def _offline_errors(task: dict) -> dict:
     """Prediction errors of every offline predictor on one closed-loop opponent trajectory.
 
     Rollouts start at every step t of the record, from the true opponent state, with the ego's

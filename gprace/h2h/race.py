@@ -104,6 +104,23 @@ def usable_widths(track, s: np.ndarray, kappa_max_ey: float = 0.8) -> tuple[np.n
     return wl, wr
 
 
+def single_thread_blas(fn):
+    """Run with one BLAS thread: the GP's small matrix products (50 x M) are 10 to 60 times
+    slower with threaded BLAS on a busy 2-core machine (measured: 0.57 ms vs 15 to 37 ms per
+    predict call), and batches already run one process per core."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(limits=1):
+            return fn(*args, **kwargs)
+
+    return wrapper
+
+
+@single_thread_blas
 def run_race(task: dict) -> dict:
     cfg = H2HConfig(**task.get("config", {}))
     track = make_track(task["track"])
