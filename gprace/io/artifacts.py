@@ -89,11 +89,11 @@ def read_artifact(path: str | Path, kind: str | tuple[str, ...] | None = None) -
             raise ArtifactError(f"{path}: schema {schema} is newer than this gprace ({SCHEMA}); upgrade gprace")
         reserved = {"kind", "schema", "gprace_version", "config_hash", "seed", "created"}
         attrs = {k: _unattr(v) for k, v in f.attrs.items() if k not in reserved}
-        arrays = {k: v[()] for k, v in f["data"].items()} if "data" in f else {}
+        arrays = _flat(f["data"]) if "data" in f else {}
         groups = {}
         if "groups" in f:
             for gname, sub in f["groups"].items():
-                groups[gname] = {k: v[()] for k, v in sub.items()}
+                groups[gname] = _flat(sub)
         return Artifact(
             kind=got,
             arrays=arrays,
@@ -105,6 +105,17 @@ def read_artifact(path: str | Path, kind: str | tuple[str, ...] | None = None) -
             created=str(f.attrs.get("created", "")),
             gprace_version=str(f.attrs.get("gprace_version", "")),
         )
+
+
+def _flat(group: "h5py.Group", prefix: str = "") -> dict[str, np.ndarray]:
+    """All datasets below ``group``; names with ``/`` (written as nested groups) come back whole."""
+    out: dict[str, np.ndarray] = {}
+    for k, v in group.items():
+        if isinstance(v, h5py.Group):
+            out.update(_flat(v, f"{prefix}{k}/"))
+        else:
+            out[f"{prefix}{k}"] = v[()]
+    return out
 
 
 def _attr(v: Any) -> Any:
