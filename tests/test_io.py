@@ -166,3 +166,14 @@ def test_simulated_run_round_trips(tmp_path, audi):
     assert back.vehicle() == audi and back.dt == 0.05
     back_csv = read_run(write_run(run, tmp_path / "sim.csv"))
     np.testing.assert_allclose(back_csv.states(), run.states(), rtol=1e-9)
+
+
+def test_artifact_array_names_with_slashes_round_trip(tmp_path):
+    """h5py stores 'a/b' as a nested group; reading must give the same flat names back."""
+    arrays = {"hyper/length_scales": np.array([0.5, 2.0]), "hyper/noise": np.array(1e-3), "Z": np.eye(2)}
+    path = write_artifact(tmp_path / "m.h5", Artifact("gp_model", arrays=arrays, groups={"g": {"x/y": np.ones(3)}}))
+    back = read_artifact(path, "gp_model")
+    assert set(back.arrays) == set(arrays)
+    for k, v in arrays.items():
+        np.testing.assert_array_equal(back.arrays[k], v)
+    np.testing.assert_array_equal(back.groups["g"]["x/y"], np.ones(3))
