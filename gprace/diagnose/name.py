@@ -29,6 +29,8 @@ from gprace.diagnose.locate import blocks
 from gprace.model import EFFECTS, NominalModel
 
 T_GAIN = 3.0
+T_GAIN_STRONG = 2.0
+"""Paired-block t needed when the gain removes at least half of the remaining excess."""
 MIN_GAIN = 0.01
 """Smallest held-out loss reduction that matters: 1% of the noise floor (losses are normalised so
 that pure sensor noise gives 1 per channel)."""
