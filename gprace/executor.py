@@ -41,30 +41,39 @@ def run_batch(
     workers: int = 1,
     scheduler: str | None = None,
     on_done: Callable[[TaskResult], None] | None = None,
+    label: str = "tasks",
 ) -> list[TaskResult]:
-    """Run ``fn`` over ``tasks``; ``on_done`` is called as each finishes (for saving/progress)."""
+    """Run ``fn`` over ``tasks``; ``on_done`` is called as each finishes (for saving).
+
+    A progress bar named ``label`` counts finished tasks on a terminal (silent otherwise).
+    """
+    from gprace.console import console
+
     if executor not in ("local", "dask"):
         raise ConfigError(f"unknown executor {executor!r}; available: local, dask")
     if workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {workers}")
     results: list[TaskResult | None] = [None] * len(tasks)
 
-    def done(r: TaskResult) -> None:
-        results[r.index] = r
-        if on_done is not None:
-            on_done(r)
+    with console.progress(label, total=len(tasks)) as bar:
 
-    if executor == "dask":
-        for r in _dask(fn, tasks, scheduler):
-            done(r)
-    elif workers == 1 or len(tasks) <= 1:
-        for i, t in enumerate(tasks):
-            done(_call(fn, i, t))
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            futs = [pool.submit(_call, fn, i, t) for i, t in enumerate(tasks)]
-            for fut in as_completed(futs):
-                done(fut.result())
+        def done(r: TaskResult) -> None:
+            results[r.index] = r
+            if on_done is not None:
+                on_done(r)
+            bar.advance()
+
+        if executor == "dask":
+            for r in _dask(fn, tasks, scheduler):
+                done(r)
+        elif workers == 1 or len(tasks) <= 1:
+            for i, t in enumerate(tasks):
+                done(_call(fn, i, t))
+        else:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                futs = [pool.submit(_call, fn, i, t) for i, t in enumerate(tasks)]
+                for fut in as_completed(futs):
+                    done(fut.result())
     return [r for r in results if r is not None]
 
 

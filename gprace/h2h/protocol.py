@@ -168,7 +168,7 @@ def run_tasks(tasks: list[dict], run_dir: Path, st: Settings, what: str,
             console.warn(f"{what}: run {i} failed and is skipped: {r.error.splitlines()[0]}")
 
     results = run_batch(fn, [tasks[i] for i in todo], executor=st.executor, workers=st.workers,
-                        scheduler=st.scheduler, on_done=done)
+                        scheduler=st.scheduler, on_done=done, label=f"{what} runs")
     for r in results:
         i = todo[r.index]
         if r.ok:
@@ -426,7 +426,8 @@ def offline_errors(st: Settings, out: Path, raced: dict[str, list[dict]], model_
                 t = json.loads(rec["attrs"]["task"]) if "task" in rec["attrs"] else eval_tasks(st, p, None)[i]
                 tasks.append({"record": str(_record_path(out / "eval" / p, i)), "track": t["track"], "seed": t["seed"],
                               "config": t["config"], "models": names})
-    res = run_batch(offline_errors_task, tasks, executor=st.executor, workers=st.workers, scheduler=st.scheduler)
+    res = run_batch(offline_errors_task, tasks, executor=st.executor, workers=st.workers, scheduler=st.scheduler,
+                    label="offline prediction errors")
     errs: dict[str, list[np.ndarray]] = {p: [] for p in st.offline}
     for r in res:
         if r.ok:
