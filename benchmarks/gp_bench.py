@@ -32,7 +32,12 @@ import os
 import sys
 import time
 
-import numpy as np
+if __name__ == "__main__" and "--threads" in sys.argv:  # BLAS reads this when it loads
+    _n = sys.argv[sys.argv.index("--threads") + 1]
+    for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[_v] = _n
+
+import numpy as np  # noqa: E402
 
 
 def _f(Z: np.ndarray) -> np.ndarray:
@@ -172,17 +177,13 @@ def quality(seeds: int, M: int, out: dict, laps: float) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="smaller sizes (a smoke run, not the targets)")
-    ap.add_argument("--threads", type=int, default=0, help="limit BLAS threads (0: library default)")
+    ap.add_argument("--threads", type=int, default=0, help="BLAS threads (set before numpy loads; 0: library default)")
     ap.add_argument("--no-quality", action="store_true", help="skip the selection-quality experiment")
     ap.add_argument("--no-speed", action="store_true", help="skip the speed measurements")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--quality-m", type=int, default=250, help="dictionary size of the quality experiment")
     ap.add_argument("--laps", type=float, default=1.0, help="laps per simulated run in the quality experiment")
     args = ap.parse_args()
-    if args.threads:
-        from threadpoolctl import threadpool_limits
-
-        threadpool_limits(args.threads)
     M, n_grid, n_stream, n_sparse = (500, 2000, 2000, 5000) if args.quick else (2000, 10000, 10000, 50000)
     out: dict = {"M": M, "inputs": 3, "outputs": 2, "threads": args.threads or "default",
                  "load_average_start": os.getloadavg()[0], "cpus": os.cpu_count()}
