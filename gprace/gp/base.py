@@ -407,13 +407,15 @@ def save_model(path: str | Path, gp: GPBackend, meta: dict[str, Any] | None = No
 def load_model(path: str | Path) -> SavedGP:
     """Read a ``gp_model`` artifact (ArtifactError if the file is of another kind).
 
-    The learned arrays are stored under nested names (``/data/hyper/...``, ``/data/state/...``),
-    so this reader flattens them to ``hyper/<name>`` keys itself.
+    The learned arrays are stored under nested names (``hyper/<name>``, ``state/<name>``), which
+    :func:`~gprace.io.artifacts.read_artifact` returns under their full names.
     """
     from gprace.backends import gps
     from gprace.errors import ArtifactError
+    from gprace.io.artifacts import read_artifact
 
-    attrs, arrays = _read_nested(Path(path))
+    art = read_artifact(path, ARTIFACT_KIND)
+    attrs, arrays = dict(art.attrs), art.arrays
     try:
         backend = str(attrs.pop("backend"))
         params = dict(attrs.pop("params"))
@@ -425,32 +427,3 @@ def load_model(path: str | Path) -> SavedGP:
     gp = cls.from_arrays(arrays, params)
     return SavedGP(gp=gp, backend=backend, feature_map=str(attrs.pop("feature_map", "")),
                    input_names=list(input_names), output_names=list(output_names), attrs=attrs)
-
-
-def _read_nested(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """Attributes and flattened ``/data`` arrays of a ``gp_model`` artifact (kind-checked)."""
-    import h5py
-
-    from gprace.errors import ArtifactError
-    from gprace.io.artifacts import SCHEMA, _unattr
-
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    try:
-        f = h5py.File(path, "r")
-    except OSError:
-        raise ArtifactError(f"{path}: not an HDF5 file (truncated or of another format)") from None
-    with f:
-        if "kind" not in f.attrs:
-            raise ArtifactError(f"{path}: not a gprace artifact (no 'kind' attribute)")
-        got = _unattr(f.attrs["kind"])
-        if got != ARTIFACT_KIND:
-            raise ArtifactError(f"{path}: is a {got!r} artifact, expected {ARTIFACT_KIND!r}")
-        if int(f.attrs.get("schema", 0)) > SCHEMA:
-            raise ArtifactError(f"{path}: schema is newer than this gprace ({SCHEMA}); upgrade gprace")
-        reserved = {"kind", "schema", "gprace_version", "config_hash", "created"}
-        attrs = {k: _unattr(v) for k, v in f.attrs.items() if k not in reserved}
-        arrays: dict[str, np.ndarray] = {}
-        if "data" in f:
-            f["data"].visititems(lambda name, obj: arrays.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None)
-    return attrs, arrays
