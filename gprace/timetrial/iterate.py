@@ -142,7 +142,7 @@ def iterate(settings: IterateSettings, out: str | Path, executor: str = "local",
         _heldout(settings, out)
         steps.mark("heldout")
     tasks = [{"out": str(out), "trial": j, "settings": mine} for j in range(settings.trials)]
-    results = run_batch(run_chain, tasks, executor=executor, workers=workers, scheduler=scheduler)
+    results = run_batch(run_chain, tasks, executor=executor, workers=workers, scheduler=scheduler, label="trials")
     failed = [r for r in results if not r.ok]
     summary = build_summary(out)
     _write_json(out / "summary.json", summary)

@@ -74,7 +74,9 @@ class GPPredictor:
 
 def load_predictor(path, kind: str) -> GPPredictor:
     """A saved GP model for ``kind``; InputError if it was trained on other features."""
-    saved = _load_model(path)
+    from gprace.gp import load_model
+
+    saved = load_model(path)
     fm = saved.feature_map or ""
     if fm and fm != kind:
         raise InputError(f"{path}: GP trained with feature map {fm!r}, this needs {kind!r} (inputs {FEATURE_NAMES})")
@@ -83,29 +85,6 @@ def load_predictor(path, kind: str) -> GPPredictor:
     if len(saved.output_names) != 2:
         raise InputError(f"{path}: GP has {len(saved.output_names)} outputs, this needs 2 ({OUTPUTS[kind]})")
     return GPPredictor(saved.gp, kind, str(path))
-
-
-def _load_model(path):
-    """``gprace.gp.load_model``; if its reader trips over the nested ``data/hyper/...`` groups that
-    ``save_model`` writes (seen with the GP layer in progress), read the file directly."""
-    from gprace.gp import load_model
-
-    try:
-        return load_model(path)
-    except TypeError:
-        import h5py
-
-        from gprace.backends import gps
-        from gprace.gp.base import SavedGP
-        from gprace.io.artifacts import _unattr
-
-        arrays: dict = {}
-        with h5py.File(path, "r") as f:
-            f["data"].visititems(lambda name, obj: arrays.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None)
-            attrs = {k: _unattr(v) for k, v in f.attrs.items()}
-        gp = gps.get(str(attrs["backend"])).from_arrays(arrays, dict(attrs["params"]))
-        return SavedGP(gp=gp, backend=str(attrs["backend"]), feature_map=str(attrs.get("feature_map", "")),
-                       input_names=list(attrs["input_names"]), output_names=list(attrs["output_names"]), attrs=attrs)
 
 
 def fit_hyper(Z: np.ndarray, Y: np.ndarray, seed: int = 0, max_fit_points: int = 400, backend: str = "exact"):
