@@ -78,16 +78,14 @@ def test_unknown_predictor():
 
 
 def test_model_with_wrong_feature_layout(tmp_path):
-    from gprace.gp import make_gp
-    from gprace.io.artifacts import Artifact, write_artifact
+    from gprace.gp import make_gp, save_model
 
     rng = np.random.default_rng(0)
     Z, Y = rng.normal(size=(30, 3)), rng.normal(size=(30, 2))
     gp = make_gp("exact", kernel="matern15", optimize=False).fit(Z, Y)
-    attrs = {"backend": "exact", "params": json.dumps(gp.get_params()), "feature_map": "tracking",
-             "input_names": json.dumps(["v_y", "yaw_rate", "delta"]), "output_names": json.dumps(["e_vy", "e_r"])}
     bad = tmp_path / "tracking.h5"
-    write_artifact(bad, Artifact("gp_model", arrays={k.replace("/", "::"): v for k, v in gp.to_arrays().items()}, attrs=attrs))
+    save_model(bad, gp, {"feature_map": "tracking", "input_names": ["v_y", "yaw_rate", "delta"],
+                         "output_names": ["e_vy", "e_r"]})
     with pytest.raises(InputError, match="opponent"):
         read_opponent_gp(bad)
     data = tmp_path / "d.h5"

@@ -158,49 +158,26 @@ PREDICTORS = ("gp", "cv", "oracle")
 
 
 def save_opponent_gp(path: str | Path, gp, meta: dict, config_hash: str = "", seed: int = 0) -> Path:
-    """Write a fitted GP as a ``gp_model`` artifact with the opponent layout.
+    """Write a fitted GP as a ``gp_model`` artifact with the opponent feature layout."""
+    from gprace.gp import save_model
 
-    Workaround: :func:`gprace.gp.base.save_model` stores array names containing ``/`` which
-    :func:`gprace.io.artifacts.read_artifact` cannot read back (nested groups), so names are
-    flattened here (``/`` -> ``::``); :func:`load_opponent_gp` reads both forms.
-    """
-    import json
-
-    from gprace.io.artifacts import Artifact, write_artifact
-
-    h = gp._fitted()
-    attrs = {"backend": gp.NAME, "kernel": gp.kernel, "params": json.dumps(gp.get_params()),
-             "feature_map": FEATURE_MAP, "input_names": json.dumps(list(FEATURES)),
-             "output_names": json.dumps(list(OUTPUTS)), "n_inputs": int(h.d)}
-    attrs.update({k: v for k, v in meta.items() if k not in ("feature_map", "input_names", "output_names")})
-    arrays = {k.replace("/", "::"): v for k, v in gp.to_arrays().items()}
-    return write_artifact(path, Artifact("gp_model", arrays=arrays, attrs=attrs, config_hash=config_hash, seed=seed))
+    layout = {"feature_map": FEATURE_MAP, "input_names": list(FEATURES), "output_names": list(OUTPUTS)}
+    extra = {k: v for k, v in meta.items() if k not in layout}
+    return save_model(path, gp, {**layout, **extra}, config_hash=config_hash, seed=seed)
 
 
 def read_opponent_gp(path: str | Path):
     """(gp, attrs) of a saved GP; InputError naming the mismatch if the layout is not the opponent's."""
-    import json
+    from gprace.gp import load_model
 
-    from gprace.backends import gps
-    from gprace.errors import ArtifactError
-    from gprace.io.artifacts import read_artifact
-
-    art = read_artifact(path, "gp_model")
-    attrs = dict(art.attrs)
-    try:
-        names = tuple(json.loads(attrs["input_names"]))
-        outs = tuple(json.loads(attrs["output_names"]))
-        backend, params = str(attrs["backend"]), json.loads(attrs["params"])
-    except (KeyError, ValueError, TypeError) as exc:
-        raise ArtifactError(f"{path}: GP model attributes are incomplete ({exc})") from None
+    saved = load_model(path)
+    names, outs = tuple(saved.input_names), tuple(saved.output_names)
     if names != FEATURES or outs != OUTPUTS:
         raise InputError(
             f"{path}: GP model has inputs {list(names)} and outputs {list(outs)}; the opponent "
             f"predictor needs the '{FEATURE_MAP}' layout inputs {list(FEATURES)} -> outputs {list(OUTPUTS)}"
         )
-    arrays = {k.replace("::", "/"): v for k, v in art.arrays.items()}
-    gp = gps.get(backend).from_arrays(arrays, params)
-    return gp, attrs
+    return saved.gp, {"backend": saved.backend, **saved.attrs}
 
 
 def load_opponent_gp(path: str | Path):
