@@ -206,3 +206,17 @@ def test_commonroad_plant_rejects_effects(bmw, circle_track):
     cfg = PlantConfig(kind="commonroad-std", vehicle=bmw, effects=(EffectConfig(name="downforce", params={"c_l": 1.0}),))
     with pytest.raises(ConfigError, match=r"effects \(downforce\) work only with 'frenet'"):
         make_plant(cfg, circle_track, 0.05)
+
+
+def test_border_hits_is_the_footprint_against_the_edges(circle_track):
+    """Analytic footprint: straight car (e_psi = 0) hits when |e_y| + w/2 passes the width;
+    turned 90 deg the half-extent is l/2."""
+    from gprace.sim.record import border_hits
+
+    wl = float(circle_track.width_left(0.0))
+    wr = float(circle_track.width_right(0.0))
+    length, width = 4.0, 2.0
+    X = np.zeros((6, 6))
+    X[:, 4] = [wl - 1.01, wl - 0.99, -wr + 1.01, -wr + 0.99, wl - 2.01, wl - 1.99]
+    X[4:, 3] = np.pi / 2
+    np.testing.assert_array_equal(border_hits(circle_track, X, length, width), [False, True, False, True, False, True])

@@ -3,8 +3,7 @@
 The controller sees only the measured (noisy) Frenet state, as on a real car. Each recorded row
 ``k`` holds the measurement at ``t_k = k dt``, the command applied over ``[t_k, t_k + dt)``, the
 curvature at the measured ``s``, the lap counter and ``border_hit`` (1 when the car's footprint,
-from the *true* state, crosses a track edge: half-extent
-``|l/2 sin e_psi| + |w/2 cos e_psi|`` beyond ``w_left`` or ``w_right``).
+from the *true* state, crosses a track edge: :func:`gprace.sim.record.border_hits`).
 
 Stops after ``laps`` laps (closed tracks) or at the track end (open tracks). A car that leaves the
 track by more than twice its width, spins (``|e_psi| > 1 rad``) or almost stops ends the run early
@@ -23,6 +22,7 @@ from gprace.errors import RunFailedError
 from gprace.io.runs import Run
 from gprace.plants import make_plant
 from gprace.sim.controller import ReferenceController
+from gprace.sim.record import border_hits, lap_times_of, run_columns
 
 
 def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Run:
@@ -41,22 +41,19 @@ def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Ru
     goal = sim_config.laps * L if track.closed else L
     v_mean = float(np.mean(ctrl.profile.v))
     n_max = int(math.ceil(goal / max(0.3 * v_mean, 1e-3) / dt)) + 10
-    half_l, half_w = 0.5 * vehicle.length, 0.5 * vehicle.width
     v_stall = 0.2 * min(v_mean, float(ctrl.profile.v.min()) + 1e-9)
 
     Y = np.empty((n_max + 1, 6))
+    X = np.empty((n_max + 1, 6))  # true states, for the footprint check
     U = np.empty((n_max + 1, 2))
     lap = np.empty(n_max + 1)
-    hit = np.empty(n_max + 1)
     k = 0
     reason = ""
     while True:
         u = ctrl(y)
         x = plant.state
-        Y[k], U[k], lap[k] = y, u, plant.lap
-        ext = abs(half_l * math.sin(x[3])) + abs(half_w * math.cos(x[3]))
+        Y[k], X[k], U[k], lap[k] = y, x, u, plant.lap
         wl, wr = float(track.width_left(x[5])), float(track.width_right(x[5]))
-        hit[k] = float(x[4] + ext > wl or x[4] - ext < -wr)
         k += 1
         progress = plant.lap * L + x[5] if track.closed else x[5]
         if progress >= goal:
@@ -78,21 +75,10 @@ def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Ru
             raise RunFailedError(f"simulate: {reason} at the first step")
         k = max(k - int(round(1.0 / dt)), 2)  # drop the last second: the slide, not driving data
         console.warn(f"simulate: {reason}; the recording keeps the {k} samples up to 1 s before")
-    Y, U = Y[:k], U[:k]
-    s_meas = track.wrap(Y[:, 5])
     data = {
-        "t": dt * np.arange(k),
-        "s": s_meas,
-        "e_y": Y[:, 4],
-        "e_psi": Y[:, 3],
-        "v_x": Y[:, 0],
-        "v_y": Y[:, 1],
-        "yaw_rate": Y[:, 2],
-        "delta": U[:, 0],
-        "a_x": U[:, 1],
-        "kappa": track.kappa(s_meas),
+        **run_columns(track, dt, Y[:k], U[:k]),
         "lap": lap[:k],
-        "border_hit": hit[:k],
+        "border_hit": border_hits(track, X[:k], vehicle.length, vehicle.width).astype(float),
     }
     meta = {
         "vehicle_toml": vehicle.to_toml(),
@@ -117,8 +103,4 @@ def run_hash(run: Run) -> str:
 
 def lap_times(run: Run) -> list[float]:
     """Times of the completed laps [s] (from the lap counter)."""
-    lap = np.asarray(run.data["lap"])
-    t = run.data["t"]
-    idx = np.flatnonzero(np.diff(lap) > 0) + 1
-    starts = np.concatenate([[0], idx])
-    return [float(t[b] - t[a]) for a, b in zip(starts[:-1], starts[1:])]
+    return lap_times_of(run.data["t"], np.asarray(run.data["lap"]))

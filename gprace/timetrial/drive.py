@@ -45,6 +45,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
           alpha: float = 0.0, seed: int = 0) -> Run:
     """Drive ``settings.laps`` laps; ``gp`` is a callable ``Z -> (mean, var)`` (the tracking GP)."""
     from gprace.plants import make_plant
+    from gprace.sim.record import border_hits, lap_times_of, run_columns
 
     plan.check_track(track, "plan")
     dt = settings.mpc.dt
@@ -60,21 +61,19 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     goal = settings.laps * L
     n_max = int(math.ceil(settings.laps * plan.lap_time * 2.0 / dt)) + 40
     vehicle = model.vehicle
-    half_l, half_w = 0.5 * vehicle.length, 0.5 * vehicle.width
     Y = np.empty((n_max + 1, 6))
+    X = np.empty((n_max + 1, 6))  # true states, for the footprint check
     U = np.empty((n_max + 1, 2))
-    cols = {k: np.zeros(n_max + 1) for k in ("lap", "border_hit", "solve_time", "fallback", "explore", "gamma")}
+    cols = {k: np.zeros(n_max + 1) for k in ("lap", "solve_time", "fallback", "explore", "gamma")}
     k = 0
     reason = ""
     wall = time.perf_counter()
     while True:
         u, info = mpc.step(y)
         x = plant.state
-        Y[k], U[k] = y, u
-        ext = abs(half_l * math.sin(x[3])) + abs(half_w * math.cos(x[3]))
+        Y[k], X[k], U[k] = y, x, u
         wl, wr = float(track.width_left(x[5])), float(track.width_right(x[5]))
         cols["lap"][k] = plant.lap
-        cols["border_hit"][k] = float(x[4] + ext > wl or x[4] - ext < -wr)
         cols["solve_time"][k] = info["solve_time"]
         cols["fallback"][k] = float(info["fallback"])
         cols["explore"][k] = float(mpc.last_target is not None and info.get("explored", False))
@@ -94,14 +93,12 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         if reason:
             break
         y = plant.step(u)
-    Y, U = Y[:k], U[:k]
-    s_meas = track.wrap(Y[:, 5])
     data = {
-        "t": dt * np.arange(k), "s": s_meas, "e_y": Y[:, 4], "e_psi": Y[:, 3], "v_x": Y[:, 0], "v_y": Y[:, 1],
-        "yaw_rate": Y[:, 2], "delta": U[:, 0], "a_x": U[:, 1], "kappa": track.kappa(s_meas),
+        **run_columns(track, dt, Y[:k], U[:k]),
         **{c: v[:k] for c, v in cols.items()},
+        "border_hit": border_hits(track, X[:k], vehicle.length, vehicle.width).astype(float),
     }
-    lap_times = _lap_times(data["t"], data["lap"])
+    lap_times = lap_times_of(data["t"], data["lap"])
     st = data["solve_time"]
     meta = {
         "vehicle_toml": vehicle.to_toml(), "track": track.name, "dt": dt, "plant": plant_config.kind,
@@ -115,10 +112,3 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         "wall_time": time.perf_counter() - wall, "seed": int(seed), "gp": gp is not None,
     }
     return Run(data, meta, source=f"drive({plant_config.kind}, {track.name})")
-
-
-def _lap_times(t: np.ndarray, lap: np.ndarray) -> list[float]:
-    """Completed lap times: from the start (s = 0 at t = 0) to each lap-counter increment."""
-    idx = np.flatnonzero(np.diff(lap) > 0) + 1
-    starts = np.concatenate([[0], idx])
-    return [float(t[b] - t[a]) for a, b in zip(starts[:-1], starts[1:])]
