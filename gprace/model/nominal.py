@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from functools import cached_property
+from functools import cache, cached_property
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -99,7 +99,21 @@ class NominalModel:
     def symbolic(self, x, u, kappa):
         """Continuous dynamics as a CasADi expression of given symbols (for NLP builders)."""
         ca = self._ca
-        return ca.vertcat(*dynamics([x[i] for i in range(self.nx)], [u[0], u[1]], kappa, self.params, self.effects, _CAOPS()))
+        return ca.vertcat(*dynamics([x[i] for i in range(self.nx)], [u[0], u[1]], kappa, self.params, self.effects, _casadi_ops()))
+
+    def rk4_expression(self, x, u, kappa_of_s, dt: float, substeps: int = 1):
+        """CasADi expression of ``x`` after ``dt`` by RK4 with ``substeps``; ``kappa_of_s(s)`` gives the
+        curvature (a constant, or a CasADi lookup re-evaluated at every stage)."""
+        h = dt / substeps
+        f = lambda xx: self.symbolic(xx, u, kappa_of_s(xx[5]))  # noqa: E731
+        xn = x
+        for _ in range(substeps):
+            k1 = f(xn)
+            k2 = f(xn + 0.5 * h * k1)
+            k3 = f(xn + 0.5 * h * k2)
+            k4 = f(xn + h * k3)
+            xn = xn + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+        return xn
 
     def jacobians(self, x: np.ndarray, u: np.ndarray, kappa: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``A = d x+/d x`` and ``B = d x+/d u`` of the Euler step at one point (CasADi AD)."""
@@ -121,15 +135,7 @@ class NominalModel:
         elif kind == "euler":
             fn = ca.Function("euler", [x, u, k], [x + dt * xdot], ["x", "u", "kappa"], ["x_next"])
         elif kind == "rk4":
-            f = ca.Function("f", [x, u, k], [xdot])
-            h = dt / substeps
-            xn = x
-            for _ in range(substeps):
-                k1 = f(xn, u, k)
-                k2 = f(xn + 0.5 * h * k1, u, k)
-                k3 = f(xn + 0.5 * h * k2, u, k)
-                k4 = f(xn + h * k3, u, k)
-                xn = xn + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+            xn = self.rk4_expression(x, u, lambda s: k, dt, substeps)
             fn = ca.Function("rk4", [x, u, k], [xn], ["x", "u", "kappa"], ["x_next"])
         elif kind == "jac":
             xn = x + dt * xdot
@@ -140,13 +146,9 @@ class NominalModel:
         return fn
 
 
-def _CAOPS():
-    global _caops
-    try:
-        return _caops
-    except NameError:
-        _caops = CasadiOps()
-        return _caops
+@cache
+def _casadi_ops() -> CasadiOps:
+    return CasadiOps()
 
 
 def _as2d(a: np.ndarray, width: int) -> np.ndarray:

@@ -59,13 +59,4 @@ def _compiled_step(model: NominalModel, track, dt: float, substeps: int):
 
     x = ca.SX.sym("x", model.nx)
     u = ca.SX.sym("u", 2)
-    f = lambda xx: model.symbolic(xx, u, kappa(xx[5]))  # noqa: E731
-    h = dt / substeps
-    xn = x
-    for _ in range(substeps):
-        k1 = f(xn)
-        k2 = f(xn + 0.5 * h * k1)
-        k3 = f(xn + 0.5 * h * k2)
-        k4 = f(xn + h * k3)
-        xn = xn + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
-    return ca.Function("plant_step", [x, u], [xn])
+    return ca.Function("plant_step", [x, u], [model.rk4_expression(x, u, kappa, dt, substeps)])
