@@ -38,7 +38,10 @@ class Console:
             t.add_column(c)
         for r in rows:
             t.add_row(*[_fmt(v) for v in r])
-        self.out.print(t)
+        # off-terminal (pipes, logs, files) rich assumes 80 columns and truncates cells; there
+        # tables get their natural width (up to 200 columns)
+        out = self.out if self.out.is_terminal else _RichConsole(highlight=False, soft_wrap=True, width=200)
+        out.print(t)
 
     # diagnostics --------------------------------------------------------------
     def info(self, text: str) -> None:

@@ -138,3 +138,14 @@ def test_recovers_irrelevant_input(backend):
     assert ls[2] > 10 * max(ls[0], ls[1])
     noise_std = np.sqrt(gp.noise_[0])
     assert 0.01 < noise_std < 0.04
+
+
+def test_sparse_noise_floor_on_noiseless_data():
+    """Noise-free data drive the exact optimum to the noise bound; the sparse fit keeps its floor
+    and still predicts the smooth function (relative error far below the 1 of a prior-mean fit)."""
+    Z, Y = smooth_data(n=300, noise=0.0)
+    Zt, Yt = smooth_data(n=200, seed=5, noise=0.0)
+    gp = make_gp("sparse", n_inducing=50, max_iter=30, init_points=200, min_noise=1e-3, jitter=1e-6).fit(Z, Y)
+    assert np.all(gp.hyper_.log_sn2 >= np.log(1e-3) - 1e-9)
+    rel = np.sqrt(((gp.predict(Zt)[0] - Yt) ** 2).mean(axis=0)) / Yt.std(axis=0)
+    assert np.all(rel < 0.1), rel

@@ -7,6 +7,10 @@
 - Hyperparameters: per output, the collapsed VFE bound (:func:`gprace.gp.objectives.vfe_bound`)
   is maximised with scipy's L-BFGS-B on its analytic gradient, in log space within the bounds of
   :data:`gprace.gp.base.BOUNDS`. One evaluation costs O(n m^2).
+- ``min_noise`` raises the lower bound of the (normalised) noise variance. On nearly noiseless
+  data (simulated opponents: exact-GP noise at its 1e-6 floor) the VFE matrices become so badly
+  conditioned that the fit degenerates to the prior mean; a floor of 1e-3 (the noise also absorbs
+  the inducing-point approximation error) restored a one-step error equal to the exact GP's.
 - Prediction from cached arrays: mean ``K*u w`` and latent variance
   ``sf2 - rowsum((K*u Q) * K*u)`` with ``w = Lu^-T LB^-T c`` and ``Q = Kuu^-1 - (Kuu +
   Kuf Kfu / sn2)^-1`` (computed as ``Lu^-T (I - B^-1) Lu^-1``), O(m^2) per query point.
@@ -46,12 +50,14 @@ class SparseGP(GPBackend):
         max_iter: int = 200,
         jitter: float = 1e-8,
         init_points: int = 500,
+        min_noise: float = 1e-6,
     ) -> None:
         super().__init__(kernel, noise, optimize, seed, length_scale, signal_variance)
         self.n_inducing = n_inducing
         self.max_iter = max_iter
         self.jitter = jitter
         self.init_points = init_points
+        self.min_noise = min_noise
 
     def _prepare(self, Zn, Yn):
         self.Zu_ = np.ascontiguousarray(Zn[kmeanspp_indices(Zn, int(self.n_inducing), int(self.seed))])
@@ -59,6 +65,7 @@ class SparseGP(GPBackend):
     def _fit_hyperparameters(self, Zn, Yn, log_ls, log_sf2, log_sn2):
         n, d = Zn.shape
         bounds = optimisation_bounds(d)
+        bounds[-1] = (max(bounds[-1][0], float(np.log(self.min_noise))), bounds[-1][1])
         log_ls, log_sf2, log_sn2 = log_ls.copy(), log_sf2.copy(), log_sn2.copy()
         rng = np.random.default_rng(self.seed)
         sub = np.sort(rng.choice(n, min(n, int(self.init_points)), replace=False))

@@ -130,8 +130,7 @@ def record(vehicle: VehicleConfig, track, effects: Sequence[EffectConfig | Effec
 
         plant.model = NominalModel(vehicle, list(cat) + other)
         plant._x = np.zeros(plant.model.nx)
-        if hasattr(frenet, "_compiled_step"):
-            plant._step = frenet._compiled_step(plant.model, track, dt, substeps)
+        plant._step = frenet.compiled_step(plant.model, track, dt, substeps)
     drv = TrackingDriver(vehicle, track, dt, speed_scale, weave, excitation=excitation, seed=seed)
     v0 = drv.v_ref(s0)
     u0 = np.array([vehicle.l_f * 0 + (vehicle.l_f + vehicle.l_r) * float(track.kappa(s0)), 0.0])

@@ -5,6 +5,7 @@ Heavy imports (casadi, dask, the GP layer) happen inside the commands.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Optional
 
@@ -13,7 +14,7 @@ import typer
 from gprace.console import console
 
 OUT = typer.Option(Path("h2h_out"), "--out", help="Folder of cached artifacts and per-run HDF5 records.")
-WORKERS = typer.Option(1, "--workers", help="Local worker processes.")
+WORKERS = typer.Option(os.cpu_count() or 1, "--workers", help="Local worker processes (default: one per core).")
 EXECUTOR = typer.Option("local", "--executor", help="local | dask")
 SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address tcp://HOST:PORT (with --executor dask).")
 RESUME = typer.Option(False, "--resume", help="Keep finished runs; rerun only missing or failed ones.")
@@ -70,20 +71,19 @@ def print_table(tab: dict, as_json: bool) -> None:
         return
     rows = []
     for p, r in tab["racing"].items():
-        ot = "-" if r["overtake_time_mean"] is None else f"{r['overtake_time_mean']:.3f} +- {r['overtake_time_std']:.3f}"
+        ot = "-" if r["overtake_time_mean"] is None else f"{r['overtake_time_mean']:.2f}±{r['overtake_time_std']:.2f}"
         ms = "-" if r["ego_solve_ms_median"] is None else f"{r['ego_solve_ms_median']:.1f}"
-        rows.append([p, r["runs"], r["failed"], r["border_hits"], r["collisions"], r["overtakes"],
-                     f"{ot} (n={r['overtake_scenarios']})", r["fallbacks_ego"], ms])
+        rows.append([p, f"{r['runs']}/{r['failed']}", r["border_hits"], r["collisions"], r["overtakes"],
+                     ot, r["overtake_scenarios"], r["fallbacks_ego"], ms])
     console.table(f"Head-to-head racing ({tab['common_inside']} scenarios with every predictor inside)",
-                  ["predictor", "runs", "failed", "border hits", "collisions", "overtakes", "overtake time (s)",
-                   "ego fallbacks", "ego solve median (ms)"], rows)
-    erows = []
-    for p, e in tab["ey_error"].items():
-        if e["mean"]:
-            erows.append([p, e["points"]] + [f"{m:.3f} +- {s:.3f}" for m, s in zip(e["mean"], e["std"])])
-    K = max((len(e["mean"]) for e in tab["ey_error"].values()), default=0)
-    console.table("Opponent e_y prediction error in metres (offline, all closed-loop opponent trajectories)",
-                  ["predictor", "points"] + [f"{k}-step" for k in range(1, K + 1)], erows)
+                  ["predictor", "runs/failed", "border", "collide", "overtakes", "overtake s", "n", "fallbacks",
+                   "solve ms"], rows)
+    errs = {p: e for p, e in tab["ey_error"].items() if e["mean"]}
+    K = max((len(e["mean"]) for e in errs.values()), default=0)
+    erows = [[f"{k + 1}"] + [f"{e['mean'][k]:.3f}±{e['std'][k]:.3f}" for e in errs.values()] for k in range(K)]
+    points = ", ".join(f"{p} {e['points']}" for p, e in errs.items())
+    console.table(f"Opponent e_y prediction error in metres, offline on all closed-loop opponent trajectories "
+                  f"(start times: {points})", ["steps ahead", *errs], erows)
 
 
 def register(app: typer.Typer) -> None:

@@ -31,7 +31,8 @@ class MPCConfig(Frozen):
     speed_slack: float = Field(200.0, ge=0, description="quadratic penalty of the soft speed excess")
     substeps: int = Field(2, ge=1, description="RK4 sub-steps of the prediction model (dt/2 is stable)")
     max_iter: int = Field(60, ge=5, description="IPOPT iteration limit")
-    jit: bool = Field(False, description="compile the NLP functions with the C compiler (about 20 s per process)")
+    compiled: bool = Field(True, description="NLP functions as compiled C, built once per machine and cached "
+                           "(gprace.backends.compiled); false: CasADi's interpreter, 2 to 3 times slower")
 
 
 def ego_mpc() -> MPCConfig:

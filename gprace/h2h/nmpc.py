@@ -146,9 +146,13 @@ class NMPC:
                 "linear_solver": "mumps",
             },
         }
-        if c.jit:
-            opts.update({"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O1"], "verbose": False}})
-        self._solver = ca.nlpsol("h2h_nmpc", "ipopt", {"x": wv, "p": p, "f": J, "g": gv}, opts)
+        nlp = {"x": wv, "p": p, "f": J, "g": gv}
+        if c.compiled:
+            from gprace.backends.compiled import compiled_nlpsol
+
+            self._solver = compiled_nlpsol("h2h_nmpc", "ipopt", nlp, opts)
+        else:
+            self._solver = ca.nlpsol("h2h_nmpc", "ipopt", nlp, opts)
         self._lbw, self._ubw = np.array(lbw, float), np.array(ubw, float)
         self._lbg, self._ubg = np.array(lbg, float), np.array(ubg, float)
         self._nw, self._ng = wv.shape[0], gv.shape[0]

@@ -42,6 +42,14 @@ RUN_KIND = "h2h_run"
 DATASET_KIND = "h2h_dataset"
 SEED_EVAL, SEED_COLLECT, SEED_EXPLORE = 0, 100_000, 200_000
 RACED = ("baseline", "explore")
+# Backend settings of the opponent GPs (measured on the 5000-point baseline data, docs/decisions.md):
+# one kernel for the five outputs (normalised) predicts as well as five kernels at a fifth of the
+# rollout cost; the sparse fit starts from the exact optimum on 800 points, polishes it for 50
+# iterations and keeps a noise floor (nearly noiseless data made the VFE fit degenerate).
+GP_SETTINGS: dict[str, dict[str, Any]] = {
+    "exact": {"shared_kernel": True},
+    "sparse": {"min_noise": 1e-3, "jitter": 1e-6, "max_iter": 50, "init_points": 800},
+}
 OFFLINE = ("baseline", "explore", "select", "cv")
 
 
@@ -283,6 +291,7 @@ def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyp
         extra = {f"selection_{k}": int(v) for k, v in stats.as_dict().items()}
     backend = st.backend if st.backend != "auto" else ("exact" if len(Z) <= st.exact_max else "sparse")
     settings: dict[str, Any] = {"kernel": "matern15", "seed": seed, "optimize": st.optimize}
+    settings.update(GP_SETTINGS.get(backend, {}))
     if backend == "sparse":
         settings["n_inducing"] = min(st.inducing, len(Z))
     import time

@@ -24,7 +24,7 @@ class FrenetPlant(Plant):
         super().__init__(config, track, dt)
         self.model = NominalModel(config.vehicle, config.effects)
         self._x = np.zeros(self.model.nx)
-        self._step = _compiled_step(self.model, track, self.dt, config.substeps)
+        self._step = compiled_step(self.model, track, self.dt, config.substeps)
 
     def reset(self, x0, u0=None):
         u0 = np.zeros(2) if u0 is None else np.asarray(u0, dtype=float)
@@ -45,7 +45,7 @@ class FrenetPlant(Plant):
         return self._noisy(self.model.measure(self._x)[0])
 
 
-def _compiled_step(model: NominalModel, track, dt: float, substeps: int):
+def compiled_step(model: NominalModel, track, dt: float, substeps: int):
     """``casadi.Function`` (x, u) -> x after ``dt`` by RK4 with ``substeps``, kappa(s) re-evaluated."""
     import casadi as ca
 
