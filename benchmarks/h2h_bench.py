@@ -2,8 +2,10 @@
 
 Usage::
 
-    python benchmarks/h2h_bench.py [--out DIR] [--tracks 10] [--runs 50] [--init-runs 5]
-        [--explore-minutes 2] [--dict-size 150] [--workers 2] [--skip-protocol]
+    python benchmarks/h2h_bench.py [--out DIR] [--tracks 100] [--runs 500] [--init-runs 20]
+        [--explore-minutes 10] [--explore-width W] [--dict-size 600] [--workers 2] [--skip-protocol]
+
+Defaults are the paper's protocol (about 25 minutes on 2 cores); smaller numbers give a quick look.
 
 Prints one JSON object:
 
@@ -12,8 +14,7 @@ Prints one JSON object:
   10 / 30 ms;
 * ``rollout``: one 50-sample x 9-step GP rollout [ms] for each GP model of the protocol (the
   exact and the sparse backend), target 3 ms;
-* ``protocol``: the reduced-size table next to the paper's numbers (REFERENCE.md), wall time per
-  stage, and the per-run cost extrapolated to the default ``--tracks 100`` protocol.
+* ``protocol``: the table next to the paper's numbers (REFERENCE.md) and the wall time per stage.
 """
 
 from __future__ import annotations
@@ -99,61 +100,29 @@ def compare(tab: dict) -> dict:
     return rows
 
 
-def estimate(out: Path, st) -> dict:
-    """Default-size runtime from this run's measured per-run costs (2 workers)."""
-    from gprace.h2h.protocol import _read_record
-    from gprace.h2h.predictors import read_opponent_gp
-
-    def walls(folder: Path):
-        recs = [_read_record(p) for p in sorted(folder.glob("run_*.h5"))]
-        return [r["attrs"] for r in recs if r and r["attrs"].get("ok") and "wall_s" in r["attrs"]]
-
-    col = walls(out / "collect" / "runs")
-    exp = walls(out / "explore" / "runs")
-    ev = [a for p in st.raced for a in walls(out / "eval" / p)]
-    fits = {}
-    for name in ("baseline", "init", "explore", "select"):
-        try:
-            a = read_opponent_gp(out / "models" / f"{name}.h5")[1]
-            fits[name] = {"points": int(a.get("n_points", 0)), "fit_s": float(a.get("fit_s", float("nan")))}
-        except Exception:  # noqa: BLE001
-            pass
-    w = 2
-    c = float(np.mean([a["wall_s"] for a in col])) if col else float("nan")
-    e_per_sim_s = float(np.sum([a["wall_s"] for a in exp]) / max(1e-9, np.sum([a["steps"] * 0.1 for a in exp]))) if exp else float("nan")
-    r = float(np.mean([a["wall_s"] for a in ev])) if ev else float("nan")
-    est = {"collect_500_runs_min": 500 * c / w / 60, "explore_10_min_min": 600 * e_per_sim_s / w / 60,
-           "race_100_tracks_x2_min": 200 * r / w / 60, "per_collect_run_s": c, "per_race_run_s": r,
-           "explore_wall_per_sim_s": e_per_sim_s, "fits": fits,
-           "note": "wall times on a shared 2-core machine (other jobs running); GP fits at the default sizes "
-                   "(5000-point baseline, ~600-point dictionaries) are not included"}
-    est["total_without_fits_min"] = est["collect_500_runs_min"] + est["explore_10_min_min"] + est["race_100_tracks_x2_min"]
-    return est
-
-
 def main() -> None:
+    from gprace.h2h import protocol as P
+
+    d = P.Settings()
     ap = argparse.ArgumentParser()
-    ap.add_argument("--out", default="/tmp/h2h_bench")
-    ap.add_argument("--tracks", type=int, default=6)
-    ap.add_argument("--runs", type=int, default=30)
-    ap.add_argument("--init-runs", type=int, default=4)
-    ap.add_argument("--explore-minutes", type=float, default=1.0)
-    ap.add_argument("--episode-seconds", type=float, default=30.0)
-    ap.add_argument("--dict-size", type=int, default=120)
-    ap.add_argument("--exact-max", type=int, default=1500)
-    ap.add_argument("--inducing", type=int, default=100)
+    ap.add_argument("--out", default="h2h_bench_out", help="protocol folder (cached artifacts are reused)")
+    ap.add_argument("--tracks", type=int, default=d.tracks)
+    ap.add_argument("--runs", type=int, default=d.runs)
+    ap.add_argument("--init-runs", type=int, default=d.init_runs)
+    ap.add_argument("--explore-minutes", type=float, default=d.explore_minutes)
+    ap.add_argument("--episode-seconds", type=float, default=d.episode_seconds)
+    ap.add_argument("--explore-width", type=float, default=None)
+    ap.add_argument("--dict-size", type=int, default=d.dict_size)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--skip-protocol", action="store_true")
     ap.add_argument("--nmpc-seconds", type=float, default=20.0)
     a = ap.parse_args()
     result: dict = {"nmpc": bench_nmpc(a.nmpc_seconds)}
     if not a.skip_protocol:
-        from gprace.h2h import protocol as P
-
         out = Path(a.out)
         st = P.Settings(tracks=a.tracks, runs=a.runs, init_runs=a.init_runs, explore_minutes=a.explore_minutes,
-                        episode_seconds=a.episode_seconds, dict_size=a.dict_size, exact_max=a.exact_max,
-                        inducing=a.inducing, workers=a.workers, resume=True)
+                        episode_seconds=a.episode_seconds, explore_width=a.explore_width, dict_size=a.dict_size,
+                        workers=a.workers, resume=True)
         st.check()
         stages = {}
         t0 = time.perf_counter()
@@ -165,16 +134,12 @@ def main() -> None:
         t0 = time.perf_counter()
         errors = P.offline_errors(st, out, raced, paths)
         stages["offline_errors_s"] = time.perf_counter() - t0
+        stages["total_min"] = sum(stages.values()) / 60.0
         tab = P.table(st, raced, errors)
         result["rollout"] = bench_rollout({k: v for k, v in paths.items() if k != "init"})
-        # per-run cost from the records' own step counts and solve times is hard to separate from
-        # waiting on a busy machine; use the wall time of this session's batches instead
-        n_race = sum(len(v) for v in raced.values())
-        cached = all((out / "eval" / p).exists() for p in st.raced)
-        result["protocol"] = {"settings": tab["settings"], "stages_wall_s": stages, "table": tab,
-                              "paper": PAPER, "eval_runs": n_race, "reused_cache": cached}
+        result["protocol"] = {"settings": tab["settings"], "stages_wall_s": stages, "table": tab, "paper": PAPER,
+                              "note": "stage times include only work not found in --out (reused artifacts cost ~0)"}
         result["comparison"] = compare(tab)
-        result["estimate_default_run"] = estimate(out, st)
     print(json.dumps(result, indent=2, default=lambda o: o.item() if hasattr(o, "item") else str(o)))
 
 

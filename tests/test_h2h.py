@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from gprace.errors import InputError
 from gprace.h2h.config import H2HConfig
 from gprace.h2h.geometry import border_hits, global_pose, make_track, rect_overlap
 from gprace.h2h.nmpc import NMPC, StageData
@@ -151,6 +152,13 @@ def test_random_track_spec_and_loop():
     a = make_track({"kind": "random", "seed": 5, "width": 0.75})
     b = make_track({"kind": "random", "seed": 5, "width": 0.75})
     assert a.length == b.length and not a.closed
+    narrow = make_track({"kind": "loop", "width": 0.75})  # same centre line at the racing width
+    s = np.linspace(0.0, loop.length, 50, endpoint=False)
+    np.testing.assert_allclose(loop.width_left(s) + loop.width_right(s), 1.5)
+    np.testing.assert_allclose(narrow.width_left(s) + narrow.width_right(s), 0.75)
+    np.testing.assert_allclose(narrow.kappa(s), loop.kappa(s))
+    with pytest.raises(InputError, match="width"):
+        make_track({"kind": "loop", "width": 3.0})
 
 
 def test_exploration_targets_uncertainty_and_breaks_stalemates(straight, toy_gp):

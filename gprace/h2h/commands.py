@@ -19,6 +19,7 @@ EXECUTOR = typer.Option("local", "--executor", help="local | dask")
 SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address tcp://HOST:PORT (with --executor dask).")
 RESUME = typer.Option(False, "--resume", help="Keep finished runs; rerun only missing or failed ones.")
 JSON = typer.Option(False, "--json", help="Print the result as JSON.")
+EXPLORE_WIDTH = typer.Option(None, "--explore-width", help="Width of the exploration loop [m] (default: --width, the racing width; the loop's own is 1.5 m).")
 
 
 def _group(app: typer.Typer, name: str, help: str) -> typer.Typer:
@@ -98,6 +99,7 @@ def register(app: typer.Typer) -> None:
         init_runs: int = typer.Option(20, "--init-runs", help="Runs behind the exploration's initial GP."),
         explore_minutes: float = typer.Option(10.0, "--explore-minutes", help="Simulated exploration time."),
         episode_seconds: float = typer.Option(60.0, "--episode-seconds", help="Length of one exploration episode."),
+        explore_width: Optional[float] = EXPLORE_WIDTH,
         alpha: float = typer.Option(0.9, "--alpha", help="Exploration weight during exploration."),
         dict_size: int = typer.Option(600, "--dict-size", help="Dictionary size of the exploration GP."),
         points_per_run: int = typer.Option(10, "--points-per-run", help="Evenly spaced steps kept per collection run."),
@@ -116,7 +118,7 @@ def register(app: typer.Typer) -> None:
         from gprace.h2h.protocol import head2head as run
 
         st = _settings(tracks=tracks, runs=runs, init_runs=init_runs, explore_minutes=explore_minutes,
-                       episode_seconds=episode_seconds, alpha=alpha, dict_size=dict_size, points_per_run=points_per_run, width=width,
+                       episode_seconds=episode_seconds, explore_width=explore_width, alpha=alpha, dict_size=dict_size, points_per_run=points_per_run, width=width,
                        stretches=stretches, predictors=predictors, backend=backend, exact_max=exact_max,
                        inducing=inducing, samples=samples, max_time=max_time, workers=workers, executor=executor,
                        scheduler=scheduler, resume=resume)
@@ -168,6 +170,7 @@ def register(app: typer.Typer) -> None:
         init_data: Path = typer.Option(..., "--init-data", help="Its dataset (candidate grid, first dictionary)."),
         explore_minutes: float = typer.Option(10.0, "--explore-minutes"),
         episode_seconds: float = typer.Option(60.0, "--episode-seconds"),
+        explore_width: Optional[float] = EXPLORE_WIDTH,
         alpha: float = typer.Option(0.9, "--alpha"),
         workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
         resume: bool = RESUME, as_json: bool = JSON,
@@ -175,7 +178,8 @@ def register(app: typer.Typer) -> None:
         """Exploration episodes on the closed loop (Algorithm 1, stalemate breaking)."""
         from gprace.h2h.protocol import explore as run, read_dataset
 
-        st = _settings(explore_minutes=explore_minutes, episode_seconds=episode_seconds, alpha=alpha, workers=workers,
+        st = _settings(explore_minutes=explore_minutes, episode_seconds=episode_seconds, explore_width=explore_width,
+                       alpha=alpha, workers=workers,
                        executor=executor, scheduler=scheduler, resume=resume)
         path = run(st, out, init_model, init_data)
         res = {"dataset": str(path), "points": len(read_dataset(path)[0])}

@@ -9,6 +9,8 @@ arc here) on curves. A collision is an overlap of the two rectangles in the glob
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from gprace.errors import InputError
@@ -65,34 +67,30 @@ def collisions(track, Xa: np.ndarray, Xb: np.ndarray, length: float, width: floa
 
 # ----------------------------------------------------------------------------------------------
 # tracks
-def loop_track():
-    """The closed exploration track: the shipped ``h2h_loop`` when present, else a built-in
-    stadium loop of the same size (2 x 10.5 m straights, two half circles of 2.4 m radius,
-    36.1 m, 1.5 m wide)."""
-    from gprace.tracks.loaders import load_track
-
-    try:
-        return load_track(LOOP_NAME)
-    except InputError:
-        pass
+@functools.lru_cache(maxsize=8)
+def loop_track(width: float | None = None):
+    """The closed exploration track: the shipped ``h2h_loop`` (1.5 m wide) or, with ``width``, the
+    same centre line at another width (radii >= 1 m: valid up to 2 m)."""
+    from gprace.tracks.loaders import tracks_dir
     from gprace.tracks.segments import SegmentTrack, build_track
+    from gprace.config import read_toml, validate
 
-    spec = SegmentTrack.model_validate({
-        "name": LOOP_NAME, "closed": True, "width": 1.5,
-        "segments": [
-            {"type": "straight", "length": 10.5}, {"type": "arc", "radius": 2.4, "angle": np.pi},
-            {"type": "straight", "length": 10.5}, {"type": "arc", "radius": 2.4, "angle": np.pi},
-        ],
-    })
-    return build_track(spec, LOOP_NAME, "h2h loop (built-in)")
+    path = tracks_dir() / f"{LOOP_NAME}.toml"
+    spec = validate(SegmentTrack, read_toml(path), str(path))
+    if width is not None:
+        if not 0.0 < width <= 2.0:
+            raise InputError(f"exploration track width must be in (0, 2] m, got {width}")
+        spec = spec.model_copy(update={"width": float(width)})
+    return build_track(spec, LOOP_NAME, str(path))
 
 
 def make_track(spec: dict):
     """Track from a task's spec: ``{"kind": "random", "seed", "stretches", "width"}`` or
-    ``{"kind": "loop"}``."""
+    ``{"kind": "loop", "width": optional}``."""
     kind = spec.get("kind")
     if kind == "loop":
-        return loop_track()
+        w = spec.get("width")
+        return loop_track(None if w is None else float(w))
     if kind == "random":
         from gprace.tracks.random import random_track
 
