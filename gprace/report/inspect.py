@@ -266,8 +266,7 @@ def _dictionary_size(arrays: dict[str, Any], attrs: dict[str, Any]) -> int | Non
     for k in ("n_points", "n_train", "dict_size", "n"):
         if k in attrs and isinstance(attrs[k], (int, float)):
             return int(attrs[k])
-    arrays = {k.replace("::", "/"): v for k, v in arrays.items()}
-    for k in ("state/Z", "Z", "state/Zu", "Zu"):
+    for k in ("state/Z", "state/Zu"):
         if k in arrays and arrays[k] is not None and np.ndim(arrays[k]) == 2:
             return int(np.shape(arrays[k])[0])
     if "n_train" in arrays:
@@ -303,7 +302,6 @@ def key_results(art: Artifact) -> dict[str, Any]:
         n = _dictionary_size(a, at)
         if n is not None:
             res["dictionary_size"] = n
-        a = {k.replace("::", "/"): v for k, v in a.items()}
         ls = a.get("hyper/log_ls")
         if ls is not None:
             res["length_scales_normalised"] = np.round(np.exp(np.asarray(ls)), 4).tolist()

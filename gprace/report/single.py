@@ -51,29 +51,17 @@ def load_gp(path: str | Path):
     (training or inducing) points in input units, or None.
 
     The model comes from the GP layer's own reader (:func:`gprace.gp.load_model`); the points
-    from the stored state (``state/Z`` of the exact backend, ``state/Zu`` of the sparse one,
-    whatever separator the layer uses), mapped back from the normalised units they are kept in.
+    from the stored state (``state/Z`` of the exact backend, ``state/Zu`` of the sparse one),
+    mapped back from the normalised units they are kept in.
     """
+    from gprace.gp import load_model
+
     art = open_artifact(path, ("gp_model", "model"))
-    at = dict(art.attrs)
-    arrays = {k.replace("::", "/").replace("__", "/"): v for k, v in art.arrays.items()}
-    try:
-        from gprace.gp import load_model
-
-        saved = load_model(path)
-        gp, names_in, names_out = saved.gp, list(saved.input_names), list(saved.output_names)
-    except Exception:  # noqa: BLE001 - an older layout: rebuild from the flattened arrays
-        try:
-            from gprace.backends import gps
-
-            cls = gps.get(str(at["backend"]))
-            gp = cls.from_arrays(arrays, dict(at["params"]))
-        except KeyError as exc:
-            raise InputError(f"{path}: GP model without attribute {exc}") from None
-        names_in = [str(x) for x in at.get("input_names", [])]
-        names_out = [str(x) for x in at.get("output_names", [])]
+    arrays = art.arrays
+    saved = load_model(path)
+    gp, names_in, names_out = saved.gp, list(saved.input_names), list(saved.output_names)
     Zd = None
-    for k in ("state/Z", "state/Zu", "Z", "Zu"):
+    for k in ("state/Z", "state/Zu"):
         if k in arrays and np.ndim(arrays[k]) == 2:
             Zd = np.asarray(arrays[k], float)
             break
