@@ -19,7 +19,8 @@ EXECUTOR = typer.Option("local", "--executor", help="local | dask")
 SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address tcp://HOST:PORT (with --executor dask).")
 RESUME = typer.Option(False, "--resume", help="Keep finished runs; rerun only missing or failed ones.")
 JSON = typer.Option(False, "--json", help="Print the result as JSON.")
-EXPLORE_WIDTH = typer.Option(None, "--explore-width", help="Width of the exploration loop [m] (default: --width, the racing width; the loop's own is 1.5 m).")
+EXPLORE_WIDTH = typer.Option(
+    None, "--explore-width", help="Width of the exploration loop [m] (default: --width, the racing width; the loop's own is 1.5 m).")
 
 
 def _group(app: typer.Typer, name: str, help: str) -> typer.Typer:
@@ -118,7 +119,8 @@ def register(app: typer.Typer) -> None:
         from gprace.h2h.protocol import head2head as run
 
         st = _settings(tracks=tracks, runs=runs, init_runs=init_runs, explore_minutes=explore_minutes,
-                       episode_seconds=episode_seconds, explore_width=explore_width, alpha=alpha, dict_size=dict_size, points_per_run=points_per_run, width=width,
+                       episode_seconds=episode_seconds, explore_width=explore_width, alpha=alpha, dict_size=dict_size,
+                       points_per_run=points_per_run, width=width,
                        stretches=stretches, predictors=predictors, backend=backend, exact_max=exact_max,
                        inducing=inducing, samples=samples, max_time=max_time, workers=workers, executor=executor,
                        scheduler=scheduler, resume=resume)

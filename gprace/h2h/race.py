@@ -14,8 +14,9 @@ it pickles for local processes and Dask alike, and everything random in it deriv
 Starts (REFERENCE.md): opponent ``s`` in [0.9, 1.2] m, ego in [0.2, 0.4] m, lateral offset within
 +-0.3 x width, heading error +-0.02 rad, speed 0.65 to 1.3 m/s; on a closed track the whole grid is
 shifted by a random arc length. The plant integrates both cars with RK4 and 10 sub-steps per
-0.1 s (the frenet plant's compiled step, curvature re-evaluated at every stage). The race ends 1.5 s after the ego's centre passes the opponent's, when a car reaches the end
-of an open track, when a car leaves the track by more than half a metre, or at ``max_time``.
+0.1 s (the frenet plant's compiled step, curvature re-evaluated at every stage). The race ends
+1.5 s after the ego's centre passes the opponent's, when a car reaches the end of an open track,
+when a car leaves the track by more than half a metre, or at ``max_time``.
 
 The opponent avoids the ego too (the same soft ellipse constraint, around the ego's constant-velocity
 prediction): a blocker steers across the ego's path but does not drive into it.
