@@ -18,7 +18,7 @@ def register(app: typer.Typer) -> None:
         json_out: bool = typer.Option(False, "--json", help="Machine-readable report on stdout."),
         output: Optional[Path] = typer.Option(None, "-o", "--output", help="Write the augmented vehicle TOML here."),
         plot: Optional[Path] = typer.Option(None, "--plot", help="Residual-along-track plot (PNG), before and after."),
-        horizon: int = typer.Option(15, "--horizon", min=3, max=60, help="Multi-step prediction horizon [steps]."),
+        horizon: int = typer.Option(15, "--horizon", min=3, max=60, help="Multi-step prediction horizon in steps."),
         seed: int = typer.Option(0, "--seed", help="Seed of the noise twin."),
     ) -> None:
         """Compare recordings with the nominal model; name, fit and write the effects it leaves out."""

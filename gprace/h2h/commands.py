@@ -20,7 +20,7 @@ SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address tcp:/
 RESUME = typer.Option(False, "--resume", help="Keep finished runs; rerun only missing or failed ones.")
 JSON = typer.Option(False, "--json", help="Print the result as JSON.")
 EXPLORE_WIDTH = typer.Option(
-    None, "--explore-width", help="Width of the exploration loop [m] (default: --width, the racing width; the loop's own is 1.5 m).")
+    None, "--explore-width", help="Width of the exploration loop in metres (default: --width, the racing width; the loop's own is 1.5 m).")
 
 
 def _group(app: typer.Typer, name: str, help: str) -> typer.Typer:
@@ -104,14 +104,14 @@ def register(app: typer.Typer) -> None:
         alpha: float = typer.Option(0.9, "--alpha", help="Exploration weight during exploration."),
         dict_size: int = typer.Option(600, "--dict-size", help="Dictionary size of the exploration GP."),
         points_per_run: int = typer.Option(10, "--points-per-run", help="Evenly spaced steps kept per collection run."),
-        width: float = typer.Option(0.75, "--width", help="Width of the random tracks [m]."),
+        width: float = typer.Option(0.75, "--width", help="Width of the random tracks in metres."),
         stretches: int = typer.Option(5, "--stretches", help="Stretches per random track."),
         predictors: str = typer.Option("baseline,explore", "--predictors", help="Predictors raced (baseline, explore, select, init, cv, oracle)."),
         backend: str = typer.Option("auto", "--gp-backend", help="exact | sparse | auto (sparse above --exact-max points)."),
         exact_max: int = typer.Option(1500, "--exact-max"),
         inducing: int = typer.Option(200, "--inducing", help="Inducing points of the sparse GP."),
         samples: int = typer.Option(50, "--samples", help="GP rollout samples."),
-        max_time: float = typer.Option(60.0, "--max-time", help="Longest race [s]."),
+        max_time: float = typer.Option(60.0, "--max-time", help="Longest race in seconds."),
         workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
         resume: bool = RESUME, as_json: bool = JSON,
     ) -> None:

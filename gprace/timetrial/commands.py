@@ -38,7 +38,7 @@ def register(app: typer.Typer) -> None:
         model: Path | None = typer.Option(None, "--model", help="Planning GP (gp_model, feature map 'planning')."),
         warm_start: Path | None = typer.Option(None, "--warm-start", help="Previous plan of the same track (initial guess)."),
         curvature: bool = typer.Option(False, "--curvature", help="Write the GP-free minimum-curvature path instead."),
-        ds: float = typer.Option(6.0, "--ds", help="Node spacing [m]."),
+        ds: float = typer.Option(6.0, "--ds", help="Node spacing in metres."),
         grip: float | None = typer.Option(None, "--grip", help="Friction-ellipse margin: share of the model's limits (e.g. 0.9)."),
         output: Path = typer.Option(..., "--output", "-o", help="Plan file to write (.h5)."),
     ) -> None:
