@@ -1,9 +1,9 @@
 """Every example in examples/ runs as a user would run it (in a fresh folder) and gives a
 sensible result, so the examples cannot rot.
 
-The time-trial and head-to-head examples run whole pipelines (IPOPT plans, MPC laps, GP
-hyperparameter fits, NMPC races) and take minutes on two cores even with their tiny settings:
-they are ``slow``. The diagnosis example runs by default.
+The time-trial example runs a whole pipeline (IPOPT plans, MPC laps, GP hyperparameter fits) and
+takes minutes on two cores even with its tiny settings: it is ``slow``. The diagnosis and
+head-to-head examples (about 15 s with the compiled NMPC) run by default.
 """
 
 from __future__ import annotations
@@ -77,7 +77,6 @@ def test_timetrial_example(tmp_path):
     assert "iteration 0" in r.stdout and (out / "laps.png").exists()
 
 
-@pytest.mark.slow
 def test_head2head_example(tmp_path):
     _run(["bash", str(EXAMPLES / "head2head.sh"), "out"], tmp_path)
     tab = json.loads((tmp_path / "out" / "h2h" / "table.json").read_text())
