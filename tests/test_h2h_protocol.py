@@ -113,3 +113,9 @@ def test_zero_tracks(capsys):
     assert "--tracks must be >= 1" in capsys.readouterr().err
     with pytest.raises(InputError):
         P.Settings(tracks=0).check()
+
+
+def test_exploration_width_outside_the_loop_validity(capsys, tmp_path):
+    assert main(["eval", "head2head", "--explore-width", "3", "--out", str(tmp_path / "out")]) == 2
+    assert "--explore-width" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()  # rejected before any work

@@ -94,6 +94,8 @@ class Settings:
             raise InputError(f"--alpha must be in [0, 1], got {self.alpha}")
         if self.explore_minutes <= 0 or self.episode_seconds <= 0:
             raise InputError("--explore-minutes and --episode-seconds must be positive")
+        if self.explore_width is not None and not 0.0 < self.explore_width <= 2.0:
+            raise InputError(f"--explore-width must be in (0, 2] m (the loop's tightest radius is 1 m), got {self.explore_width}")
         if self.dict_size < 2:
             raise InputError(f"--dict-size must be >= 2, got {self.dict_size}")
         known = set(OFFLINE) | {"init", "oracle"}
