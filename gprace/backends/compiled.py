@@ -21,12 +21,14 @@ import os
 import shutil
 import subprocess
 import tempfile
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 
 from gprace.console import console
 
-FLAGS = ("-O1", "-fPIC", "-shared")  # -O1: most of -O2's speed at a fraction of its build time
+FLAGS = ("-O1", "-fPIC", "-shared")
+_CWD = threading.Lock()  # the working directory is per process: one code generation at a time  # -O1: most of -O2's speed at a fraction of its build time
 
 
 def cache_dir() -> Path:
@@ -57,12 +59,13 @@ def compiled_nlpsol(name: str, plugin: str, nlp: dict, opts: dict):
 
 def _build(solver, name: str, cc: str) -> Path:
     with tempfile.TemporaryDirectory(prefix="gprace_nlp_") as tmp:
-        here = os.getcwd()
-        os.chdir(tmp)  # generate_dependencies writes into the working directory
-        try:
-            src = Path(tmp) / solver.generate_dependencies(f"{name}.c")
-        finally:
-            os.chdir(here)
+        with _CWD:  # generate_dependencies writes into the working directory (no path allowed)
+            here = os.getcwd()
+            os.chdir(tmp)
+            try:
+                src = Path(tmp) / solver.generate_dependencies(f"{name}.c")
+            finally:
+                os.chdir(here)
         code = src.read_bytes()
         digest = hashlib.sha256(code + " ".join((cc, *FLAGS)).encode()).hexdigest()[:20]
         out = cache_dir() / f"{name}_{digest}.so"
