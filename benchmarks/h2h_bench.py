@@ -48,10 +48,9 @@ def bench_nmpc(seconds: float = 20.0) -> dict:
 
 
 def bench_rollout(models: dict[str, Path], reps: int = 30) -> dict:
-    from threadpoolctl import threadpool_limits
+    from gprace.executor import single_thread_blas
 
-    with threadpool_limits(limits=1):  # as in the race workers
-        return _bench_rollout(models, reps)
+    return single_thread_blas(_bench_rollout)(models, reps)  # as in the race workers
 
 
 def _bench_rollout(models: dict[str, Path], reps: int = 30) -> dict:

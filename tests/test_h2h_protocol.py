@@ -47,6 +47,26 @@ def test_local_and_dask_give_identical_tables(tmp_path):
     assert rec["attrs"]["ok"] and rec["arrays"]["ego"].shape[1] == 6
 
 
+def test_tasks_run_with_one_blas_thread_from_the_first_one():
+    """SciPy's own OpenBLAS loads lazily; the first task of a fresh process must be limited too
+    (otherwise it rounds differently from the later ones and a race takes another course)."""
+    import subprocess
+    import sys
+
+    code = (
+        "from threadpoolctl import threadpool_info\n"
+        "from gprace.executor import single_thread_blas\n"
+        "def task():\n"
+        "    import scipy.linalg\n"
+        "    return sorted((i['filepath'], i['num_threads']) for i in threadpool_info())\n"
+        "print(single_thread_blas(task)())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    libs = eval(out)  # noqa: S307 -- our own repr of a list of tuples
+    assert any("scipy" in path or "openblas" in path for path, _ in libs)
+    assert all(n == 1 for _, n in libs), libs
+
+
 def test_failed_run_is_recorded_skipped_and_resumed(tmp_path):
     st = P.Settings(**{**TINY, "tracks": 3})
     tasks = P.eval_tasks(st, "cv", None)

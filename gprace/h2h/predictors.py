@@ -140,7 +140,8 @@ class GPPredictor(Predictor):
         idx = list(OUT_STATE)
         for k in range(K):
             Z = features(track, ego_plan[k], S)
-            mu, var = self.gp.predict(Z)
+            # every sample starts from the same state: at the first step one prediction serves all
+            mu, var = self.gp.predict(Z[:1] if k == 0 else Z)
             S[:, idx] += mu + np.sqrt(np.maximum(var, 0.0)) * eps[k]
             out[:, k] = S
         return out

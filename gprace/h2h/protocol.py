@@ -379,7 +379,7 @@ def race_predictors(st: Settings, out: Path, model_paths: dict[str, Path]) -> di
 
 
 def offline_errors_task(task: dict) -> dict:
-    from gprace.h2h.race import single_thread_blas
+    from gprace.executor import single_thread_blas
 
     return single_thread_blas(_offline_errors)(task)
 

@@ -33,6 +33,7 @@ import time
 
 import numpy as np
 
+from gprace.executor import single_thread_blas
 from gprace.h2h.config import H2HConfig
 from gprace.h2h.geometry import border_hits, collisions, global_pose, make_track
 from gprace.h2h.nmpc import NMPC, StageData
@@ -104,22 +105,6 @@ def usable_widths(track, s: np.ndarray, kappa_max_ey: float = 0.8) -> tuple[np.n
     wl = np.where(k > 0, np.minimum(wl, cap), wl)
     wr = np.where(k < 0, np.minimum(wr, cap), wr)
     return wl, wr
-
-
-def single_thread_blas(fn):
-    """Run with one BLAS thread: the GP's small matrix products (50 x M) are 10 to 60 times
-    slower with threaded BLAS on a busy 2-core machine (measured: 0.57 ms vs 15 to 37 ms per
-    predict call), and batches already run one process per core."""
-    import functools
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        from threadpoolctl import threadpool_limits
-
-        with threadpool_limits(limits=1):
-            return fn(*args, **kwargs)
-
-    return wrapper
 
 
 @single_thread_blas

@@ -171,10 +171,9 @@ def run_chain(task: dict) -> list[dict]:
     BLAS is limited to one thread per chain: chains run one per core (REFERENCE.md measured
     everything that way; several multi-threaded chains on two cores only fight over them).
     """
-    from threadpoolctl import threadpool_limits
+    from gprace.executor import single_thread_blas
 
-    with threadpool_limits(limits=1):
-        return _run_chain(task)
+    return single_thread_blas(_run_chain)(task)
 
 
 def _run_chain(task: dict) -> list[dict]:
