@@ -67,6 +67,14 @@ def test_tasks_run_with_one_blas_thread_from_the_first_one():
     assert all(n == 1 for _, n in libs), libs
 
 
+def test_task_hash_follows_file_contents_not_locations():
+    t = {"id": "eval-gp-0", "seed": 3, "model": "/a/models/explore.h5", "model_hash": "abc"}
+    moved = {**t, "id": "other", "model": "/b/models/explore.h5"}
+    assert P._task_hash(t) == P._task_hash(moved)  # a copied --out directory is reused
+    assert P._task_hash(t) != P._task_hash({**t, "model_hash": "abd"})  # a refitted model is not
+    assert P._task_hash(t) != P._task_hash({**t, "seed": 4})
+
+
 def test_failed_run_is_recorded_skipped_and_resumed(tmp_path):
     st = P.Settings(**{**TINY, "tracks": 3})
     tasks = P.eval_tasks(st, "cv", None)

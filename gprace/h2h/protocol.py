@@ -109,8 +109,14 @@ class Settings:
         return dict(self.config, max_time=self.max_time, samples=self.samples)
 
 
+PATH_KEYS = ("model", "explore_data")
+"""Task entries that are file locations: their contents enter the task as ``*_hash`` entries."""
+
+
 def _task_hash(task: dict) -> str:
-    return config_hash({k: v for k, v in task.items() if k != "id"})
+    """Hash of what decides a run's result; file locations are left out, so a copied or moved
+    ``--out`` directory is still reused."""
+    return config_hash({k: v for k, v in task.items() if k not in ("id", *PATH_KEYS)})
 
 
 # ----------------------------------------------------------------------------------------------
@@ -325,7 +331,8 @@ def explore(st: Settings, out: Path, init_model: Path, init_data: Path) -> Path:
     loop = {"kind": "loop", "width": st.width if st.explore_width is None else st.explore_width}
     tasks = [{"id": f"explore-{i}", "track": loop, "seed": SEED_EXPLORE + i, "predictor": "gp",
               "model": str(init_model), "alpha": st.alpha, "explore_data": str(init_data),
-              "duration": st.episode_seconds, "config": st.race_config(), "model_hash": _hash_file(init_model)}
+              "duration": st.episode_seconds, "config": st.race_config(), "model_hash": _hash_file(init_model),
+              "data_hash": _hash_file(init_data)}
              for i in range(n_ep)]
     path = out / "explore" / "dataset.h5"
     key = {"tasks": [_task_hash(t) for t in tasks], "init": _hash_file(init_data)}
