@@ -5,7 +5,7 @@ Usage::
     python benchmarks/h2h_bench.py [--out DIR] [--tracks 100] [--runs 500] [--init-runs 20]
         [--explore-minutes 10] [--explore-width W] [--dict-size 600] [--workers 2] [--skip-protocol]
 
-Defaults are the paper's protocol (about 25 minutes on 2 cores); smaller numbers give a quick look.
+Defaults are the paper's protocol (about 20 minutes on 2 cores); smaller numbers give a quick look.
 
 Prints one JSON object:
 
@@ -13,7 +13,7 @@ Prints one JSON object:
   the times are the solver's alone), IPOPT (MUMPS) through ``nlpsol``, warm-started; targets
   10 / 30 ms;
 * ``rollout``: one 50-sample x 9-step GP rollout [ms] for each GP model of the protocol (the
-  exact and the sparse backend), target 3 ms;
+  exact and the sparse backend), with one BLAS thread and with every core, target 3 ms;
 * ``protocol``: the table next to the paper's numbers (REFERENCE.md) and the wall time per stage.
 """
 
@@ -48,9 +48,19 @@ def bench_nmpc(seconds: float = 20.0) -> dict:
 
 
 def bench_rollout(models: dict[str, Path], reps: int = 30) -> dict:
+    """Rollout times with one BLAS thread (as in the race workers, one race per core) and with
+    every core (one controller on its own computer, as on the car)."""
+    import os
+
+    import scipy.linalg  # noqa: F401 -- SciPy's BLAS must be loaded before the limits are set
+    from threadpoolctl import threadpool_limits
+
     from gprace.executor import single_thread_blas
 
-    return single_thread_blas(_bench_rollout)(models, reps)  # as in the race workers
+    res = {"one_thread": single_thread_blas(_bench_rollout)(models, reps)}
+    with threadpool_limits(limits=os.cpu_count()):
+        res["all_cores"] = _bench_rollout(models, reps)
+    return res
 
 
 def _bench_rollout(models: dict[str, Path], reps: int = 30) -> dict:
