@@ -67,6 +67,21 @@ def test_tasks_run_with_one_blas_thread_from_the_first_one():
     assert all(n == 1 for _, n in libs), libs
 
 
+def test_offline_errors_are_recorded_and_reused(tmp_path, monkeypatch):
+    st = P.Settings(**{**TINY, "workers": 1, "resume": True})
+    raced = P.race_predictors(st, tmp_path, {})
+    first = P.offline_errors(st, tmp_path, raced, {})
+    assert sorted(p.name for p in (tmp_path / "errors" / "cv").iterdir()) == ["run_00000.h5", "run_00001.h5"]
+
+    def recomputed(task):
+        raise AssertionError("an offline error task ran again")
+
+    monkeypatch.setattr(P, "offline_errors_task", recomputed)
+    again = P.offline_errors(st, tmp_path, raced, {})
+    assert first["cv"].shape[1] > 0
+    np.testing.assert_array_equal(first["cv"], again["cv"])
+
+
 def test_task_hash_follows_file_contents_not_locations():
     t = {"id": "eval-gp-0", "seed": 3, "model": "/a/models/explore.h5", "model_hash": "abc"}
     moved = {**t, "id": "other", "model": "/b/models/explore.h5"}

@@ -9,6 +9,7 @@ Layout of ``--out DIR`` (every file an HDF5 artifact, written atomically)::
     explore/dataset.h5            init data + exploration data
     models/{baseline,init,explore,select}.h5   GP models (kind gp_model)
     eval/<predictor>/run_<i>.h5   the races of every predictor on the same scenarios
+    errors/<predictor>/run_<i>.h5 offline e_y errors of every offline predictor on those races
     table.json                    the comparison table
 
 Every batch of runs goes through :func:`gprace.executor.run_batch`. Each run record stores a hash
@@ -109,7 +110,7 @@ class Settings:
         return dict(self.config, max_time=self.max_time, samples=self.samples)
 
 
-PATH_KEYS = ("model", "explore_data")
+PATH_KEYS = ("model", "explore_data", "record", "models")
 """Task entries that are file locations: their contents enter the task as ``*_hash`` entries."""
 
 
@@ -191,7 +192,8 @@ def run_tasks(tasks: list[dict], run_dir: Path, st: Settings, what: str,
     for r in results:
         i = todo[r.index]
         if r.ok:
-            rec = {"arrays": r.value["arrays"], "attrs": dict(r.value["attrs"], ok=True, error="")}
+            rec = {"arrays": r.value["arrays"], "attrs": dict(r.value["attrs"], ok=True, error="",
+                                                              task_hash=_task_hash(tasks[i]), task=json.dumps(tasks[i]))}
         else:
             rec = {"arrays": {}, "attrs": {"ok": False, "error": r.error, "seed": tasks[i].get("seed")}}
         records[i] = rec
@@ -396,7 +398,7 @@ def _offline_errors(task: dict) -> dict:
 
     Rollouts start at every step t of the record, from the true opponent state, with the ego's
     true closed-loop trajectory as the ego part of the input; all start times and samples go
-    through one GP call per step. Returns ``{name: (K, n_t) |mean e_y - true e_y|}``.
+    through one GP call per step. Returns ``{"arrays": {name: (K, n_t) |mean e_y - true e_y|}}``.
     """
     from gprace.h2h.config import H2HConfig
     from gprace.h2h.geometry import make_track
@@ -410,7 +412,7 @@ def _offline_errors(task: dict) -> dict:
     T = len(O) - K
     out = {}
     if T <= 0:
-        return {name: np.zeros((K, 0)) for name in task["models"]}
+        return {"arrays": {name: np.zeros((K, 0)) for name in task["models"]}, "attrs": {}}
     truth = np.stack([O[k + 1:k + 1 + T, 4] for k in range(K)])  # (K, T)
     for name, path in task["models"].items():
         if name == "cv":  # ConstantVelocityPredictor for every start time at once
@@ -434,27 +436,27 @@ def _offline_errors(task: dict) -> dict:
                 ey[k] = S[:, 4].reshape(T, n).mean(axis=1)
             mean = ey
         out[name] = np.abs(mean - truth)
-    return out
+    return {"arrays": out, "attrs": {}}
 
 
 def offline_errors(st: Settings, out: Path, raced: dict[str, list[dict]], model_paths: dict[str, Path]) -> dict:
-    from gprace.executor import run_batch
-
+    """Offline e_y errors ``{offline predictor: (K, start times)}`` over every closed-loop race;
+    one task per race, recorded under ``errors/`` and reused like the races."""
     names = {p: (str(model_paths[p]) if p != "cv" else None) for p in st.offline}
-    tasks = []
+    hashes = {p: _hash_file(Path(v)) for p, v in names.items() if v is not None}
+    errs: dict[str, list[np.ndarray]] = {p: [] for p in st.offline}
     for p in st.raced:
+        tasks = []
         for i, rec in enumerate(raced[p]):
             if rec["attrs"].get("ok"):
-                t = json.loads(rec["attrs"]["task"]) if "task" in rec["attrs"] else eval_tasks(st, p, None)[i]
-                tasks.append({"record": str(_record_path(out / "eval" / p, i)), "track": t["track"], "seed": t["seed"],
-                              "config": t["config"], "models": names})
-    res = run_batch(offline_errors_task, tasks, executor=st.executor, workers=st.workers, scheduler=st.scheduler,
-                    label="offline prediction errors")
-    errs: dict[str, list[np.ndarray]] = {p: [] for p in st.offline}
-    for r in res:
-        if r.ok:
-            for p in st.offline:
-                errs[p].append(r.value[p])
+                t = json.loads(rec["attrs"]["task"])
+                tasks.append({"id": f"errors-{p}-{i}", "record": str(_record_path(out / "eval" / p, i)),
+                              "record_hash": rec["attrs"]["task_hash"], "track": t["track"], "seed": t["seed"],
+                              "config": t["config"], "models": names, "model_hashes": hashes})
+        for r in run_tasks(tasks, out / "errors" / p, st, f"offline errors {p}", fn=offline_errors_task):
+            if r["attrs"].get("ok"):
+                for q in st.offline:
+                    errs[q].append(r["arrays"][q])
     K = H2H_K(st)
     return {p: (np.hstack(v) if v else np.zeros((K, 0))) for p, v in errs.items()}
 
