@@ -534,14 +534,15 @@ def _errors_along(p: Path, art, found: Found, samples: int) -> tuple[np.ndarray,
         return None
     cfg = dict(task.get("config", {}))
     cfg["samples"] = min(int(cfg.get("samples", samples)), samples)
+    def errors(models: dict) -> dict:
+        return offline_errors_task({"record": str(p), "track": task["track"], "seed": task.get("seed", 0),
+                                    "config": cfg, "models": models})["arrays"]
+
     try:
-        out = offline_errors_task({"record": str(p), "track": task["track"], "seed": task.get("seed", 0),
-                                   "config": cfg, "models": models})
+        out = errors(models)
     except Exception:  # noqa: BLE001 - fall back to the models that work
-        models = {"cv": None}
         try:
-            out = offline_errors_task({"record": str(p), "track": task["track"], "seed": task.get("seed", 0),
-                                       "config": cfg, "models": models})
+            out = errors({"cv": None})
         except Exception:  # noqa: BLE001
             return None
     E = {k: np.asarray(v) for k, v in out.items() if np.ndim(v) == 2 and np.shape(v)[1]}
