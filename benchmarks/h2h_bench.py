@@ -52,12 +52,11 @@ def bench_rollout(models: dict[str, Path], reps: int = 30) -> dict:
     every core (one controller on its own computer, as on the car)."""
     import os
 
-    import scipy.linalg  # noqa: F401 -- SciPy's BLAS must be loaded before the limits are set
     from threadpoolctl import threadpool_limits
 
     from gprace.executor import single_thread_blas
 
-    res = {"one_thread": single_thread_blas(_bench_rollout)(models, reps)}
+    res = {"one_thread": single_thread_blas(_bench_rollout)(models, reps)}  # this also loads SciPy's BLAS
     with threadpool_limits(limits=os.cpu_count()):
         res["all_cores"] = _bench_rollout(models, reps)
     return res
