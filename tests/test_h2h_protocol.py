@@ -82,6 +82,31 @@ def test_offline_errors_are_recorded_and_reused(tmp_path, monkeypatch):
     np.testing.assert_array_equal(first["cv"], again["cv"])
 
 
+def test_report_reads_the_stored_errors_of_a_race(tmp_path, monkeypatch):
+    from gprace.report import collect
+    from gprace.report.inspect import open_artifact
+
+    st = P.Settings(**{**TINY, "workers": 1})
+    raced = P.race_predictors(st, tmp_path, {})
+    race = tmp_path / "eval" / "cv" / "run_00001.h5"
+    art = open_artifact(race, "h2h_run")
+    recomputed = collect._errors_along(race, art, None, samples=5)  # no errors/ yet: computed here
+    P.offline_errors(st, tmp_path, raced, {})
+
+    def no_recompute(task):
+        raise AssertionError("recomputed")
+
+    monkeypatch.setattr(P, "offline_errors_task", no_recompute)
+    t, E = collect._errors_along(race, art, None, samples=5)
+    np.testing.assert_array_equal(E["cv"], recomputed[1]["cv"])
+    np.testing.assert_array_equal(E["cv"], P._read_record(tmp_path / "errors" / "cv" / "run_00001.h5")["arrays"]["cv"])
+    assert len(t) == E["cv"].shape[1]
+    # the stored record of another race is not taken for this one (and recomputing fails here)
+    other = tmp_path / "errors" / "cv" / "run_00000.h5"
+    other.replace(tmp_path / "errors" / "cv" / "run_00001.h5")
+    assert collect._errors_along(race, art, None, samples=5) is None
+
+
 def test_task_hash_follows_file_contents_not_locations():
     t = {"id": "eval-gp-0", "seed": 3, "model": "/a/models/explore.h5", "model_hash": "abc"}
     moved = {**t, "id": "other", "model": "/b/models/explore.h5"}

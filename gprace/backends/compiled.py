@@ -27,8 +27,8 @@ from pathlib import Path
 
 from gprace.console import console
 
-FLAGS = ("-O1", "-fPIC", "-shared")
-_CWD = threading.Lock()  # the working directory is per process: one code generation at a time  # -O1: most of -O2's speed at a fraction of its build time
+FLAGS = ("-O1", "-fPIC", "-shared")  # -O1: most of -O2's speed at a fraction of its build time
+_CWD = threading.Lock()  # the working directory is per process: one code generation at a time
 
 
 def cache_dir() -> Path:

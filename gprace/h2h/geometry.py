@@ -79,7 +79,8 @@ def loop_track(width: float | None = None):
     spec = validate(SegmentTrack, read_toml(path), str(path))
     if width is not None:
         if not 0.0 < width <= 2.0:
-            raise InputError(f"exploration track width must be in (0, 2] m, got {width}")
+            raise InputError(f"exploration track width must be in (0, 2] m (the loop's tightest radius is "
+                             f"1 m), got {width}")
         spec = spec.model_copy(update={"width": float(width)})
     return build_track(spec, LOOP_NAME, str(path))
 

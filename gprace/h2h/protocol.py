@@ -95,8 +95,13 @@ class Settings:
             raise InputError(f"--alpha must be in [0, 1], got {self.alpha}")
         if self.explore_minutes <= 0 or self.episode_seconds <= 0:
             raise InputError("--explore-minutes and --episode-seconds must be positive")
-        if self.explore_width is not None and not 0.0 < self.explore_width <= 2.0:
-            raise InputError(f"--explore-width must be in (0, 2] m (the loop's tightest radius is 1 m), got {self.explore_width}")
+        if self.explore_width is not None:
+            from gprace.h2h.geometry import loop_track
+
+            try:
+                loop_track(float(self.explore_width))  # the loop's own validity check, before any work
+            except InputError as exc:
+                raise InputError(f"--explore-width: {exc}") from None
         if self.dict_size < 2:
             raise InputError(f"--dict-size must be >= 2, got {self.dict_size}")
         known = set(OFFLINE) | {"init", "oracle"}
@@ -136,13 +141,15 @@ def _read_record(path: Path) -> dict | None:
     return {"arrays": art.arrays, "attrs": art.attrs}
 
 
-def _write_record(path: Path, task: dict, ok: bool, value: dict | None, error: str) -> None:
+def _write_record(path: Path, task: dict, ok: bool, value: dict | None, error: str) -> dict:
+    """Write one run record (the task's result, or its error) and return it as read back later."""
     from gprace.io.artifacts import Artifact, write_artifact
 
     attrs = dict(value["attrs"]) if value else {}
     attrs.update({"ok": bool(ok), "error": error, "task_hash": _task_hash(task), "task": json.dumps(task)})
     arrays = dict(value["arrays"]) if value else {}
     write_artifact(path, Artifact(RUN_KIND, arrays=arrays, attrs=attrs, seed=int(task.get("seed", 0))))
+    return {"arrays": arrays, "attrs": attrs}
 
 
 def race_with_data(task: dict) -> dict:
@@ -183,20 +190,12 @@ def run_tasks(tasks: list[dict], run_dir: Path, st: Settings, what: str,
 
     def done(r) -> None:
         i = todo[r.index]
-        _write_record(_record_path(run_dir, i), tasks[i], r.ok, r.value, r.error)
+        records[i] = _write_record(_record_path(run_dir, i), tasks[i], r.ok, r.value, r.error)
         if not r.ok:
             console.warn(f"{what}: run {i} failed and is skipped: {r.error.splitlines()[0]}")
 
-    results = run_batch(fn, [tasks[i] for i in todo], executor=st.executor, workers=st.workers,
-                        scheduler=st.scheduler, on_done=done, label=f"{what} runs")
-    for r in results:
-        i = todo[r.index]
-        if r.ok:
-            rec = {"arrays": r.value["arrays"], "attrs": dict(r.value["attrs"], ok=True, error="",
-                                                              task_hash=_task_hash(tasks[i]), task=json.dumps(tasks[i]))}
-        else:
-            rec = {"arrays": {}, "attrs": {"ok": False, "error": r.error, "seed": tasks[i].get("seed")}}
-        records[i] = rec
+    run_batch(fn, [tasks[i] for i in todo], executor=st.executor, workers=st.workers,
+              scheduler=st.scheduler, on_done=done, label=f"{what} runs")
     return [r for r in records if r is not None]
 
 
@@ -331,13 +330,14 @@ def explore(st: Settings, out: Path, init_model: Path, init_data: Path) -> Path:
     read_dataset(init_data)
     n_ep = max(1, int(round(st.explore_minutes * 60.0 / st.episode_seconds)))
     loop = {"kind": "loop", "width": st.width if st.explore_width is None else st.explore_width}
+    model_hash, data_hash = _hash_file(init_model), _hash_file(init_data)
     tasks = [{"id": f"explore-{i}", "track": loop, "seed": SEED_EXPLORE + i, "predictor": "gp",
               "model": str(init_model), "alpha": st.alpha, "explore_data": str(init_data),
-              "duration": st.episode_seconds, "config": st.race_config(), "model_hash": _hash_file(init_model),
-              "data_hash": _hash_file(init_data)}
+              "duration": st.episode_seconds, "config": st.race_config(), "model_hash": model_hash,
+              "data_hash": data_hash}
              for i in range(n_ep)]
     path = out / "explore" / "dataset.h5"
-    key = {"tasks": [_task_hash(t) for t in tasks], "init": _hash_file(init_data)}
+    key = {"tasks": [_task_hash(t) for t in tasks], "init": data_hash}
     if _cached(path, key):
         return path
     recs = run_tasks(tasks, out / "explore" / "runs", st, "explore")
@@ -367,16 +367,10 @@ def models(st: Settings, out: Path) -> dict[str, Path]:
 # evaluation
 def eval_tasks(st: Settings, predictor: str, model: Path | None) -> list[dict]:
     kind = predictor if predictor in ("cv", "oracle") else "gp"
-    tasks = []
-    for i in range(st.tracks):
-        t = {"id": f"eval-{predictor}-{i}", "track": {"kind": "random", "seed": SEED_EVAL + i, "stretches": st.stretches,
+    gp = {} if model is None else {"model": str(model), "model_hash": _hash_file(model)}  # read once
+    return [{"id": f"eval-{predictor}-{i}", "track": {"kind": "random", "seed": SEED_EVAL + i, "stretches": st.stretches,
              "width": st.width}, "seed": SEED_EVAL + i, "predictor": kind, "label": predictor,
-             "config": st.race_config()}
-        if model is not None:
-            t["model"] = str(model)
-            t["model_hash"] = _hash_file(model)
-        tasks.append(t)
-    return tasks
+             "config": st.race_config(), **gp} for i in range(st.tracks)]
 
 
 def race_predictors(st: Settings, out: Path, model_paths: dict[str, Path]) -> dict[str, list[dict]]:

@@ -515,9 +515,33 @@ def _pm(m: Any, s: Any) -> str:
     return "-" if not np.isfinite(m) else f"{m:.3f} +- {s:.3f}"
 
 
+def _task_of(attrs) -> dict:
+    """A run record's task (stored as JSON text; the artifact reader may already have parsed it)."""
+    task = attrs.get("task")
+    return json.loads(task) if isinstance(task, str) else task if isinstance(task, dict) else {}
+
+
+def _stored_errors(p: Path, art) -> dict[str, np.ndarray] | None:
+    """The protocol's own error record of race ``p`` (``errors/<predictor>/``), if it is that race's."""
+    q = p.parents[2] / "errors" / p.parent.name / p.name if len(p.parents) > 2 else None
+    if q is None or not q.exists():
+        return None
+    try:
+        rec = open_artifact(q, "h2h_run")
+        if _task_of(rec.attrs).get("record_hash") != art.attrs.get("task_hash"):
+            return None
+    except Exception:  # noqa: BLE001 - unreadable or older record: recompute
+        return None
+    return dict(rec.arrays)
+
+
 def _errors_along(p: Path, art, found: Found, samples: int) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
     """k-step e_y errors along one record for the constant-velocity predictor and every opponent
-    GP model of the same experiment (the head-to-head stage's offline evaluation)."""
+    GP model of the same experiment: the protocol's stored errors, else the head-to-head stage's
+    offline evaluation run here with fewer samples."""
+    out = _stored_errors(p, art)
+    if out is not None:
+        return _error_series(art, out)
     try:
         from gprace.h2h.protocol import offline_errors_task
     except Exception:  # noqa: BLE001
@@ -528,12 +552,12 @@ def _errors_along(p: Path, art, found: Found, samples: int) -> tuple[np.ndarray,
         for m in sorted((root / "models").glob("*.h5")):
             if m.stem in ("baseline", "explore", "select") and artifact_kind(m) in ("gp_model",):
                 models[m.stem] = str(m)
-    task = art.attrs.get("task")
-    task = json.loads(task) if isinstance(task, str) else task if isinstance(task, dict) else {}
+    task = _task_of(art.attrs)
     if not task:
         return None
     cfg = dict(task.get("config", {}))
     cfg["samples"] = min(int(cfg.get("samples", samples)), samples)
+
     def errors(models: dict) -> dict:
         return offline_errors_task({"record": str(p), "track": task["track"], "seed": task.get("seed", 0),
                                     "config": cfg, "models": models})["arrays"]
@@ -545,6 +569,10 @@ def _errors_along(p: Path, art, found: Found, samples: int) -> tuple[np.ndarray,
             out = errors({"cv": None})
         except Exception:  # noqa: BLE001
             return None
+    return _error_series(art, out)
+
+
+def _error_series(art, out: dict) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
     E = {k: np.asarray(v) for k, v in out.items() if np.ndim(v) == 2 and np.shape(v)[1]}
     if not E:
         return None
