@@ -49,7 +49,7 @@ def test_warm_start_and_gp_compensation(setup, circle_plan):
     warm = plan_min_time(tr, m, PlanSettings(ds=6.0), warm=circle_plan)
     assert abs(warm.lap_time - circle_plan.lap_time) < 1e-3 * circle_plan.lap_time
     slower = plan_min_time(tr, m, PlanSettings(ds=6.0), warm=circle_plan,
-                           mu_plan=lambda Z: np.column_stack([-0.5 * np.sign(Z[:, 1]), np.zeros(len(Z))]))
+                           mu_plan=lambda X, U: np.column_stack([-0.5 * np.sign(X[:, 2]), np.zeros(len(X))]))
     assert slower.lap_time > circle_plan.lap_time + 0.05
 
 

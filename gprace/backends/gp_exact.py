@@ -160,6 +160,33 @@ class ExactGP(GPBackend):
                 var[s:s + _CHUNK, g] = (sf2 - np.einsum("ij,ij->j", V, V))[:, None]
         return mean, var
 
+    def mean_gradient(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior mean ``(m, p)`` and its gradient ``(m, p, d)`` with respect to the inputs.
+
+        Squared-exponential kernel: ``d k(z, z_i) / d z = -k(z, z_i) (z - z_i) / l^2`` (normalised
+        inputs), so the gradient costs one more product with the kernel block. Used by the tracking
+        MPC to linearise the GP along with the nominal model. Other kernels: NotImplementedError.
+        """
+        h = self._fitted()
+        if h.kernel != "se":
+            raise NotImplementedError("mean_gradient: squared-exponential kernel only")
+        Zn = (np.asarray(Z, dtype=float) - h.z_mean) / h.z_scale
+        m = Zn.shape[0]
+        mean = np.empty((m, h.p))
+        grad = np.empty((m, h.p, h.d))
+        for gi, g in enumerate(self._group_list):
+            o = g[0]
+            ls = h.ls(o)
+            a, a2 = self._scaled[gi]
+            b = Zn / ls
+            d2 = np.einsum("ij,ij->i", b, b)[:, None] + a2[None, :] - 2.0 * (b @ a.T)
+            Ks = from_sqdist(h.kernel, np.maximum(d2, 0.0), h.sf2(o))
+            for q in g:
+                W = Ks * self.alpha_[:, q][None, :]
+                mean[:, q] = W.sum(axis=1)
+                grad[:, q, :] = (W @ self.Z_ - mean[:, q][:, None] * Zn) / ls**2
+        return mean * h.y_scale + h.y_mean, grad * h.y_scale[None, :, None] / h.z_scale[None, None, :]
+
     # -- state -----------------------------------------------------------------------------------
     def _state_arrays(self):
         n = self.Z_.shape[0]

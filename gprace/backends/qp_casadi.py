@@ -31,7 +31,8 @@ class CasadiQP:
         # simple bounds (inputs, slack >= 0) go to lbx/ubx; keep the equality and lateral rows of M
         g0 = f.neq
         nub = 2 * 2 * N
-        lat = g0 + nub + np.arange(3 * N).reshape(N, 3)[:, :2].ravel()
+        # the two-sided rows of the lateral and grip blocks (their slack >= 0 rows become bounds)
+        lat = g0 + nub + np.arange(6 * N).reshape(2 * N, 3)[:, :2].ravel()
         self._rows = np.concatenate([np.arange(g0), lat])
         Mi = f.M.copy()
         Mi.data = np.arange(1, Mi.nnz + 1, dtype=float)
@@ -61,8 +62,8 @@ class CasadiQP:
             lba = self._lba.copy()
             lba[: f.neq] = uba[: f.neq]
             N = self.N
-            lbx = np.concatenate([np.tile(pb.u_lo, N), np.full(6 * N, -np.inf), np.zeros(N)])
-            ubx = np.concatenate([np.tile(pb.u_hi, N), np.full(6 * N, np.inf), np.full(N, np.inf)])
+            lbx = np.concatenate([np.tile(pb.u_lo, N), np.full(6 * N, -np.inf), np.zeros(2 * N)])
+            ubx = np.concatenate([np.tile(pb.u_hi, N), np.full(6 * N, np.inf), np.full(2 * N, np.inf)])
             sol = self.solver(h=self._H, g=f.q(pb), a=ca.DM(self._Asp, vals[self._take]), lba=lba, uba=uba, lbx=lbx, ubx=ubx)
             st = self.solver.stats()
         except Exception as exc:

@@ -34,9 +34,13 @@ class CvxpyClarabelQP:
         self.u_lo = cp.Parameter(NUS)
         self.u_hi = cp.Parameter(NUS)
         self.delta_prev = cp.Parameter()
+        self.grip_G = cp.Parameter((N, NXS))
+        self.grip_lo = cp.Parameter(N)
+        self.grip_hi = cp.Parameter(N)
         x = cp.Variable((N, NXS))      # x_1 .. x_N
         u = cp.Variable((N, NUS))      # u_0 .. u_{N-1}
         eps = cp.Variable(N)           # lateral slack
+        eta = cp.Variable(N)           # grip slack
         self.x, self.u, self.eps = x, u, eps
         sq, sr = np.sqrt(np.asarray(w.Q, float)), np.sqrt(np.asarray(w.R, float))
         cost = cp.sum_squares(cp.multiply(x - self.xref, np.tile(sq, (N, 1))))
@@ -44,6 +48,7 @@ class CvxpyClarabelQP:
         steer = cp.hstack([u[0, 0] - self.delta_prev, u[1:, 0] - u[:-1, 0]])
         cost += w.r_delta * cp.sum_squares(steer)
         cost += w.slack_l1 * cp.sum(eps) + w.slack_l2 * cp.sum_squares(eps)
+        cost += w.grip_l1 * cp.sum(eta) + w.grip_l2 * cp.sum_squares(eta)
         cons = []
         cons.append(x[0] == self.Ax0 + self.B[0] @ u[0] + self.c[0])
         for k in range(1, N):
@@ -51,6 +56,8 @@ class CvxpyClarabelQP:
         cons += [u <= np.ones((N, 1)) @ cp.reshape(self.u_hi, (1, NUS), order="C"),
                  u >= np.ones((N, 1)) @ cp.reshape(self.u_lo, (1, NUS), order="C")]
         cons += [x[:, EY] <= self.ey_hi + eps, x[:, EY] >= self.ey_lo - eps, eps >= 0]
+        grip = cp.sum(cp.multiply(self.grip_G, x), axis=1)  # G_k x_k per step
+        cons += [grip <= self.grip_hi + eta, grip >= self.grip_lo - eta, eta >= 0]
         self.problem = cp.Problem(cp.Minimize(cost), cons)
 
     def solve(self, pb: LtvProblem) -> QPResult:
@@ -65,6 +72,7 @@ class CvxpyClarabelQP:
             self.ey_lo.value, self.ey_hi.value = pb.ey_lo, pb.ey_hi
             self.u_lo.value, self.u_hi.value = pb.u_lo, pb.u_hi
             self.delta_prev.value = pb.delta_prev
+            self.grip_G.value, self.grip_lo.value, self.grip_hi.value = pb.grip()
             self.problem.solve(solver=cp.CLARABEL, warm_start=False)
         except Exception as exc:
             return fail_result(self.N, QPStatus.FAILED, f"cvxpy-clarabel: {exc}", time.perf_counter() - t0)

@@ -40,13 +40,14 @@ def register(app: typer.Typer) -> None:
         step: str = typer.Option("euler", "--step", help="Nominal step the errors refer to: euler (paper) | rk4."),
         outlier_kappa: float = typer.Option(4.0, "--outlier-kappa", help="Outlier gate in standard deviations (0 disables)."),
         seed: int = typer.Option(0, "--seed", help="Seed of subsampling."),
+        features: str = typer.Option("paper", "--features", help="GP inputs of tracking/planning: paper [v_y, yaw_rate, delta] | full (adds v_x, a_x)."),
         json_out: bool = JSON,
     ) -> None:
         """Build or extend a GP dataset: features of RUNs, diverse (or random) selection of M points."""
         from gprace.gp.stages import select_data
 
         res = select_data(inputs, output, gp, max_points, selection, vehicle, model, kernel, step,
-                          outlier_kappa if outlier_kappa > 0 else None, seed)
+                          outlier_kappa if outlier_kappa > 0 else None, seed, features)
         if json_out:
             console.json(res)
             return

@@ -1,6 +1,8 @@
 """Named feature maps: recordings -> GP inputs ``Z`` and outputs ``Y`` (paper, "GP Model").
 
-- ``tracking``: ``z = [v_y, yaw_rate, delta]`` at sample ``k``; ``y`` = one-step error of
+- ``tracking``: ``z`` = a named dynamics feature set at sample ``k`` (``DYN_FEATURE_SETS``:
+  ``paper`` = ``[v_y, yaw_rate, delta]`` as in the paper, ``full`` = ``[v_x, v_y, yaw_rate,
+  delta, a_x]``, the default); ``y`` = one-step error of
   ``[v_y, yaw_rate]``: the measured ``x_{k+1}`` minus the nominal model's step from
   ``(x_k, u_k, kappa_k)`` (the paper's Euler step ``x + f(x, u) dt`` by default; ``step="rk4"``
   matches an MPC that predicts with RK4).
@@ -29,7 +31,17 @@ import numpy as np
 
 from gprace.errors import InputError
 
-DYN_INPUTS = ("v_y", "yaw_rate", "delta")
+DYN_INPUTS = ("v_y", "yaw_rate", "delta")  # the paper's feature set
+# Named feature sets of the tracking and planning GPs. ``full`` adds the longitudinal speed and
+# command: with the paper's three inputs braking and driving alias (docs/decisions.md, "Time
+# trial"), as in Kabzan et al. 2019 and Hewing et al. 2019 the GP needs v_x and a_x to tell them apart.
+DYN_FEATURE_SETS: dict[str, tuple[str, ...]] = {
+    "paper": DYN_INPUTS,
+    "full": ("v_x", "v_y", "yaw_rate", "delta", "a_x"),
+}
+DEFAULT_DYN_FEATURES = "full"
+# where each feature lives: ("x", state index) or ("u", input index)
+_DYN_SOURCE = {"v_x": ("x", 0), "v_y": ("x", 1), "yaw_rate": ("x", 2), "delta": ("u", 0), "a_x": ("u", 1)}
 OPPONENT_INPUTS = (
     "ey_ego_minus_ey_opp", "epsi_ego", "vx_ego", "s_opp_minus_s_ego", "ey_opp", "epsi_opp",
     "vx_opp", "yaw_rate_opp", "kappa_opp_0", "kappa_opp_0.5", "kappa_opp_1.0",
@@ -57,6 +69,31 @@ FEATURE_MAPS: dict[str, FeatureMap] = {
     "opponent": FeatureMap("opponent", OPPONENT_INPUTS, OPPONENT_OUTPUTS,
                            "one-step change of the opponent's s, e_y, e_psi, v_x, yaw_rate"),
 }
+
+
+def dyn_feature_set(name: str) -> tuple[str, ...]:
+    """Input names of a named dynamics feature set; ConfigError naming the valid ones."""
+    try:
+        return DYN_FEATURE_SETS[name]
+    except KeyError:
+        from gprace.errors import ConfigError
+
+        raise ConfigError(f"unknown feature set {name!r}; available: {', '.join(DYN_FEATURE_SETS)}") from None
+
+
+def dyn_set_of(names) -> str:
+    """The name of the feature set with these input names; InputError if none has them."""
+    names = tuple(names)
+    for k, v in DYN_FEATURE_SETS.items():
+        if v == names:
+            return k
+    raise InputError(f"GP inputs {list(names)} are no known feature set ({', '.join(f'{k}: {list(v)}' for k, v in DYN_FEATURE_SETS.items())})")
+
+
+def dyn_inputs(X: np.ndarray, U: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
+    """GP inputs ``(n, len(names))`` from states ``X (n, >=6)`` and inputs ``U (n, 2)`` (vectorised)."""
+    src = {"x": X, "u": U}
+    return np.column_stack([src[_DYN_SOURCE[c][0]][:, _DYN_SOURCE[c][1]] for c in names])
 
 
 def feature_map(name: str) -> FeatureMap:
@@ -87,8 +124,9 @@ def nominal_step(model, X6: np.ndarray, U: np.ndarray, kappa: np.ndarray, dt: fl
     return np.asarray(Xn)[:, :6]
 
 
-def dynamics_features(run, model, kind: str = "tracking", step: str = "euler") -> tuple[np.ndarray, np.ndarray]:
-    """``Z (n, 3)``, ``Y (n, 2)`` of one run for the ``tracking`` or ``planning`` map.
+def dynamics_features(run, model, kind: str = "tracking", step: str = "euler",
+                      features: str = "paper") -> tuple[np.ndarray, np.ndarray]:
+    """``Z (n, d)``, ``Y (n, 2)`` of one run for the ``tracking`` or ``planning`` map.
 
     ``run`` is a :class:`gprace.io.runs.Run`; ``model`` a :class:`gprace.model.NominalModel`
     (or anything with ``euler``/``rk4``/``initial_state``). Curvature is the run's ``kappa``
@@ -96,17 +134,18 @@ def dynamics_features(run, model, kind: str = "tracking", step: str = "euler") -
     """
     if kind not in ("tracking", "planning"):
         raise InputError(f"feature map {kind!r} is not a single-car map; use tracking or planning")
+    names = dyn_feature_set(features)
     X, U = run.states(), run.inputs()
     dt = run.dt
     ok = _regular_pairs(run["t"], dt)
     if not ok.any():
-        return np.zeros((0, 3)), np.zeros((0, 2))
+        return np.zeros((0, len(names))), np.zeros((0, 2))
     x0, u0, x1, kap = X[:-1][ok], U[:-1][ok], X[1:][ok], run["kappa"][:-1][ok]
     pred = nominal_step(model, x0, u0, kap, dt, step)
     Y = (x1 - pred)[:, 1:3]
     if kind == "planning":
         Y = Y / dt
-    Z = np.column_stack([x0[:, 1], x0[:, 2], u0[:, 0]])
+    Z = dyn_inputs(x0, u0, names)
     good = np.all(np.isfinite(Z), axis=1) & np.all(np.isfinite(Y), axis=1)
     return Z[good], Y[good]
 
@@ -173,7 +212,7 @@ def opponent_features(ego: Any, opp: Any, kappa: Callable[[np.ndarray], np.ndarr
     return Z[good], Y[good]
 
 
-def run_features(run, kind: str, vehicle=None, step: str = "euler") -> tuple[np.ndarray, np.ndarray]:
+def run_features(run, kind: str, vehicle=None, step: str = "euler", features: str = "paper") -> tuple[np.ndarray, np.ndarray]:
     """Features of one recording for ``tracking`` or ``planning``; the nominal vehicle comes
     from ``vehicle`` (a VehicleConfig) or the run itself (InputError if neither)."""
     from gprace.model import NominalModel
@@ -181,4 +220,4 @@ def run_features(run, kind: str, vehicle=None, step: str = "euler") -> tuple[np.
     veh = vehicle if vehicle is not None else run.vehicle()
     if veh is None:
         raise InputError(f"{run.source}: the recording carries no nominal vehicle; pass --vehicle VEHICLE.toml")
-    return dynamics_features(run, NominalModel(veh), kind, step)
+    return dynamics_features(run, NominalModel(veh), kind, step, features)

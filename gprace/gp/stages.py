@@ -38,6 +38,7 @@ def select_data(
     step: str = "euler",
     outlier_kappa: float | None = 4.0,
     seed: int = 0,
+    features: str = "paper",
 ) -> dict[str, Any]:
     """Features of the runs among ``inputs`` streamed into a dictionary of at most ``max_points``.
 
@@ -47,7 +48,7 @@ def select_data(
     the continued dataset, or a quick exact-GP fit on at most 300 points of all the data.
     """
     from gprace.gp.dataset import GPDataset, is_dataset, read_dataset, write_dataset
-    from gprace.gp.features import feature_map, run_features
+    from gprace.gp.features import dyn_feature_set, feature_map, run_features
     from gprace.gp.kernels import check_kernel
     from gprace.io.runs import read_run
 
@@ -61,6 +62,7 @@ def select_data(
     check_kernel(kernel)
     if not inputs:
         raise InputError("select-data: no RUN given")
+    input_names = list(dyn_feature_set(features))
     veh = _load_vehicle(vehicle)
 
     previous: GPDataset | None = None
@@ -73,11 +75,13 @@ def select_data(
             previous = read_dataset(path)
             if previous.feature_map and previous.feature_map != gp:
                 raise InputError(f"{path}: dataset of feature map {previous.feature_map!r}, but --gp {gp}")
+            if list(previous.input_names) != input_names:
+                raise InputError(f"{path}: dataset with inputs {list(previous.input_names)}, but --features {features} ({input_names})")
             if previous.attrs.get("step", step) != step:
                 raise InputError(f"{path}: dataset built with the {previous.attrs.get('step')} step, but --step {step}")
             continue
         run = read_run(path)
-        Z, Y = run_features(run, gp, veh, step)
+        Z, Y = run_features(run, gp, veh, step, features)
         if len(Z) == 0:
             raise InputError(f"{path}: no usable sample pairs (need consecutive samples at the run's period)")
         Zs.append(Z)
@@ -126,7 +130,7 @@ def select_data(
         "outlier_kappa": outlier_kappa if outlier_kappa is not None else 0.0,
         "stats": stats,
     }
-    write_dataset(output, GPDataset(Z, Y, gp, list(fmap.input_names), list(fmap.output_names), attrs, hyper),
+    write_dataset(output, GPDataset(Z, Y, gp, input_names, list(fmap.output_names), attrs, hyper),
                   seed=seed)
     return {"output": str(output), "feature_map": gp, "selection": selection, "points": int(len(Z)),
             "max_points": int(max_points), "new_samples": int(len(Znew)), "n_seen": int(n_seen),
@@ -202,7 +206,7 @@ def evaluate_gp(model: str | Path, run: str | Path, vehicle: str | None = None) 
     """Per-output error metrics of a saved tracking/planning GP on one recording."""
     from gprace.gp.base import load_model
     from gprace.gp.evaluate import gp_metrics
-    from gprace.gp.features import run_features
+    from gprace.gp.features import dyn_set_of, run_features
     from gprace.io.runs import read_run
 
     saved = load_model(model)
@@ -211,7 +215,7 @@ def evaluate_gp(model: str | Path, run: str | Path, vehicle: str | None = None) 
         raise InputError(f"{model}: GP of feature map {fm or 'unknown'!r}; evaluate gp handles tracking and planning GPs")
     rec = read_run(run)
     step = str(saved.attrs.get("step", "euler"))
-    Z, Y = run_features(rec, fm, _load_vehicle(vehicle), step)
+    Z, Y = run_features(rec, fm, _load_vehicle(vehicle), step, dyn_set_of(saved.input_names))
     if len(Z) == 0:
         raise InputError(f"{run}: no usable sample pairs")
     model_dt = float(saved.attrs.get("dt", 0.0) or 0.0)

@@ -4,13 +4,19 @@ Decision variables, written **relative to the current position** (progress ``s``
 the car, so every number in the QP is of the size of the deviations it controls; REFERENCE.md:
 absolute progress made Clarabel report "Solved" with errors of 5e-2 m/s^2):
 
-    z = [u_0 .. u_{N-1} (2N), x_1 .. x_N (6N), eps_1 .. eps_N (N)]
+    z = [u_0 .. u_{N-1} (2N), x_1 .. x_N (6N), eps_1 .. eps_N (N), eta_1 .. eta_N (N)]
 
     min  sum_{k=1..N} |x_k - xref_k|_Q^2 + sum_{k=0..N-1} |u_k - uref_k|_R^2
          + r_delta sum_{k=0..N-1} (delta_k - delta_{k-1})^2 + rho_1 sum eps_k + rho_2 sum eps_k^2
+         + rho_g1 sum eta_k + rho_g2 sum eta_k^2
     s.t. x_{k+1} = A_k x_k + B_k u_k + c_k              (x_0 given; c_k holds the GP mean)
          u_lo <= u_k <= u_hi
          ey_lo_k - eps_k <= e_y,k <= ey_hi_k + eps_k,  eps_k >= 0
+         g_lo_k - eta_k <= G_k x_k <= g_hi_k + eta_k,   eta_k >= 0   (grip row, see below)
+
+The grip row ``G_k x_k`` (only ``v_x, v_y, yaw_rate`` enter) is the linearised rear slip angle of
+the tracking MPC (:mod:`gprace.mpc.tracking`), softened by its own slack ``eta``. A problem
+without a grip constraint leaves ``G_k = 0`` and wide bounds: the structure is always the same.
 
 ``delta_{-1}`` is the last applied steering angle. The lateral bounds are soft (exact L1 penalty
 ``rho_1`` large): a racing MPC must return an input even when a disturbance has already pushed the
@@ -27,6 +33,8 @@ from scipy import sparse
 
 NXS, NUS = 6, 2
 EY = 4
+GRIP_STATES = (0, 1, 2)  # state entries a grip row may weigh: v_x, v_y, yaw_rate
+GRIP_OPEN = 10.0         # bound of an inactive grip row (a slip angle never reaches it)
 
 
 class QPStatus(enum.Enum):
@@ -62,6 +70,8 @@ class Weights:
     r_delta: float = 2000.0                                      # (delta_k - delta_{k-1})^2
     slack_l1: float = 2000.0
     slack_l2: float = 2000.0
+    grip_l1: float = 1e5        # slack of the grip rows (per rad of rear slip beyond its bound): an exact penalty
+    grip_l2: float = 1e6
 
 
 @dataclass
@@ -80,15 +90,31 @@ class LtvProblem:
     u_hi: np.ndarray      # (2,)
     delta_prev: float
     weights: Weights = field(default_factory=Weights)
+    grip_G: np.ndarray | None = None   # (N, 6) grip row per step (None: no grip constraint)
+    grip_lo: np.ndarray | None = None  # (N,)
+    grip_hi: np.ndarray | None = None  # (N,)
 
     @property
     def N(self) -> int:
         return self.A.shape[0]
 
+    def grip(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(G (N, 6), lo (N,), hi (N,))`` of the grip rows (inactive rows if there are none)."""
+        N = self.N
+        if self.grip_G is None:
+            return np.zeros((N, NXS)), np.full(N, -GRIP_OPEN), np.full(N, GRIP_OPEN)
+        return np.asarray(self.grip_G, float), np.asarray(self.grip_lo, float), np.asarray(self.grip_hi, float)
+
 
 def fail_result(N: int, status: QPStatus, message: str, solve_time: float = 0.0) -> QPResult:
     return QPResult(status, np.full((N, NXS), np.nan), np.full((N, NUS), np.nan), np.full(N, np.nan),
                     np.nan, solve_time, 0, message)
+
+
+def grip_bounds(pb: LtvProblem) -> tuple[np.ndarray, np.ndarray]:
+    """Right-hand sides ``(hi, -lo)`` of the grip rows (shared by the standard-form backends)."""
+    _, lo, hi = pb.grip()
+    return hi, -lo
 
 
 class SparseQP:
@@ -103,12 +129,13 @@ class SparseQP:
         self.N = N
         self.weights = weights
         nu, nx = NUS * N, NXS * N
-        self.nz = nu + nx + N
+        self.nz = nu + nx + 2 * N
         self.iu = lambda k: k * NUS
         self.ix = lambda k: nu + (k - 1) * NXS  # x_k, k = 1..N
         self.ie = lambda k: nu + nx + (k - 1)
+        self.ig = lambda k: nu + nx + N + (k - 1)  # grip slack eta_k
         self.neq = NXS * N
-        self.nin = 2 * NUS * N + 3 * N
+        self.nin = 2 * NUS * N + 3 * N + 3 * N
         self._build_P()
         self._build_M()
 
@@ -122,6 +149,7 @@ class SparseQP:
             d[self.iu(k): self.iu(k) + NUS] += 2 * R
             d[self.ix(k + 1): self.ix(k + 1) + NXS] += 2 * Q
             d[self.ie(k + 1)] += 2 * w.slack_l2
+            d[self.ig(k + 1)] += 2 * w.grip_l2
         # steering-rate term r (delta_k - delta_{k-1})^2
         for k in range(N):
             d[self.iu(k)] += 2 * w.r_delta
@@ -145,7 +173,8 @@ class SparseQP:
         q = np.zeros(self.nz)
         q[: NUS * N] = (-2 * self.Rd * pb.uref).ravel()
         q[NUS * N: NUS * N + NXS * N] = (-2 * self.Qd * pb.xref).ravel()
-        q[NUS * N + NXS * N:] = w.slack_l1
+        q[NUS * N + NXS * N: NUS * N + NXS * N + N] = w.slack_l1
+        q[NUS * N + NXS * N + N:] = w.grip_l1
         q[self.iu(0)] += -2 * w.r_delta * pb.delta_prev
         return q
 
@@ -195,9 +224,21 @@ class SparseQP:
             add(g, self.ix(k) + EY, off_G + len(gvals)); gvals.append(-1.0)
             add(g, self.ie(k), off_G + len(gvals)); gvals.append(-1.0); g += 1
             add(g, self.ie(k), off_G + len(gvals)); gvals.append(-1.0); g += 1
+        # grip: G_k x_k - eta <= hi ; -G_k x_k - eta <= -lo ; -eta <= 0 (G values after the fixed ones)
+        off_S = off_G + len(gvals) + 3 * N  # the eta entries below are fixed values too
+        gfix = []
+        for k in range(1, N + 1):
+            for sign, row in ((1, 0), (-1, 1)):
+                for j, st in enumerate(GRIP_STATES):
+                    add(g + row, self.ix(k) + st, off_S + (k - 1) * 6 + row * 3 + j)
+            for row in range(3):
+                add(g + row, self.ig(k), off_G + len(gvals) + len(gfix)); gfix.append(-1.0)
+            g += 3
+        gvals += gfix
         self._gvals = np.array(gvals)
         self._off = (off_I, off_A, off_B, off_G)
-        nval = off_G + len(gvals)
+        self._off_S = off_S
+        nval = off_S + 6 * N
         M = sparse.coo_matrix((np.arange(1, len(rows) + 1, dtype=float), (rows, cols)), shape=(self.neq + self.nin, self.nz)).tocsc()
         M.sort_indices()
         order = M.data.astype(int) - 1          # position in the (rows, cols, src) lists
@@ -210,7 +251,7 @@ class SparseQP:
         v = np.zeros(self._nval)
         off_I, _, _, off_G = self._off
         v[off_I: off_I + NXS * self.N] = 1.0
-        v[off_G:] = self._gvals
+        v[off_G: off_G + len(self._gvals)] = self._gvals
         return v
 
     def fill(self, pb: LtvProblem) -> tuple[np.ndarray, np.ndarray]:
@@ -220,20 +261,24 @@ class SparseQP:
         _, off_A, off_B, _ = self._off
         v[off_A: off_A + 36 * (N - 1)] = -pb.A[1:].reshape(-1)
         v[off_B: off_B + 12 * N] = -pb.B.reshape(-1)
+        G, _, _ = pb.grip()
+        Gs = G[:, GRIP_STATES]
+        v[self._off_S:] = np.concatenate([Gs, -Gs], axis=1).reshape(-1)
         beq = pb.c.copy()
         beq[0] += pb.A[0] @ pb.x0
         hu = np.empty((N, NUS, 2))
         hu[:, :, 0] = pb.u_hi
         hu[:, :, 1] = -pb.u_lo
         hl = np.column_stack([pb.ey_hi, -pb.ey_lo, np.zeros(N)])
-        b = np.concatenate([beq.ravel(), hu.ravel(), hl.ravel()])
+        hg = np.column_stack([*grip_bounds(pb), np.zeros(N)])
+        b = np.concatenate([beq.ravel(), hu.ravel(), hl.ravel(), hg.ravel()])
         return v[self._perm], b
 
     def unpack(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         N = self.N
         u = z[: NUS * N].reshape(N, NUS)
         x = z[NUS * N: NUS * N + NXS * N].reshape(N, NXS)
-        eps = z[NUS * N + NXS * N:]
+        eps = z[NUS * N + NXS * N: NUS * N + NXS * N + N]
         return x, u, eps
 
 

@@ -22,6 +22,14 @@ Each control period:
    features ``[v_y, yaw_rate, delta]`` of that nominal trajectory enters the affine term.
 5. **Chance-constraint tightening**: ``Sigma_{k+1} = A_k Sigma_k A_k^T + diag(0, var_vy, var_r, 0..)``
    from ``Sigma_0 = 0`` (GP latent variances); ``gamma_k = sqrt(2) sigma_ey,k erfinv(2 beta - 1)``.
+5b. **Grip** (beyond the paper; Liniger et al. 2015, Kabzan et al. 2019 bound tire slip or the
+   friction ellipse in the racing MPC itself): the rear slip angle
+   ``alpha_r = -atan((v_y - l_r r) / v_x)``, linearised along the nominal trajectory, is kept within
+   ``grip_share`` of the nominal rear tire's peak slip angle ``tan(pi / (2 C_r)) / B_r``, softened
+   by its own slack and tightened like ``e_y`` by ``sqrt(2) sigma_alpha,k erfinv(2 beta - 1)`` with
+   ``sigma_alpha^2 = g_k Sigma_k g_k^T``. The car is lost through v_y and yaw rate, which the
+   paper's QP does not bound; the peak slip angle does not depend on mu, so the bound holds on a
+   car with less grip than the model. ``grip = False`` gives the paper's QP.
    The paper prints ``erf`` here; the one-sided quantile of ``Pr[e_y + eps <= w] >= beta`` is the
    INVERSE error function (``erfinv(2 beta - 1) = Phi^-1(beta) / sqrt 2``). ``gamma`` is 0 at zero
    GP variance and grows with it; beta = 0.6 gives ``gamma = 0.253 sigma``.
@@ -38,9 +46,12 @@ import numpy as np
 from scipy.special import erfinv
 
 from gprace.errors import ConfigError
+from gprace.gp.features import DYN_INPUTS, dyn_inputs
 from gprace.mpc.qp import EY, LtvProblem, QPStatus, Weights
 
-FEATURES = ("v_y", "yaw_rate", "delta")
+FEATURES = DYN_INPUTS
+EXPLORED = ("v_y", "yaw_rate", "delta")  # features Algorithm 1 may move the reference to
+_REF = {"v_x": ("x", 0), "v_y": ("x", 1), "yaw_rate": ("x", 2), "delta": ("u", 0), "a_x": ("u", 1)}
 
 
 @dataclass(frozen=True)
@@ -53,27 +64,64 @@ class MPCSettings:
     integrator: str = "rk4"        # prediction step: "rk4" (default) or "euler" (the paper's)
     explore_radius: float = 0.5    # exploration trust region: candidates within this scaled distance of z~
     explore_brake: float = 0.5     # no exploration while the reference brakes harder than this share of the limit
+    grip: bool = True              # bound the rear slip angle (False: the paper's QP)
+    grip_share: float = 0.9        # share of the nominal rear tire's peak slip angle
     weights: Weights = field(default_factory=Weights)
 
+    def __post_init__(self) -> None:
+        if not 0.0 < self.grip_share <= 2.0:
+            raise ConfigError(f"grip_share must be in (0, 2], got {self.grip_share}")
 
-def tightening(A: np.ndarray, var: np.ndarray, beta: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(gamma (N,), sigma_ey (N,))`` for steps ``k = 1..N`` from ``A`` (N, 6, 6), GP variances (N, 2).
+
+def covariances(A: np.ndarray, var: np.ndarray) -> np.ndarray:
+    """State covariances ``Sigma_k (N, 6, 6)`` for steps ``k = 1..N``.
 
     ``Sigma_{k+1} = A_k Sigma_k A_k^T + Sigma_GP,k`` with ``Sigma_0 = 0`` (the current state is
     measured), ``Sigma_GP,k = diag(0, var_vy, var_r, 0, 0, 0)``.
     """
-    if not 0.0 < beta < 1.0:
-        raise ConfigError(f"beta must be in (0, 1), got {beta}")
     N = A.shape[0]
     S = np.zeros((6, 6))
-    sig = np.empty(N)
+    out = np.empty((N, 6, 6))
     for k in range(N):  # recursion over the horizon (N = 20 small matrices)
         S = A[k] @ S @ A[k].T
         S[1, 1] += var[k, 0]
         S[2, 2] += var[k, 1]
-        sig[k] = np.sqrt(max(S[EY, EY], 0.0))
-    gamma = np.sqrt(2.0) * sig * erfinv(2.0 * beta - 1.0)  # the paper's "erf" read as its inverse
-    return gamma, sig
+        out[k] = S
+    return out
+
+
+def quantile_factor(beta: float) -> float:
+    """``sqrt(2) erfinv(2 beta - 1)``: the one-sided ``beta`` quantile of a unit Gaussian."""
+    if not 0.0 < beta < 1.0:
+        raise ConfigError(f"beta must be in (0, 1), got {beta}")
+    return float(np.sqrt(2.0) * erfinv(2.0 * beta - 1.0))  # the paper's "erf" read as its inverse
+
+
+def tightening(A: np.ndarray, var: np.ndarray, beta: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(gamma (N,), sigma_ey (N,))`` for steps ``k = 1..N`` from ``A`` (N, 6, 6), GP variances (N, 2)."""
+    q = quantile_factor(beta)
+    sig = np.sqrt(np.maximum(covariances(A, var)[:, EY, EY], 0.0))
+    return q * sig, sig
+
+
+def rear_slip_rows(X: np.ndarray, lr: float, v_min: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rear slip angle ``alpha_r (n,)`` at states ``X (n, 6)`` and its gradient rows ``G (n, 6)``.
+
+    ``alpha_r = -atan((v_y - l_r r) / v_x)`` with ``v_x`` floored at ``v_min`` (as the model).
+    """
+    vx = np.maximum(X[:, 0], v_min)
+    w = X[:, 1] - lr * X[:, 2]
+    den = vx**2 + w**2
+    G = np.zeros((len(X), 6))
+    G[:, 0] = np.where(X[:, 0] > v_min, w / den, 0.0)
+    G[:, 1] = -vx / den
+    G[:, 2] = lr * vx / den
+    return -np.arctan(w / vx), G
+
+
+def peak_slip(b: float, c: float) -> float:
+    """Slip angle [rad] of the peak of ``sin(C atan(B alpha))``: ``tan(pi / (2 C)) / B``."""
+    return float(np.tan(np.pi / (2.0 * c)) / b) if c > 1.0 else float(np.pi / 2)
 
 
 class TrackingMPC:
@@ -88,7 +136,11 @@ class TrackingMPC:
             raise ConfigError("exploration (alpha > 0) needs a candidate grid from a trained tracking GP")
         self.model, self.track, self.plan, self.s = model, track, plan, settings
         self.gp, self.grid, self.alpha = gp, grid, float(alpha)
+        self.inputs = tuple(getattr(gp, "inputs", DYN_INPUTS))  # a plain callable takes the paper's inputs
         self.N, self.dt = settings.N, settings.dt
+        p = model.params
+        self.slip_max = settings.grip_share * peak_slip(p.br, p.cr)
+        self.quantile = quantile_factor(settings.beta)
         self.qp = solvers.create(settings.solver, settings.N, settings.weights)
         self._lin = self._build_linearisation()
         lim = model.vehicle.limits
@@ -140,7 +192,7 @@ class TrackingMPC:
 
         if uref[:, 1].min() < self.s.explore_brake * self.u_lo[1]:
             return xref, uref  # braking zone: perform, do not explore
-        z_tilde = np.array([xref[0, 1], xref[0, 2], uref[0, 0]])
+        z_tilde = dyn_inputs(xref[:1], uref[:1], self.inputs)[0]
         g = self.grid
         near = np.linalg.norm((g.Z - z_tilde) / g.scale, axis=1) <= self.s.explore_radius
         if not near.any():
@@ -148,8 +200,15 @@ class TrackingMPC:
         sub = CandidateGrid(g.Z[near], g.v[near], g.scale)
         z = sub.Z[select_target(sub, z_tilde, self.alpha)]
         self.last_target = z
+        # the inverse feature map: the lateral features become the reference over the horizon;
+        # v_x and a_x (feature set "full") stay the performance reference's (decision: explore
+        # the lateral dynamics, not the speed profile)
         xref, uref = xref.copy(), uref.copy()
-        xref[:, 1], xref[:, 2], uref[:, 0] = z[0], z[1], z[2]
+        ref = {"x": xref, "u": uref}
+        for j, name in enumerate(self.inputs):
+            if name in EXPLORED:
+                where, col = _REF[name]
+                ref[where][:, col] = z[j]
         return xref, uref
 
     def build(self, x_meas: np.ndarray) -> tuple[LtvProblem, dict]:
@@ -175,14 +234,25 @@ class TrackingMPC:
         Xr = Xb.copy()
         Xr[:, 5] -= s0
         xn[:, 5] -= s0
-        c = xn - np.einsum("kij,kj->ki", A, Xr) - np.einsum("kij,kj->ki", B, Ub)
         var = np.zeros((N, 2))
+        mean = np.zeros((N, 2))
         if self.gp is not None:
-            Z = np.column_stack([Xb[:, 1], Xb[:, 2], Ub[:, 0]])
-            mean, var = self.gp(Z)
-            c[:, 1] += mean[:, 0]
-            c[:, 2] += mean[:, 1]
-        gamma, _ = tightening(A, var, self.s.beta)
+            if hasattr(self.gp, "at_with_gradient"):
+                # the GP is linearised with the nominal model: its mean is evaluated on the nominal
+                # trajectory (the paper) and its gradient enters A and B. Measured: with the mean
+                # as a constant only, a GP that learned the steering lag (mean falling with delta)
+                # made successive solutions flip sign until full lock on a straight.
+                mean, var, J = self.gp.at_with_gradient(Xb, Ub)
+                A, B = A.copy(), B.copy()
+                for j, name in enumerate(self.inputs):
+                    where, col = _REF[name]
+                    (A if where == "x" else B)[:, 1:3, col] += J[:, :, j]
+            else:
+                mean, var = self.gp(dyn_inputs(Xb, Ub, self.inputs))
+        c = xn - np.einsum("kij,kj->ki", A, Xr) - np.einsum("kij,kj->ki", B, Ub)
+        c[:, 1:3] += mean
+        Sig = covariances(A, var)
+        gamma = self.quantile * np.sqrt(np.maximum(Sig[:, EY, EY], 0.0))
         s_pred = Xb[:, 5] + (xn[:, 5] - Xr[:, 5])  # absolute s at k = 1..N along the nominal
         hi = self.track.width_left(s_pred) - self.half - gamma
         lo = -self.track.width_right(s_pred) + self.half + gamma
@@ -191,7 +261,17 @@ class TrackingMPC:
         hi[bad], lo[bad] = mid[bad], mid[bad]
         x0 = x_meas.copy()
         x0[5] = 0.0
-        pb = LtvProblem(A, B, c, x0, xref, uref, lo, hi, self.u_lo, self.u_hi, self.delta_prev, self.s.weights)
+        grip = {}
+        if self.s.grip:
+            # rear slip linearised about the REFERENCE x_1..x_N: a + G (x - xref). Measured: about
+            # the previous solution (as the dynamics) the rows fed back on themselves, and an
+            # alternating exploration target made successive solutions flip until full lock.
+            a_r, G = rear_slip_rows(xr0, self.model.params.lr, self.model.params.vmin)
+            sig_a = np.sqrt(np.maximum(np.einsum("ki,kij,kj->k", G, Sig, G), 0.0))
+            off = a_r - np.einsum("ki,ki->k", G, xr0)
+            room = np.maximum(self.slip_max - self.quantile * sig_a, 0.2 * self.slip_max)
+            grip = {"grip_G": G, "grip_lo": -room - off, "grip_hi": room - off}
+        pb = LtvProblem(A, B, c, x0, xref, uref, lo, hi, self.u_lo, self.u_hi, self.delta_prev, self.s.weights, **grip)
         return pb, {"gamma": gamma, "s0": s0, "xref": xref, "uref": uref, "explored": xref is not xr0}
 
     def step(self, x_meas: np.ndarray) -> tuple[np.ndarray, dict]:

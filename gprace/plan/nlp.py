@@ -44,6 +44,8 @@ class PlanSettings:
     grip: float | None = None     # if set: friction ellipse (a_x/a_lim)^2 + (v_x r/a_lat)^2 <= 1 at this share of the
                                   # model's own limits (a margin for a car the model does not know; off by default)
     grip_brake: float | None = None  # share of the braking limit inside the ellipse (default: grip)
+    limits: tuple[float, float, float] | None = None  # friction ellipse in m/s^2: (lateral, drive, brake > 0);
+                                  # overrides grip/grip_brake (the time trial widens it from measured laps)
     max_iter: int = 1500
     tol: float = 1e-6
     print_level: int = 0
@@ -53,8 +55,9 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
                   mu_plan=None) -> Plan:
     """Solve the minimum-time lap; ``warm`` is the initial guess (default: the curvature plan).
 
-    ``mu_plan`` is a callable ``Z (n, 3) = [v_y, yaw_rate, delta] -> (n, 2)`` mean derivative errors
-    (the planning GP), evaluated once on the initial guess; ``None`` plans with the nominal model.
+    ``mu_plan`` is a callable ``(X (n, 6), U (n, 2)) -> (n, 2)`` mean derivative errors (the
+    planning GP, which builds its own inputs from them), evaluated once on the initial guess;
+    ``None`` plans with the nominal model.
     """
     import casadi as ca
 
@@ -76,8 +79,7 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
     X0, U0 = _resample(warm, s)
     comp = np.zeros((n, 2))
     if mu_plan is not None:
-        Z = np.column_stack([X0[:, 1], X0[:, 2], U0[:, 0]])
-        comp = np.asarray(mu_plan(Z), dtype=float).reshape(n, 2)
+        comp = np.asarray(mu_plan(X0, U0), dtype=float).reshape(n, 2)
         if not np.all(np.isfinite(comp)):
             raise SolverError("plan: the planning GP returned non-finite compensation")
 
@@ -113,11 +115,10 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
     reg = settings.w_steer * ca.sumsqr(dU[0, :]) + settings.w_accel * ca.sumsqr(dU[1, :])
     g_all = [ca.vec(defect)]
     lbg, ubg = [np.zeros(5 * n)], [np.zeros(5 * n)]
-    if settings.grip is not None:
-        from gprace.plan.curvature import lateral_limit
-
-        a_lat = settings.grip * lateral_limit(model)
-        a_lon = ca.if_else(U[1, :] >= 0, U[1, :] / (settings.grip * lim.accel_max), U[1, :] / ((settings.grip_brake or settings.grip) * lim.accel_min))
+    ellipse = ellipse_limits(model, settings)
+    if ellipse is not None:
+        a_lat, a_drive, a_brake = ellipse
+        a_lon = ca.if_else(U[1, :] >= 0, U[1, :] / a_drive, -U[1, :] / a_brake)
         g_all.append(ca.vec(a_lon**2 + (X[0, :] * X[2, :] / a_lat) ** 2))
         lbg.append(np.full(n, -np.inf))
         ubg.append(np.ones(n))
@@ -167,6 +168,22 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
         meta={"ds": h, "iterations": int(stats["iter_count"]), "solve_time": time.perf_counter() - t0,
               "gp": mu_plan is not None, "warm": warm.method, "max_abs_mu_plan": float(np.max(np.abs(comp))) if n else 0.0},
     )
+
+
+def ellipse_limits(model, settings: PlanSettings) -> tuple[float, float, float] | None:
+    """``(a_lat, a_drive, a_brake)`` [m/s^2, all > 0] of the planner's friction ellipse, or None."""
+    if settings.limits is not None:
+        lat, drive, brake = (float(v) for v in settings.limits)
+        if min(lat, drive, brake) <= 0:
+            raise ConfigError(f"plan: friction-ellipse limits must be positive, got {settings.limits}")
+        return lat, drive, brake
+    if settings.grip is None:
+        return None
+    from gprace.plan.curvature import lateral_limit
+
+    lim = model.vehicle.limits
+    return (settings.grip * lateral_limit(model), settings.grip * lim.accel_max,
+            -(settings.grip_brake or settings.grip) * lim.accel_min)
 
 
 def _extra_opts() -> dict:

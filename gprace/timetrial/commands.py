@@ -63,7 +63,7 @@ def register(app: typer.Typer) -> None:
                 from gprace.timetrial.learning import load_predictor
 
                 gp = load_predictor(model, "planning")
-                mu = lambda Z: gp(Z)[0]  # noqa: E731
+                mu = lambda X, U: gp.at(X, U)[0]  # noqa: E731
             plan = plan_min_time(tr, m, PlanSettings(ds=ds, grip=grip), warm=warm, mu_plan=mu)
         plan.write(output)
         console.result(f"{output}: {plan.method} plan of {tr.name}, lap time {plan.lap_time:.3f} s, {plan.n} nodes")
@@ -142,6 +142,8 @@ def register(app: typer.Typer) -> None:
         track: str = typer.Option("gprace_ring", "--track", help="Track."),
         vehicle: str = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle of planner and MPC."),
         dictionary: int = typer.Option(1000, "--dictionary-size", help="GP dictionary size M per GP."),
+        features: str = typer.Option("full", "--features", help="GP inputs: full [v_x, v_y, yaw_rate, delta, a_x] or paper [v_y, yaw_rate, delta]."),
+        grip: bool = typer.Option(True, "--grip/--no-grip", help="Rear-slip (grip) constraint in the tracking MPC; --no-grip is the paper's QP."),
         solver: str = typer.Option("clarabel", "--solver", help="QP backend."),
         seed: int = typer.Option(0, "--seed", help="Base seed."),
         executor: str = typer.Option("local", "--executor", help="local or dask."),
@@ -154,10 +156,46 @@ def register(app: typer.Typer) -> None:
         from gprace.timetrial.iterate import IterateSettings, iterate
 
         st = IterateSettings(alphas=_floats(alpha, "--alpha"), iterations=iterations, trials=trials, selection=selection,
-                             plant=plant, track=track, vehicle=vehicle, dictionary_size=dictionary, solver=solver, seed=seed)
+                             plant=plant, track=track, vehicle=vehicle, dictionary_size=dictionary, solver=solver, seed=seed,
+                             features=features, grip=grip)
         st.check()
         summary = iterate(st, out, executor=executor, workers=workers, scheduler=scheduler)
         _print_summary(summary, as_json)
+
+    from gprace.h2h.commands import _group
+
+    @_group(app, "eval", "Evaluation protocols of the paper.").command("timetrial")
+    def eval_timetrial(
+        plant: str = typer.Option("audi_hidden", "--plant", help="Plant config."),
+        track: str = typer.Option("gprace_ring", "--track", help="Track: shipped name or a TUM CSV/TOML path."),
+        vehicle: str = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle of planner and MPC."),
+        trials: int = typer.Option(3, "--trials", help="Independent repetitions (the same seeds in both variants)."),
+        iterations: int = typer.Option(7, "--iterations", help="GP iterations after the nominal iteration 0."),
+        features: str = typer.Option("full", "--features", help="GP inputs: full or paper."),
+        dictionary: int = typer.Option(1000, "--dictionary-size", help="GP dictionary size M per GP."),
+        seed: int = typer.Option(0, "--seed", help="Base seed."),
+        executor: str = typer.Option("local", "--executor", help="local or dask."),
+        workers: int = typer.Option(2, "--workers", help="Parallel trials."),
+        scheduler: str | None = typer.Option(None, "--scheduler", help="Dask scheduler address."),
+        out: Path = typer.Option(Path("timetrial_out"), "--out", help="Folder of both variants (rerun to resume)."),
+        as_json: bool = typer.Option(False, "--json", help="Print the table as JSON."),
+    ) -> None:
+        """The paper's comparison: exploration (alpha 0.857,0.714,0, diverse) vs Double GP (alpha 0, random)."""
+        from gprace.console import console
+        from gprace.errors import RunFailedError
+        from gprace.timetrial.compare import compare, format_table
+        from gprace.timetrial.iterate import IterateSettings
+
+        st = IterateSettings(iterations=iterations, trials=trials, plant=plant, track=track, vehicle=vehicle,
+                             dictionary_size=dictionary, seed=seed, features=features)
+        st.check()
+        res = compare(st, out, executor=executor, workers=workers, scheduler=scheduler)
+        if as_json:
+            console.json(res)
+        else:
+            console.result(format_table(res))
+        if res["error"]:
+            raise RunFailedError(res["error"])
 
     ev = evaluate_group(app)
 
@@ -188,13 +226,24 @@ def _print_summary(summary: dict, as_json: bool) -> None:
     for r in summary["rows"]:
         lines.append(" ".join(_cell(r.get(k)) for k in keys) + ("" if r.get("completed", True) else f"  ({r.get('reason')})"))
     lines.append("")
-    lines.append("per iteration, mean +- std over trials")
-    head2 = ("iter", "alpha", "trials", "planned", "+-", "driven", "+-", "gap", "errTrk", "errPln", "done")
-    keys2 = ("iteration", "alpha", "trials", "planned_mean", "planned_std", "driven_mean", "driven_std", "gap_mean",
-             "err_tracking", "err_planning", "completed")
+    lines.append("per iteration, mean +- std over the completed laps; done = laps completed of laps driven;")
+    lines.append("cov = smallest share of held-out errors inside the GP's 95 % band; closed = smallest share of the")
+    lines.append("gap between iteration 0 and the oracle lap closed by a trial")
+    head2 = ("iter", "alpha", "done", "planned", "+-", "driven", "+-", "gap", "errTrk", "errPln", "covTrk", "covPln", "closed")
+    keys2 = ("iteration", "alpha", "done", "planned_mean", "planned_std", "driven_mean", "driven_std", "gap_mean",
+             "err_tracking", "err_planning", "cov_tracking", "cov_planning", "gap_closed_min")
     lines.append(" ".join(f"{h:>7}" for h in head2))
     for a in summary["by_iteration"]:
+        a = {**a, "done": f"{a['completed']}/{a['trials']}"}
         lines.append(" ".join(_cell(a.get(k)) for k in keys2))
+    o = summary.get("oracle")
+    if o is not None:
+        lines.append("")
+        if o.get("known"):
+            lines.append(f"oracle lap (true physics: {', '.join(o.get('effects', []))}): planned {_cell(o['planned']).strip()} s, "
+                         f"driven {_cell(o['driven']).strip()} s" + ("" if o.get("completed") else f" ({o.get('reason')})"))
+        else:
+            lines.append(f"oracle lap: unknown ({o.get('why', 'plant physics not known')})")
     console.result("\n".join(lines))
 
 

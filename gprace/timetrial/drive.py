@@ -59,6 +59,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
 
     L = track.length
     goal = settings.laps * L
+    v_stall = min(1.0, 0.5 * float(plan.v_x.min()))  # 1 m/s, or half the plan's slowest corner (1:10 cars)
     n_max = int(math.ceil(settings.laps * plan.lap_time * 2.0 / dt)) + 40
     vehicle = model.vehicle
     Y = np.empty((n_max + 1, 6))
@@ -84,7 +85,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
             break
         if x[4] > wl + 2 * vehicle.width or x[4] < -wr - 2 * vehicle.width:
             reason = f"the car left the track at s = {x[5]:.1f} m (e_y = {x[4]:.2f} m)"
-        elif x[0] < 1.0:
+        elif x[0] < v_stall:
             reason = f"the car stalled at s = {x[5]:.1f} m"
         elif abs(x[3]) > 1.2 or abs(x[1]) > 0.6 * abs(x[0]) + 2.0:
             reason = f"the car spun at s = {x[5]:.1f} m (e_psi = {x[3]:.2f} rad, v_y = {x[1]:.1f} m/s)"

@@ -3,17 +3,24 @@
 Per trial (an independent chain with its own seed; trials run in parallel through
 :func:`gprace.executor.run_batch`):
 
-- iteration 0: the nominal MPC (no GP) drives the minimum-curvature path;
+- iteration 0: the nominal MPC (no GP) drives the minimum-curvature path at a conservative share
+  ``first_speed_scale`` of the nominal model's limits;
 - iteration i >= 1 with ``alpha_i`` (the ``--alpha`` list, its last value repeated up to
   ``--iterations``): (1) the measurements of iteration i-1 are streamed into the dictionaries of
   both GPs (``diverse`` selection of the paper or the ``random`` baseline, accumulating over
   iterations); (2) both GPs are retrained (hyperparameters by marginal likelihood on the first
   retrain only, then posterior refits with those hyperparameters fixed; see
   :mod:`gprace.timetrial.learning`), the exploration candidates and their weighted variances are
-  computed; (3) the lap is re-planned with the planning GP, warm-started from the previous plan;
-  (4) the tracking MPC with the tracking GP drives it with ``alpha_i``. If the re-plan fails (IPOPT
-  reports infeasible or runs out of iterations, seen with strong GP compensations), the previous
-  plan is driven again and the record says ``replan_failed``.
+  computed; (3) the lap is re-planned with the planning GP, warm-started from the last plan that
+  completed a lap, inside a friction ellipse widened from the accelerations measured on the last
+  lap (:mod:`gprace.timetrial.grip`; a failed lap narrows it); (4) the tracking MPC with the
+  tracking GP drives it with ``alpha_i``. If the re-plan fails (IPOPT reports infeasible or runs
+  out of iterations), the last plan that completed a lap is driven again and the record says
+  ``replan_failed``.
+
+The oracle lap (``oracle.json``, plants whose physics are known: ``frenet``): the same planner on
+the plant's true model (nominal vehicle plus its effects, actuator lags left out), no ellipse,
+driven by the tracking MPC of that model. It is what perfect model knowledge would give.
 
 Folder layout (``--out DIR``)::
 
@@ -21,6 +28,7 @@ Folder layout (``--out DIR``)::
     heldout.h5                          a weaving run of the plant (GP test set, shared by trials)
     trial_<j>/iter_<i>/plan.h5 run.h5 gp_tracking.h5 gp_planning.h5 data_*.h5 candidates.h5 record.json
     trial_<j>/hyper_tracking.h5 hyper_planning.h5
+    oracle.json oracle_plan.h5 oracle_run.h5   the oracle lap (or {"known": false})
     .steps/<name>.done                  written only after the step's artifacts are on disk
     summary.json
 
@@ -56,9 +64,12 @@ class IterateSettings:
     dictionary_size: int = 1000
     max_fit_points: int = 300
     plan_ds: float = 6.0
-    first_speed_scale: float = 0.85
-    plan_grip: float = 0.9
-    plan_grip_brake: float = 0.7
+    first_speed_scale: float = 0.7
+    plan_grip: float = 1.0           # cap of the widened ellipse: share of the nominal model's limits
+    widen: float = 0.05              # widening of the measured envelope per clean lap
+    features: str = "full"           # GP inputs: "full" or "paper" (gprace.gp.features.DYN_FEATURE_SETS)
+    grip: bool = True                # rear-slip constraint in the tracking MPC
+    oracle: bool = True              # plan and drive the oracle lap (frenet plants)
     solver: str = "clarabel"
     beta: float = 0.6
     laps: float = 1.0
@@ -83,6 +94,13 @@ class IterateSettings:
             raise ConfigError(f"--selection must be diverse or random, got {self.selection!r}")
         if self.dictionary_size < 10:
             raise ConfigError("dictionary size must be >= 10")
+        from gprace.gp.features import dyn_feature_set
+
+        dyn_feature_set(self.features)
+        if not 0.0 < self.first_speed_scale <= 1.0:
+            raise ConfigError(f"first speed scale must be in (0, 1], got {self.first_speed_scale}")
+        if not 0.0 <= self.widen < 0.5:
+            raise ConfigError(f"widen must be in [0, 0.5), got {self.widen}")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -106,9 +124,27 @@ class Steps:
             raise RuntimeError(f"injected failure after step {name}")
 
 
+def jsonable(obj):
+    """``obj`` with every non-finite float as None (strict JSON: ``null``, never a bare NaN)."""
+    if isinstance(obj, dict):
+        return {k: jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj
+
+
+def read_record(path: Path) -> dict:
+    """A record written by :func:`_write_json`, with ``null`` read back as NaN."""
+    return {k: float("nan") if v is None else v for k, v in json.loads(Path(path).read_text()).items()}
+
+
 def _write_json(path: Path, obj) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(obj, indent=1, default=float))
+    tmp.write_text(json.dumps(jsonable(obj), indent=1, allow_nan=False))
     os.replace(tmp, path)
 
 
@@ -119,37 +155,77 @@ def _write_json(path: Path, obj) -> None:
 def iterate(settings: IterateSettings, out: str | Path, executor: str = "local", workers: int = 1,
             scheduler: str | None = None, progress=None) -> dict:
     """Run (or resume) the experiment in ``out``; return the summary."""
-    from gprace.config import load_plant
+    return iterate_many([(settings, out)], executor, workers, scheduler)[0]
+
+
+def iterate_many(experiments, executor: str = "local", workers: int = 1, scheduler: str | None = None) -> list[dict]:
+    """Run (or resume) several experiments ``[(settings, out), ...]`` with all their trials in one batch.
+
+    Experiments on the same plant, track and seed share the held-out run and the oracle lap (the
+    first computes them, the others copy them).
+    """
     from gprace.executor import run_batch
+
+    tasks: list[dict] = []
+    prepared: list[tuple[IterateSettings, Path]] = []
+    for settings, out in experiments:
+        out = Path(out)
+        share = next((o for st, o in prepared if _shares_references(st, settings)), None)
+        tasks += _prepare(settings, out, share)
+        prepared.append((settings, out))
+    outs = [o for _, o in prepared]
+    results = run_batch(run_chain, tasks, executor=executor, workers=workers, scheduler=scheduler, label="trials")
+    summaries = []
+    for out in outs:
+        summary = build_summary(out)
+        _write_json(out / "summary.json", summary)
+        summaries.append(summary)
+    failed = [r for r in results if not r.ok]
+    if failed:
+        first = failed[0].error.splitlines()[0]
+        raise RunFailedError(f"iterate: {len(failed)} of {len(tasks)} trials failed ({first}); rerun the same command to resume")
+    return summaries
+
+
+def _shares_references(a: IterateSettings, b: IterateSettings) -> bool:
+    keys = ("plant", "track", "vehicle", "seed", "heldout_laps", "heldout_weave", "plan_ds", "laps", "solver", "beta", "grip")
+    return all(getattr(a, k) == getattr(b, k) for k in keys)
+
+
+def _prepare(settings: IterateSettings, out: Path, share: Path | None = None) -> list[dict]:
+    """Check the settings, write or match ``settings.json``, make the held-out run and the oracle lap."""
+    import shutil
+
+    from gprace.config import load_plant
     from gprace.tracks import load_track
 
     settings.check()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    sfile = out / "settings.json"
+    load_track(settings.track)  # fail early on a bad name, before anything is written
+    load_plant(settings.plant)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a folder")
     mine = json.loads(json.dumps(asdict(settings)))
+    sfile = out / "settings.json"
     if sfile.exists():
         old = json.loads(sfile.read_text())
         if old != mine:
             diff = sorted(k for k in set(old) | set(mine) if old.get(k) != mine.get(k))
             raise InputError(f"{out}: holds an experiment with other settings ({', '.join(diff)}); use another --out")
     else:
+        out.mkdir(parents=True, exist_ok=True)
         _write_json(sfile, mine)
-    load_track(settings.track)  # fail early on a bad name
-    load_plant(settings.plant)
     steps = Steps(out)
-    if not steps.done("heldout"):
-        _heldout(settings, out)
-        steps.mark("heldout")
-    tasks = [{"out": str(out), "trial": j, "settings": mine} for j in range(settings.trials)]
-    results = run_batch(run_chain, tasks, executor=executor, workers=workers, scheduler=scheduler, label="trials")
-    failed = [r for r in results if not r.ok]
-    summary = build_summary(out)
-    _write_json(out / "summary.json", summary)
-    if failed:
-        first = failed[0].error.splitlines()[0]
-        raise RunFailedError(f"iterate: {len(failed)} of {len(tasks)} trials failed ({first}); rerun the same command to resume")
-    return summary
+    for name, files, make in (("heldout", ("heldout.h5",), lambda: _heldout(settings, out)),
+                              ("oracle", ("oracle.json",), lambda: _write_json(out / "oracle.json", oracle_lap(settings, out)))):
+        if steps.done(name):
+            continue
+        if share is not None and all((share / f).exists() for f in files):
+            for f in files:
+                shutil.copy2(share / f, out / f)
+        else:
+            make()
+        steps.mark(name)
+    return [{"out": str(out), "trial": j, "settings": mine} for j in range(settings.trials)]
 
 
 def _heldout(settings: IterateSettings, out: Path) -> None:
@@ -163,6 +239,61 @@ def _heldout(settings: IterateSettings, out: Path) -> None:
                    SimulateConfig(laps=settings.heldout_laps, speed_scale=0.8, weave_amplitude=settings.heldout_weave,
                                   weave_wavelength=120.0, seed=settings.seed + 7919))
     write_run(run, out / "heldout.h5")
+
+
+ORACLE_MARGINS = (1.0, 0.95, 0.9, 0.85, 0.8)  # shares of the true grip the oracle plans with, tried in turn
+
+
+def oracle_lap(settings: IterateSettings, out: Path | None = None) -> dict:
+    """Plan and drive the oracle lap; ``{"known": False}`` for a plant whose physics are unknown.
+
+    The planner runs on the true model (nominal vehicle plus the plant's stateless effects; the
+    actuator lags are left out) with its tire friction scaled by a margin, and the tracking MPC of
+    the true model drives it. Measured on audi_hidden / gprace_ring: the lap planned at the true
+    limit (margin 1.0, 50.8 s) and at 0.95 spin the car (unmodelled steering lag, sensor noise);
+    the first margin of ``ORACLE_MARGINS`` whose lap completes is the oracle, and it is recorded.
+    """
+    from gprace.config import EffectConfig, load_plant, load_vehicle
+    from gprace.errors import SolverError
+    from gprace.model import NominalModel
+    from gprace.model.effects import make_effect
+    from gprace.mpc.tracking import MPCSettings
+    from gprace.plan import PlanSettings, plan_min_time
+    from gprace.timetrial.drive import DriveSettings, drive
+    from gprace.tracks import load_track
+
+    plant = load_plant(settings.plant)
+    if plant.kind != "frenet":
+        return {"known": False, "why": f"the physics of plant kind {plant.kind!r} are not known to gprace"}
+    if not settings.oracle:
+        return {"known": False, "why": "not computed (oracle = false)"}
+    vehicle = load_vehicle(settings.vehicle)
+    effects = [e for e in plant.effects if make_effect(e).n_states == 0]
+    truth = NominalModel(vehicle, effects)
+    track = load_track(settings.track)
+    dset = DriveSettings(laps=settings.laps, mpc=MPCSettings(solver=settings.solver, beta=settings.beta, grip=settings.grip))
+    res: dict = {"known": True, "planned": float("nan"), "driven": float("nan"), "completed": False,
+                 "effects": [e.name for e in effects], "tried": []}
+    for margin in ORACLE_MARGINS:
+        scaled = NominalModel(vehicle, effects + [EffectConfig(name="tire_friction", params={"front": margin, "rear": margin})])
+        try:
+            plan = plan_min_time(track, scaled, PlanSettings(ds=settings.plan_ds))
+        except SolverError as exc:
+            res["tried"].append({"margin": margin, "reason": str(exc)})
+            continue
+        run = drive(plan, plant, track, truth, dset, seed=settings.seed * 1000 + 999)
+        m = run.meta
+        res["tried"].append({"margin": margin, "planned": float(plan.lap_time), "driven": float(m["lap_time"]), "reason": m["reason"]})
+        if m["completed"]:
+            res.update(planned=float(plan.lap_time), driven=float(m["lap_time"]), completed=True, margin=margin, reason="")
+            if out is not None:
+                from gprace.io.runs import write_run
+
+                plan.write(out / "oracle_plan.h5")
+                write_run(run, out / "oracle_run.h5")
+            return res
+    res["reason"] = "no margin gave a completed lap"
+    return res
 
 
 def run_chain(task: dict) -> list[dict]:
@@ -183,6 +314,7 @@ def _run_chain(task: dict) -> list[dict]:
     from gprace.model import NominalModel
     from gprace.mpc.tracking import MPCSettings
     from gprace.plan import PlanSettings, curvature_plan, plan_min_time, read_plan
+    from gprace.timetrial import grip as G
     from gprace.timetrial import learning as L
     from gprace.timetrial.drive import DriveSettings, drive
     from gprace.tracks import load_track
@@ -195,25 +327,31 @@ def _run_chain(task: dict) -> list[dict]:
     vehicle = load_vehicle(st.vehicle)
     model = NominalModel(vehicle)
     plant = load_plant(st.plant)
-    mpc = MPCSettings(solver=st.solver, beta=st.beta)
+    mpc = MPCSettings(solver=st.solver, beta=st.beta, grip=st.grip)
     dsettings = DriveSettings(laps=st.laps, mpc=mpc)
     seed = st.seed * 1000 + j + 1
     heldout = read_run(out / "heldout.h5")
-    H = {k: L.features(heldout, model, track, k) for k in ("tracking", "planning")}
+    H = {k: L.features(heldout, model, track, k, st.features) for k in ("tracking", "planning")}
+    cap = G.nominal_cap(model, st.plan_grip)
 
     def tag(i, name):
         return f"t{j}_i{i}_{name}"
 
+    def record(i):
+        return read_record(tdir / f"iter_{i:02d}" / "record.json")
+
     # iteration 0 ------------------------------------------------------------------------------
     d0 = tdir / "iter_00"
     if not steps.done(tag(0, "plan")):
-        curvature_plan(track, model, ds=st.plan_ds, speed_scale=st.first_speed_scale).write(d0 / "plan.h5")
+        p0 = curvature_plan(track, model, ds=st.plan_ds, speed_scale=st.first_speed_scale)
+        p0.meta["limits"] = G.nominal_cap(model, st.first_speed_scale).tolist()
+        p0.write(d0 / "plan.h5")
         steps.mark(tag(0, "plan"))
     if not steps.done(tag(0, "drive")):
         plan = read_plan(d0 / "plan.h5", track)
         run = drive(plan, plant, track, model, dsettings, seed=seed * 100)
         write_run(run, d0 / "run.h5")
-        _write_json(d0 / "record.json", _record(0, 0.0, j, plan, run, None, None, H, {}))
+        _write_json(d0 / "record.json", _record(0, 0.0, j, plan, run, None, None, H, _lap_extra(run, model)))
         steps.mark(tag(0, "drive"))
 
     for i in range(1, st.iterations + 1):
@@ -224,13 +362,13 @@ def _run_chain(task: dict) -> list[dict]:
             prev_run = read_run(dp / "run.h5")
             sel_stats = {}
             for kind in ("tracking", "planning"):
-                Znew, Ynew = L.features(prev_run, model, track, kind)
+                Znew, Ynew = L.features(prev_run, model, track, kind, st.features)
                 hyper_path = tdir / f"hyper_{kind}.h5"
                 if not hyper_path.exists():
                     if len(Znew) < 20:
-                        raise RunFailedError(f"trial {j}: iteration 0 recorded only {len(Znew)} samples; cannot train the GPs")
+                        raise RunFailedError(f"trial {j}: iteration {i - 1} recorded only {len(Znew)} usable samples; cannot train the GPs")
                     gp0 = L.fit_hyper(Znew, Ynew, seed=seed, max_fit_points=st.max_fit_points)
-                    L.save_predictor(hyper_path, gp0, kind)
+                    L.save_predictor(hyper_path, gp0, kind, feature_set=st.features)
                 hyper = L.load_predictor(hyper_path, kind).gp
                 old = None
                 if i > 1:
@@ -248,22 +386,29 @@ def _run_chain(task: dict) -> list[dict]:
                 a = read_artifact(di / f"data_{kind}.h5", "dataset")
                 hyper = L.load_predictor(tdir / f"hyper_{kind}.h5", kind).gp
                 gp = L.refit_fixed(hyper, a.arrays["Z"], a.arrays["Y"])
-                L.save_predictor(di / f"gp_{kind}.h5", gp, kind, {"iteration": i, "trial": j})
+                L.save_predictor(di / f"gp_{kind}.h5", gp, kind, {"iteration": i, "trial": j}, st.features, L.calibrate(gp))
                 if kind == "tracking":
                     grid = make_grid(gp, a.arrays["Z"], mpc, st.grid_values)
                     write_artifact(di / "candidates.h5", Artifact("candidates", {"Z": grid.Z, "v": grid.v, "scale": grid.scale}))
             steps.mark(tag(i, "retrain"))
         # (3) plan -------------------------------------------------------------------------------
         if not steps.done(tag(i, "plan")):
-            warm = read_plan(dp / "plan.h5", track)
+            last = read_plan(dp / "plan.h5", track)
+            rec = record(i - 1)
+            limits = G.next_limits(last.meta.get("limits", cap), rec["envelope"], rec["completed"], rec["utilisation"],
+                                   cap, st.widen)
+            good = [k for k in range(i - 1, -1, -1) if record(k)["completed"]]
+            warm = read_plan(tdir / f"iter_{good[0]:02d}" / "plan.h5", track) if good else None
             gp_plan = L.load_predictor(di / "gp_planning.h5", "planning")
             try:
-                plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, grip=st.plan_grip, grip_brake=st.plan_grip_brake),
-                                     warm=warm, mu_plan=lambda Z: gp_plan(Z)[0])
+                plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, limits=tuple(limits)),
+                                     warm=warm or last, mu_plan=lambda X, U: gp_plan.at(X, U)[0])
             except SolverError as exc:
-                # a failed re-plan must not end the experiment: drive the previous plan again
-                plan = warm
+                # a failed re-plan must not end the experiment: drive the last plan that completed a
+                # lap again (never a plan that failed), or a slower curvature plan if none did
+                plan = warm or curvature_plan(track, model, ds=st.plan_ds, speed_scale=st.first_speed_scale * (1 - 2 * st.widen))
                 plan.meta = {**plan.meta, "replan_failed": str(exc)}
+            plan.meta["limits"] = [float(v) for v in limits]
             plan.write(di / "plan.h5")
             steps.mark(tag(i, "plan"))
         # (4) drive ------------------------------------------------------------------------------
@@ -278,9 +423,9 @@ def _run_chain(task: dict) -> list[dict]:
             write_run(run, di / "run.h5")
             gps = {k: L.load_predictor(di / f"gp_{k}.h5", k) for k in ("tracking", "planning")}
             sizes = {k: int(read_artifact(di / f"data_{k}.h5", "dataset").arrays["Z"].shape[0]) for k in gps}
-            _write_json(di / "record.json", _record(i, alpha, j, plan, run, gps, sizes, H, {}))
+            _write_json(di / "record.json", _record(i, alpha, j, plan, run, gps, sizes, H, _lap_extra(run, model)))
             steps.mark(tag(i, "drive"))
-    return [json.loads((tdir / f"iter_{i:02d}" / "record.json").read_text()) for i in range(st.iterations + 1)]
+    return [record(i) for i in range(st.iterations + 1)]
 
 
 def make_grid(gp, Z: np.ndarray, mpc, n_values: int):
@@ -297,6 +442,14 @@ def make_grid(gp, Z: np.ndarray, mpc, n_values: int):
     return CandidateGrid(C, weighted_variance(var, S), scale)
 
 
+def _lap_extra(run, model) -> dict:
+    """What the next plan's limits are made from: the measured envelope and the rear-slip use."""
+    from gprace.timetrial import grip as G
+    from gprace.timetrial.learning import in_control
+
+    return {"envelope": G.envelope(run, in_control).tolist(), "utilisation": G.utilisation(run, model, in_control)}
+
+
 def _gp_error(pred, data) -> float:
     """RMS prediction error on the held-out run, each output normalised by its spread, averaged."""
     Z, Y = data
@@ -305,6 +458,16 @@ def _gp_error(pred, data) -> float:
     mean, _ = pred(Z)
     sd = np.maximum(Y.std(axis=0), 1e-12)
     return float(np.mean(np.sqrt(np.mean(((mean - Y) / sd) ** 2, axis=0))))
+
+
+def _coverage(pred, data) -> float:
+    """Smallest share over the outputs of held-out errors inside the predicted 95 % band."""
+    from gprace.timetrial.learning import coverage
+
+    Z, Y = data
+    if pred is None or len(Z) == 0:
+        return float("nan")
+    return float(np.min(coverage(pred, Z, Y)))
 
 
 def _record(i, alpha, trial, plan, run, gps, sizes, H, extra) -> dict:
@@ -319,6 +482,8 @@ def _record(i, alpha, trial, plan, run, gps, sizes, H, extra) -> dict:
     for k in ("tracking", "planning"):
         rec[f"err_{k}"] = _gp_error(gps[k] if gps else None, H[k])
         rec[f"dict_{k}"] = int(sizes[k]) if sizes else 0
+        rec[f"cov_{k}"] = _coverage(gps[k] if gps else None, H[k])
+    rec["limits"] = [float(v) for v in plan.meta.get("limits", [])]
     rec.update(extra)
     return rec
 
@@ -330,10 +495,16 @@ def build_summary(out: str | Path) -> dict:
         raise InputError(f"{out}: not a gprace iterate folder (no settings.json)")
     rows = []
     for p in sorted(out.glob("trial_*/iter_*/record.json")):
-        rows.append(json.loads(p.read_text()))
+        rows.append(read_record(p))
     rows.sort(key=lambda r: (r["iteration"], r["trial"]))
+    oracle = json.loads((out / "oracle.json").read_text()) if (out / "oracle.json").exists() else None
+    base = {r["trial"]: r["driven"] for r in rows if r["iteration"] == 0}
+    o_lap = oracle.get("driven") if oracle and oracle.get("known") and oracle.get("completed") else None
     by_iter = {}
     for r in rows:
+        # share of the gap between the trial's iteration-0 lap and the oracle lap that this lap closed
+        b = base.get(r["trial"], float("nan"))
+        r["gap_closed"] = float((b - r["driven"]) / (b - o_lap)) if o_lap is not None and b - o_lap > 0 else float("nan")
         by_iter.setdefault(r["iteration"], []).append(r)
     agg = []
     for i, rs in sorted(by_iter.items()):
@@ -347,9 +518,12 @@ def build_summary(out: str | Path) -> dict:
             "gap_mean": float(np.nanmean(d - pl)) if np.isfinite(d).any() else float("nan"),
             "err_tracking": float(np.nanmean([r["err_tracking"] for r in rs])) if i else float("nan"),
             "err_planning": float(np.nanmean([r["err_planning"] for r in rs])) if i else float("nan"),
+            "cov_tracking": float(np.nanmin([r.get("cov_tracking", np.nan) for r in rs])) if i else float("nan"),
+            "cov_planning": float(np.nanmin([r.get("cov_planning", np.nan) for r in rs])) if i else float("nan"),
+            "gap_closed_min": float(np.nanmin([r["gap_closed"] for r in rs])) if i and o_lap is not None else float("nan"),
             "completed": int(sum(r["completed"] for r in rs)),
         })
-    return {"settings": json.loads((out / "settings.json").read_text()), "rows": rows, "by_iteration": agg}
+    return {"settings": json.loads((out / "settings.json").read_text()), "oracle": oracle, "rows": rows, "by_iteration": agg}
 
 
 SUMMARY_COLUMNS = ["iteration", "trial", "alpha", "planned", "driven", "gap", "err_tracking", "err_planning",

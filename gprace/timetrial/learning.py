@@ -1,6 +1,11 @@
 """The two GPs of the double-GP scheme: their data, training and use (paper, "GP Model" and appendix).
 
-Both GPs take ``z = [v_y, yaw_rate, delta]`` (REFERENCE.md). Targets, from consecutive samples
+Both GPs take the inputs of a named feature set (:data:`gprace.gp.features.DYN_FEATURE_SETS`):
+``paper`` = ``[v_y, yaw_rate, delta]`` (the paper, REFERENCE.md) or ``full`` = ``[v_x, v_y,
+yaw_rate, delta, a_x]`` (the default: with the paper's three inputs braking and driving alias,
+docs/decisions.md). A saved model carries its input names; :class:`GPPredictor` builds its own
+inputs from states and inputs (:meth:`GPPredictor.at`), so planner and MPC never index features.
+Targets, from consecutive samples
 ``(x_k, u_k) -> x_{k+1}`` of a run:
 
 - ``tracking``: the one-step errors of ``[v_y, yaw_rate]`` of the MPC's prediction step
@@ -13,6 +18,11 @@ Samples of a car out of control (``|e_psi| > 0.5`` rad or ``|v_y| > 0.2 |v_x| + 
 spin in progress) are left out: the diverse selection otherwise fills the dictionary with them
 (they are the most "novel" points) and the compensated MPC then spun on laps the nominal MPC
 completed.
+
+Variance that tells the truth (:func:`calibrate`): after every (re)fit the predicted variances
+are scaled per output so that the leave-one-out 95 % band of the GP's own data covers 95 % of its
+leave-one-out errors (closed form for the exact GP). Where data conflict (same inputs, different
+targets) the LOO errors are large and the scale grows; it never shrinks the GP's own variance.
 
 Training (project decision, to fit the 10-minute budget of ``gprace iterate``): hyperparameters
 are fitted once, by marginal likelihood on at most ``max_fit_points`` points of the first data
@@ -29,62 +39,157 @@ import numpy as np
 
 from gprace.errors import InputError
 
-FEATURE_NAMES = ["v_y", "yaw_rate", "delta"]
+FEATURE_NAMES = ["v_y", "yaw_rate", "delta"]  # the paper's set (kept for old imports)
 SPIN_EPSI = 0.5   # |e_psi| [rad] beyond which a sample counts as out of control
 SPIN_SLIP = 0.2   # |v_y| / |v_x| beyond which a sample counts as out of control
+SPIN_HORIZON = 1.0  # seconds before the end of a failed lap left out of the GP data (the loss of control)
 OUTPUTS = {"tracking": ["v_y", "yaw_rate"], "planning": ["dv_y_dt", "dyaw_rate_dt"]}
 
 
-def features(run, model, track, kind: str, step: str = "rk4") -> tuple[np.ndarray, np.ndarray]:
-    """``(Z (n, 3), Y (n, 2))`` of one run for the ``tracking`` or ``planning`` GP (vectorised)."""
+def in_control(X: np.ndarray) -> np.ndarray:
+    """Mask (n,) of states ``X (n, >=6)`` of a car in control (not spinning)."""
+    return (np.abs(X[:, 3]) < SPIN_EPSI) & (np.abs(X[:, 1]) < SPIN_SLIP * np.abs(X[:, 0]) + 1.0)
+
+
+def features(run, model, track, kind: str, feature_set: str = "full", step: str = "rk4") -> tuple[np.ndarray, np.ndarray]:
+    """``(Z (n, d), Y (n, 2))`` of one run for the ``tracking`` or ``planning`` GP (vectorised).
+
+    Samples of a car out of control are left out, and so are the last ``SPIN_HORIZON`` seconds
+    before a lap that ended in a spin or off the track: the GP compensates the car in control.
+    """
+    from gprace.gp.features import dyn_feature_set, dyn_inputs
+
     if kind not in OUTPUTS:
         raise InputError(f"unknown GP feature map {kind!r}; available: tracking, planning")
+    names = dyn_feature_set(feature_set)
     X, U = run.states(), run.inputs()
     dt = run.dt
     if len(X) < 3:
-        return np.zeros((0, 3)), np.zeros((0, 2))
+        return np.zeros((0, len(names))), np.zeros((0, 2))
     t = run["t"]
     if kind == "planning":
         # derivative errors at each interior sample: central difference of the measurement minus f
         ok = (np.abs(t[2:] - t[:-2] - 2 * dt) < 1e-6 * max(dt, 1.0))
         xm, x0, xp, u0 = X[:-2][ok], X[1:-1][ok], X[2:][ok], U[1:-1][ok]
         Y = ((xp - xm) / (2 * dt) - model.f(x0, u0, track.kappa(x0[:, 5])))[:, 1:3]
+        t0 = t[1:-1][ok]
     else:
         ok = np.abs(np.diff(t) - dt) < 1e-6 * max(dt, 1.0)
         x0, u0, x1 = X[:-1][ok], U[:-1][ok], X[1:][ok]
         kap = track.kappa(x0[:, 5])
         pred = model.rk4(x0, u0, kap, dt) if step == "rk4" else model.euler(x0, u0, kap, dt)
         Y = (x1 - pred)[:, 1:3]
-    Z = np.column_stack([x0[:, 1], x0[:, 2], u0[:, 0]])
+        t0 = t[:-1][ok]
+    Z = dyn_inputs(x0, u0, names)
     good = np.all(np.isfinite(Z), axis=1) & np.all(np.isfinite(Y), axis=1)
     # a car out of control (spinning) is not the dynamics the GPs compensate: leave it out
-    good &= (np.abs(x0[:, 3]) < SPIN_EPSI) & (np.abs(x0[:, 1]) < SPIN_SLIP * np.abs(x0[:, 0]) + 1.0)
+    good &= in_control(x0)
+    if not run.meta.get("completed", True):
+        good &= t0 < t[-1] - SPIN_HORIZON
     return Z[good], Y[good]
 
 
 class GPPredictor:
-    """``Z -> (mean, var)`` of a fitted backend (latent variance), checked for the right features."""
+    """``Z -> (mean, var)`` of a fitted backend (latent variance times ``var_scale``).
 
-    def __init__(self, gp, kind: str, source: str = "model") -> None:
+    ``inputs`` are the feature names the GP was trained on; :meth:`at` builds them from states
+    and inputs. ``var_scale`` (p,) is the calibration of :func:`calibrate` (1 = the GP's own).
+    """
+
+    def __init__(self, gp, kind: str, source: str = "model", inputs=tuple(FEATURE_NAMES), var_scale=None) -> None:
         self.gp, self.kind, self.source = gp, kind, source
+        self.inputs = tuple(inputs)
+        self.var_scale = np.ones(2) if var_scale is None else np.asarray(var_scale, dtype=float)
 
     def __call__(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.gp.predict(Z)
+        mean, var = self.gp.predict(Z)
+        return mean, var * self.var_scale
+
+    def at(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and variance at states ``X (n, 6)`` and inputs ``U (n, 2)``."""
+        from gprace.gp.features import dyn_inputs
+
+        return self(dyn_inputs(X, U, self.inputs))
+
+    def at_with_gradient(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Mean ``(n, 2)``, variance ``(n, 2)`` and mean gradient ``(n, 2, d)`` w.r.t. the inputs.
+
+        The exact backend's analytic gradient (squared-exponential kernel), else central
+        differences of the mean.
+        """
+        from gprace.gp.features import dyn_inputs
+
+        Z = dyn_inputs(X, U, self.inputs)
+        mean, var = self(Z)
+        try:
+            _, grad = self.gp.mean_gradient(Z)
+        except (AttributeError, NotImplementedError):
+            h = 1e-4 * np.maximum(np.std(Z, axis=0), 1e-3)
+            grad = np.empty(mean.shape + (Z.shape[1],))
+            for j in range(Z.shape[1]):  # d = 3 or 5 evaluations of a short horizon
+                e = np.zeros(Z.shape[1])
+                e[j] = h[j]
+                grad[:, :, j] = (self.gp.predict(Z + e)[0] - self.gp.predict(Z - e)[0]) / (2 * h[j])
+        return mean, var, grad
+
+    def predictive(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and variance of a new measurement (latent plus noise, calibrated)."""
+        mean, var = self.gp.predict(Z)
+        return mean, (var + self.gp.noise_) * self.var_scale
 
 
 def load_predictor(path, kind: str) -> GPPredictor:
-    """A saved GP model for ``kind``; InputError if it was trained on other features."""
+    """A saved GP model for ``kind``; InputError if it was trained on another map or unknown inputs."""
     from gprace.gp import load_model
+    from gprace.gp.features import dyn_set_of
 
     saved = load_model(path)
     fm = saved.feature_map or ""
     if fm and fm != kind:
-        raise InputError(f"{path}: GP trained with feature map {fm!r}, this needs {kind!r} (inputs {FEATURE_NAMES})")
-    if list(saved.input_names) != FEATURE_NAMES:
-        raise InputError(f"{path}: GP inputs are {saved.input_names}, this needs {FEATURE_NAMES}")
+        raise InputError(f"{path}: GP trained with feature map {fm!r}, this needs {kind!r}")
+    dyn_set_of(saved.input_names)  # a known feature set, or a one-line error
     if len(saved.output_names) != 2:
         raise InputError(f"{path}: GP has {len(saved.output_names)} outputs, this needs 2 ({OUTPUTS[kind]})")
-    return GPPredictor(saved.gp, kind, str(path))
+    scale = saved.attrs.get("var_scale")
+    return GPPredictor(saved.gp, kind, str(path), saved.input_names, scale)
+
+
+def calibrate(gp, level: float = 0.95) -> np.ndarray:
+    """Variance scale (p,) >= 1 per output from the exact GP's leave-one-out errors.
+
+    With ``K = K_f + s_n^2 I`` on the (normalised) training data, the LOO residual of point i is
+    ``[K^-1 y]_i / [K^-1]_ii`` and its predictive variance ``1 / [K^-1]_ii`` (Rasmussen & Williams
+    eq. 5.12), so the LOO z-score is ``[K^-1 y]_i / sqrt([K^-1]_ii)``. The scale is the squared
+    ratio of the ``level`` quantile of |z| to the Gaussian one, floored at 1. Backends without a
+    cached Cholesky factor get 1.
+    """
+    from scipy.linalg import solve_triangular
+    from scipy.stats import norm
+
+    L, alpha = getattr(gp, "L_", None), getattr(gp, "alpha_", None)
+    p = gp.n_outputs_
+    if L is None or alpha is None:
+        return np.ones(p)
+    scale = np.ones(p)
+    for gi, g in enumerate(gp._groups()):
+        Linv = solve_triangular(L[gi], np.eye(L.shape[1]), lower=True, check_finite=False)
+        kinv_diag = np.einsum("ij,ij->j", Linv, Linv)
+        for o in g:
+            z = alpha[:, o] / np.sqrt(kinv_diag)
+            q = float(np.quantile(np.abs(z), level))
+            scale[o] = max(1.0, (q / norm.ppf(0.5 + level / 2)) ** 2)
+    return scale
+
+
+def coverage(pred: GPPredictor, Z: np.ndarray, Y: np.ndarray, level: float = 0.95) -> np.ndarray:
+    """Share (p,) of the errors ``Y`` inside the predictor's two-sided ``level`` band (latent + noise)."""
+    from scipy.stats import norm
+
+    if len(Z) == 0:
+        return np.full(Y.shape[1] if Y.ndim == 2 else 2, np.nan)
+    mean, var = pred.predictive(Z)
+    k = norm.ppf(0.5 + level / 2)
+    return np.mean(np.abs(Y - mean) <= k * np.sqrt(var), axis=0)
 
 
 def fit_hyper(Z: np.ndarray, Y: np.ndarray, seed: int = 0, max_fit_points: int = 400, backend: str = "exact"):
@@ -117,10 +222,13 @@ def refit_fixed(ref, Z: np.ndarray, Y: np.ndarray, backend: str = "exact"):
     return gp.fit(Z, Y)
 
 
-def save_predictor(path, gp, kind: str, extra: dict | None = None):
+def save_predictor(path, gp, kind: str, extra: dict | None = None, feature_set: str = "full", var_scale=None):
     from gprace.gp import save_model
+    from gprace.gp.features import dyn_feature_set
 
-    meta = {"feature_map": kind, "input_names": FEATURE_NAMES, "output_names": OUTPUTS[kind]}
+    meta = {"feature_map": kind, "input_names": list(dyn_feature_set(feature_set)), "output_names": OUTPUTS[kind]}
+    if var_scale is not None:
+        meta["var_scale"] = [float(v) for v in var_scale]
     meta.update(extra or {})
     return save_model(path, gp, meta)
 

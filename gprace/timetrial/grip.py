@@ -1,0 +1,76 @@
+"""The planner's grip limits from what the car has shown it can do (not from the nominal model).
+
+Iteration 0 drives a conservative curvature plan. From then on the friction ellipse of the
+minimum-time planner (lateral, drive and brake accelerations in m/s^2) starts from the envelope
+MEASURED on the last lap and widens it step by step while the car stays clear of the limit, the
+scheme of Wischnewski et al. 2019 (start conservative, widen from measured accelerations):
+
+- a completed lap: the next limits are the measured envelope (at most the plan's own limits)
+  times ``1 + widen``, unless the rear
+  tire already worked near its peak slip angle (``utilisation >= hold``), then the envelope as is
+  (an axis the lap used less than half of keeps its previous limit);
+- a failed lap (spin, off track): the next limits are the failed plan's times ``1 - 2 widen``, so
+  a plan that was not driveable is never driven again unchanged;
+- never above ``cap`` (the nominal model's own limits times the planner's grip share).
+
+All functions are pure and vectorised over the run's samples.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gprace.mpc.tracking import peak_slip, rear_slip_rows
+
+QUANTILE = 0.99  # robust peak of a measured acceleration (one lap has about 1,100 samples)
+
+
+def envelope(run, in_control) -> np.ndarray:
+    """Measured ``(a_lat, a_drive, a_brake)`` [m/s^2] of a run's in-control samples.
+
+    The lateral acceleration is ``v_x r + dv_y/dt`` (central differences): ``v_x r`` alone counts
+    a yaw oscillation in a fast chicane (r = 1 rad/s at 55 m/s) as 55 m/s^2 of grip.
+    """
+    X, U = run.states(), run.inputs()
+    ok = in_control(X)
+    if ok.sum() < 10:
+        return np.full(3, np.nan)
+    vy_dot = np.gradient(X[:, 1], run["t"])
+    a_lat = np.abs(X[ok, 0] * X[ok, 2] + vy_dot[ok])
+    ax = U[ok, 1]
+    return np.array([np.quantile(a_lat, QUANTILE), np.quantile(np.maximum(ax, 0.0), QUANTILE),
+                     np.quantile(np.maximum(-ax, 0.0), QUANTILE)])
+
+
+def utilisation(run, model, in_control) -> float:
+    """Robust peak of the rear slip angle over the nominal rear tire's peak slip angle."""
+    X = run.states()
+    ok = in_control(X)
+    if not ok.any():
+        return float("nan")
+    p = model.params
+    a_r, _ = rear_slip_rows(X[ok], p.lr, p.vmin)
+    return float(np.quantile(np.abs(a_r), QUANTILE) / peak_slip(p.br, p.cr))
+
+
+def nominal_cap(model, share: float) -> np.ndarray:
+    """``share`` of the nominal model's own limits ``(a_lat, a_drive, a_brake)``."""
+    from gprace.plan.curvature import lateral_limit
+
+    lim = model.vehicle.limits
+    return share * np.array([lateral_limit(model), lim.accel_max, -lim.accel_min])
+
+
+def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, util: float, cap: np.ndarray,
+                widen: float = 0.05, hold: float = 0.8) -> np.ndarray:
+    """Limits of the next plan from the last plan's ``previous`` limits and the lap it gave."""
+    previous, measured, cap = (np.asarray(a, dtype=float) for a in (previous, measured, cap))
+    if not completed or not np.all(np.isfinite(measured)):
+        out = previous * (1.0 - 2.0 * widen)
+    else:
+        # widen from what the car did, never from more than the plan asked: measured peaks above
+        # the plan's limits are transients (a yaw oscillation in a fast chicane), not grip shown;
+        # an axis the lap hardly used (a partial lap that never braked) tells nothing: keep its limit
+        base = np.where(measured >= 0.5 * previous, np.minimum(measured, previous), previous)
+        out = base if np.isfinite(util) and util >= hold else base * (1.0 + widen)
+    return np.minimum(out, cap)

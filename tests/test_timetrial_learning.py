@@ -1,0 +1,155 @@
+"""Time-trial learning pieces: feature sets, GP gradient, variance calibration and coverage,
+spin samples left out, grip limits, the QP's grip rows, and iteration 0 on every shipped plant."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gprace.errors import ConfigError, InputError
+
+pytest.importorskip("gprace.gp")
+
+
+def _run(X, U, t, completed=True):
+    from gprace.io.runs import Run
+
+    data = {"t": t, "s": X[:, 5], "e_y": X[:, 4], "e_psi": X[:, 3], "v_x": X[:, 0], "v_y": X[:, 1],
+            "yaw_rate": X[:, 2], "delta": U[:, 0], "a_x": U[:, 1], "kappa": np.zeros(len(t))}
+    return Run(data, {"completed": completed, "dt": float(t[1] - t[0])})
+
+
+def test_feature_sets_produce_documented_columns():
+    from gprace.gp.features import DYN_FEATURE_SETS, dyn_feature_set, dyn_inputs, dyn_set_of
+
+    X = np.arange(12.0).reshape(2, 6)
+    U = np.array([[0.1, -3.0], [0.2, 4.0]])
+    assert DYN_FEATURE_SETS["paper"] == ("v_y", "yaw_rate", "delta")
+    np.testing.assert_array_equal(dyn_inputs(X, U, dyn_feature_set("paper")), [[1, 2, 0.1], [7, 8, 0.2]])
+    np.testing.assert_array_equal(dyn_inputs(X, U, dyn_feature_set("full")), [[0, 1, 2, 0.1, -3], [6, 7, 8, 0.2, 4]])
+    assert dyn_set_of(["v_x", "v_y", "yaw_rate", "delta", "a_x"]) == "full"
+    with pytest.raises(ConfigError, match="available: paper, full"):
+        dyn_feature_set("magic")
+    with pytest.raises(InputError, match="no known feature set"):
+        dyn_set_of(["v_y"])
+
+
+def test_mean_gradient_matches_finite_differences():
+    from gprace.gp import make_gp
+
+    rng = np.random.default_rng(1)
+    Z = rng.normal(size=(150, 4)) * [1, 3, 0.1, 10]
+    Y = np.column_stack([np.sin(Z[:, 0]) + Z[:, 2] * 5, Z[:, 1] * Z[:, 3] / 30])
+    gp = make_gp("exact", optimize=False, length_scale=1.2, noise=1e-2, shared_kernel=True).fit(Z, Y)
+    Q = rng.normal(size=(6, 4)) * [1, 3, 0.1, 10]
+    mean, grad = gp.mean_gradient(Q)
+    np.testing.assert_allclose(mean, gp.predict(Q)[0], atol=1e-12)
+    h = 1e-5 * np.array([1, 3, 0.1, 10])
+    fd = np.stack([(gp.predict(Q + h[j] * np.eye(4)[j])[0] - gp.predict(Q - h[j] * np.eye(4)[j])[0]) / (2 * h[j])
+                   for j in range(4)], axis=-1)
+    np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-7)
+
+
+def test_coverage_and_calibration_on_known_noise():
+    """A GP with the right noise covers ~95 %; one told a tenth of the noise is recalibrated to it."""
+    from gprace.gp import make_gp
+    from gprace.timetrial.learning import GPPredictor, calibrate, coverage
+
+    rng = np.random.default_rng(2)
+    Z = rng.uniform(-2, 2, (600, 2))
+    f = np.column_stack([np.sin(Z[:, 0]), np.cos(Z[:, 1])])
+    sd = np.array([0.1, 0.05])
+    Y = f + rng.normal(0, sd, f.shape)
+    Zt = rng.uniform(-2, 2, (3000, 2))
+    Yt = np.column_stack([np.sin(Zt[:, 0]), np.cos(Zt[:, 1])]) + rng.normal(0, sd, (3000, 2))
+    honest = make_gp("exact", optimize=True, max_fit_points=300, seed=0).fit(Z, Y)
+    cov = coverage(GPPredictor(honest, "tracking", inputs=("v_y", "yaw_rate")), Zt, Yt)
+    assert np.all(np.abs(cov - 0.95) < 0.02), cov
+    # overconfident: noise fixed at 1/100 of the true variance (in normalised units)
+    tight = make_gp("exact", optimize=False, length_scale=1.0, noise=1e-4, signal_variance=1.0).fit(Z, Y)
+    bad = coverage(GPPredictor(tight, "tracking", inputs=("v_y", "yaw_rate")), Zt, Yt)
+    scale = calibrate(tight)
+    fixed = coverage(GPPredictor(tight, "tracking", inputs=("v_y", "yaw_rate"), var_scale=scale), Zt, Yt)
+    assert np.all(bad < 0.6) and np.all(scale > 10) and np.all(fixed > 0.9), (bad, scale, fixed)
+    assert np.all(calibrate(honest) < 1.5)
+
+
+def test_spin_samples_and_the_loss_of_control_are_left_out():
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.timetrial.learning import SPIN_HORIZON, features
+    from gprace.tracks import load_track
+
+    n, dt = 200, 0.05
+    t = dt * np.arange(n)
+    X = np.zeros((n, 6))
+    X[:, 0] = 30.0
+    X[:, 5] = 30.0 * t
+    X[120:140, 1] = 15.0     # a spin in the middle: v_y half of v_x
+    X[120:140, 2] = 2.0
+    U = np.zeros((n, 2))
+    m, tr = NominalModel(load_vehicle("audi_tt_cup")), load_track("circle_100")
+    Z, _ = features(_run(X, U, t), m, tr, "tracking", "full")
+    assert not np.any(np.abs(Z[:, 1]) > 5) and len(Z) == n - 1 - 20
+    Zf, _ = features(_run(X, U, t, completed=False), m, tr, "tracking", "full")
+    assert len(Zf) == len(Z) - int(round(SPIN_HORIZON / dt))  # the last second of a failed lap too
+
+
+def test_grip_limits_widen_hold_and_back_off():
+    from gprace.timetrial.grip import next_limits
+
+    prev, cap = np.array([10.0, 4.0, 9.0]), np.array([14.0, 6.0, 14.0])
+    np.testing.assert_allclose(next_limits(prev, [10.2, 4.0, 8.8], True, 0.4, cap, 0.05), [10.5, 4.2, 9.24])
+    np.testing.assert_allclose(next_limits(prev, [10.0, 4.0, 9.0], True, 0.9, cap, 0.05), prev)       # near the peak slip: hold
+    np.testing.assert_allclose(next_limits(prev, [10.0, 1.0, 9.0], True, 0.4, cap, 0.05), [10.5, 4.2, 9.45])  # unused axis
+    np.testing.assert_allclose(next_limits(prev, [np.nan] * 3, False, np.nan, cap, 0.05), 0.9 * prev)   # failed lap
+    np.testing.assert_allclose(next_limits(prev * 2, prev * 2, True, 0.1, cap, 0.05), cap)
+
+
+def test_grip_rows_agree_across_backends_and_bind():
+    """An active rear-slip row: every backend returns the same solution, within its bound."""
+    from gprace.backends import solvers
+    from gprace.mpc.qp import LtvProblem, Weights
+
+    N = 10
+    rng = np.random.default_rng(3)
+    A = np.tile(np.eye(6), (N, 1, 1)) + 0.01 * rng.normal(size=(N, 6, 6))
+    B = np.zeros((N, 6, 2))
+    B[:, 1, 0], B[:, 2, 0], B[:, 0, 1] = 30.0, 15.0, 0.05
+    G = np.zeros((N, 6))
+    G[:, 1], G[:, 2] = -1 / 30, 1.5 / 30
+    x0 = np.array([30.0, -4.0, 0.5, 0, 0, 0])   # a car sliding at 0.16 rad of rear slip, and a
+    xref = np.tile(x0, (N, 1))                 # reference that asks it to keep sliding
+    A = np.tile(np.eye(6), (N, 1, 1)) + 0.001 * rng.normal(size=(N, 6, 6))
+    pb = LtvProblem(A, B, np.zeros((N, 6)), x0, xref, np.zeros((N, 2)), np.full(N, -5.0), np.full(N, 5.0),
+                    np.array([-0.35, -10.0]), np.array([0.35, 5.0]), 0.0, Weights(), G, np.full(N, -0.05), np.full(N, 0.05))
+    res = {name: solvers.create(name, N, Weights()).solve(pb) for name in ("clarabel", "casadi", "cvxpy-clarabel")}
+    free = solvers.create("clarabel", N, Weights()).solve(LtvProblem(*[getattr(pb, f) for f in (
+        "A", "B", "c", "x0", "xref", "uref", "ey_lo", "ey_hi", "u_lo", "u_hi", "delta_prev")]))
+    assert np.max(np.abs(np.einsum("ki,ki->k", G, free.x))) > 0.08        # without the row: past the bound
+    held = np.abs(np.einsum("ki,ki->k", G, res["clarabel"].x))
+    assert np.all(held[1:] < 0.0505) and held[0] < 0.08   # with it: within from the 2nd step (steering-rate cost)
+    for k in ("casadi", "cvxpy-clarabel"):
+        # the optimum and the steering agree; a_x is nearly free here (weight 0.02, small gain)
+        assert abs(res[k].objective - res["clarabel"].objective) < 1e-5 * abs(res["clarabel"].objective)
+        np.testing.assert_allclose(res[k].u[:, 0], res["clarabel"].u[:, 0], atol=1e-4)
+
+
+@pytest.mark.parametrize("plant,vehicle,track,ds", [("audi_hidden", "audi_tt_cup", "gprace_ring", 6.0),
+                                                    ("audi_nominal", "audi_tt_cup", "gprace_ring", 6.0),
+                                                    ("bmw_commonroad", "bmw_320i", "gprace_ring", 6.0),
+                                                    ("barc_nominal", "barc_1_10", "h2h_loop", 0.5)])
+def test_iteration0_completes_on_every_shipped_plant(plant, vehicle, track, ds):
+    """Iteration 0's conservative curvature plan, driven by the nominal MPC, completes a lap."""
+    from gprace.config import load_plant, load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import curvature_plan
+    from gprace.timetrial.drive import drive
+    from gprace.timetrial.iterate import IterateSettings
+    from gprace.tracks import load_track
+
+    tr, m = load_track(track), NominalModel(load_vehicle(vehicle))
+    plan = curvature_plan(tr, m, ds=ds, speed_scale=IterateSettings().first_speed_scale)
+    run = drive(plan, load_plant(plant), tr, m, seed=100)
+    assert run.meta["completed"], run.meta["reason"]
+    assert run.meta["lap_time"] < 1.1 * plan.lap_time
