@@ -111,7 +111,7 @@ def test_grip_rows_agree_across_backends_and_bind():
     from gprace.backends import solvers
     from gprace.mpc.qp import LtvProblem, Weights
 
-    N = 10
+    N = 14
     rng = np.random.default_rng(3)
     A = np.tile(np.eye(6), (N, 1, 1)) + 0.01 * rng.normal(size=(N, 6, 6))
     B = np.zeros((N, 6, 2))
@@ -133,6 +133,29 @@ def test_grip_rows_agree_across_backends_and_bind():
         # the optimum and the steering agree; a_x is nearly free here (weight 0.02, small gain)
         assert abs(res[k].objective - res["clarabel"].objective) < 1e-5 * abs(res["clarabel"].objective)
         np.testing.assert_allclose(res[k].u[:, 0], res["clarabel"].u[:, 0], atol=1e-4)
+
+
+def test_mpc_brings_a_sliding_car_back_within_the_slip_bound_gradually():
+    """The tracking MPC's grip rows: a car past the bound gets RECOVER_STEPS periods to come back."""
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.mpc.tracking import RECOVER_STEPS, MPCSettings, TrackingMPC, rear_slip_rows
+    from gprace.plan import curvature_plan
+    from gprace.tracks import load_track
+
+    tr, m = load_track("circle_100"), NominalModel(load_vehicle("audi_tt_cup"))
+    plan = curvature_plan(tr, m, speed_scale=0.7)
+    mpc = TrackingMPC(m, tr, plan, MPCSettings())
+    x = plan.states()[0].copy()
+    x[1] -= 4.0                                   # a slide: rear slip far past 0.9 of the peak
+    a0 = abs(rear_slip_rows(x[None], m.params.lr, m.params.vmin)[0][0])
+    assert a0 > mpc.slip_max
+    pb, _ = mpc.build(x)
+    G, lo, hi = pb.grip()
+    k = np.arange(1, mpc.N + 1)
+    width = 0.5 * (hi - lo)                       # the bound's half width per step
+    # no GP, so no tightening: the bound is the peak share, widened to a line back from the slide
+    np.testing.assert_allclose(width, np.maximum(mpc.slip_max, a0 * (1 - k / RECOVER_STEPS)), rtol=1e-9)
 
 
 @pytest.mark.parametrize("plant,vehicle,track,ds", [("audi_hidden", "audi_tt_cup", "gprace_ring", 6.0),

@@ -50,7 +50,8 @@ from gprace.gp.features import DYN_INPUTS, dyn_inputs
 from gprace.mpc.qp import EY, LtvProblem, QPStatus, Weights
 
 FEATURES = DYN_INPUTS
-EXPLORED = ("v_y", "yaw_rate", "delta")  # features Algorithm 1 may move the reference to
+EXPLORED = ("v_y", "yaw_rate", "delta")
+RECOVER_STEPS = 10  # periods over which a rear slip beyond its bound is brought back  # features Algorithm 1 may move the reference to
 _REF = {"v_x": ("x", 0), "v_y": ("x", 1), "yaw_rate": ("x", 2), "delta": ("u", 0), "a_x": ("u", 1)}
 
 
@@ -270,6 +271,11 @@ class TrackingMPC:
             sig_a = np.sqrt(np.maximum(np.einsum("ki,kij,kj->k", G, Sig, G), 0.0))
             off = a_r - np.einsum("ki,ki->k", G, xr0)
             room = np.maximum(self.slip_max - self.quantile * sig_a, 0.2 * self.slip_max)
+            # a car already past the bound is brought back within RECOVER_STEPS, not at once:
+            # measured in the fast chicane of gprace_ring, demanding it at the first step made the
+            # QP yank the steering and spun the car the nominal MPC kept
+            a_now = abs(float(rear_slip_rows(x_meas[None, :6], self.model.params.lr, self.model.params.vmin)[0][0]))
+            room = np.maximum(room, a_now * (1.0 - np.arange(1, N + 1) / RECOVER_STEPS))
             grip = {"grip_G": G, "grip_lo": -room - off, "grip_hi": room - off}
         pb = LtvProblem(A, B, c, x0, xref, uref, lo, hi, self.u_lo, self.u_hi, self.delta_prev, self.s.weights, **grip)
         return pb, {"gamma": gamma, "s0": s0, "xref": xref, "uref": uref, "explored": xref is not xr0}

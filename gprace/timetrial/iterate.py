@@ -164,19 +164,26 @@ def iterate_many(experiments, executor: str = "local", workers: int = 1, schedul
     Experiments on the same plant, track and seed share the held-out run and the oracle lap (the
     first computes them, the others copy them).
     """
+    import shutil
+
     from gprace.executor import run_batch
 
     tasks: list[dict] = []
-    prepared: list[tuple[IterateSettings, Path]] = []
+    prepared: list[tuple[IterateSettings, Path, Path | None]] = []
     for settings, out in experiments:
         out = Path(out)
-        share = next((o for st, o in prepared if _shares_references(st, settings)), None)
+        share = next((o for st, o, _ in prepared if _shares_references(st, settings)), None)
         tasks += _prepare(settings, out, share)
-        prepared.append((settings, out))
-    outs = [o for _, o in prepared]
+        prepared.append((settings, out, share))
+    # the oracle lap runs beside the trials (it is one more task of the batch), once per shared set
+    tasks.sort(key=lambda t: "oracle" in t)
     results = run_batch(run_chain, tasks, executor=executor, workers=workers, scheduler=scheduler, label="trials")
+    for _, out, share in prepared:
+        if share is not None and (share / "oracle.json").exists() and not Steps(out).done("oracle"):
+            shutil.copy2(share / "oracle.json", out / "oracle.json")
+            Steps(out).mark("oracle")
     summaries = []
-    for out in outs:
+    for _, out, _ in prepared:
         summary = build_summary(out)
         _write_json(out / "summary.json", summary)
         summaries.append(summary)
@@ -215,17 +222,16 @@ def _prepare(settings: IterateSettings, out: Path, share: Path | None = None) ->
         out.mkdir(parents=True, exist_ok=True)
         _write_json(sfile, mine)
     steps = Steps(out)
-    for name, files, make in (("heldout", ("heldout.h5",), lambda: _heldout(settings, out)),
-                              ("oracle", ("oracle.json",), lambda: _write_json(out / "oracle.json", oracle_lap(settings, out)))):
-        if steps.done(name):
-            continue
-        if share is not None and all((share / f).exists() for f in files):
-            for f in files:
-                shutil.copy2(share / f, out / f)
+    if not steps.done("heldout"):
+        if share is not None and (share / "heldout.h5").exists():
+            shutil.copy2(share / "heldout.h5", out / "heldout.h5")
         else:
-            make()
-        steps.mark(name)
-    return [{"out": str(out), "trial": j, "settings": mine} for j in range(settings.trials)]
+            _heldout(settings, out)
+        steps.mark("heldout")
+    tasks = [{"out": str(out), "trial": j, "settings": mine} for j in range(settings.trials)]
+    if share is None and not steps.done("oracle"):
+        tasks.append({"out": str(out), "oracle": True, "settings": mine})
+    return tasks
 
 
 def _heldout(settings: IterateSettings, out: Path) -> None:
@@ -304,7 +310,20 @@ def run_chain(task: dict) -> list[dict]:
     """
     from gprace.executor import single_thread_blas
 
-    return single_thread_blas(_run_chain)(task)
+    return single_thread_blas(_oracle_task if task.get("oracle") else _run_chain)(task)
+
+
+def _task_settings(task: dict) -> IterateSettings:
+    return IterateSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in task["settings"].items()})
+
+
+def _oracle_task(task: dict) -> list[dict]:
+    out = Path(task["out"])
+    st = _task_settings(task)
+    res = oracle_lap(st, out)
+    _write_json(out / "oracle.json", res)
+    Steps(out).mark("oracle")
+    return [res]
 
 
 def _run_chain(task: dict) -> list[dict]:
@@ -319,7 +338,7 @@ def _run_chain(task: dict) -> list[dict]:
     from gprace.timetrial.drive import DriveSettings, drive
     from gprace.tracks import load_track
 
-    st = IterateSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in task["settings"].items()})
+    st = _task_settings(task)
     out, j = Path(task["out"]), int(task["trial"])
     steps = Steps(out)
     tdir = out / f"trial_{j}"
@@ -344,7 +363,8 @@ def _run_chain(task: dict) -> list[dict]:
     d0 = tdir / "iter_00"
     if not steps.done(tag(0, "plan")):
         p0 = curvature_plan(track, model, ds=st.plan_ds, speed_scale=st.first_speed_scale)
-        p0.meta["limits"] = G.nominal_cap(model, st.first_speed_scale).tolist()
+        # what the curvature plan used: its lateral and braking limits scaled, the drive limit full
+        p0.meta["limits"] = (G.nominal_cap(model, 1.0) * [st.first_speed_scale, 1.0, st.first_speed_scale]).tolist()
         p0.write(d0 / "plan.h5")
         steps.mark(tag(0, "plan"))
     if not steps.done(tag(0, "drive")):
