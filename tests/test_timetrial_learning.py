@@ -176,3 +176,28 @@ def test_iteration0_completes_on_every_shipped_plant(plant, vehicle, track, ds):
     run = drive(plan, load_plant(plant), tr, m, seed=100)
     assert run.meta["completed"], run.meta["reason"]
     assert run.meta["lap_time"] < 1.1 * plan.lap_time
+
+
+def test_bad_input_exits_2_before_anything_is_written(capsys, tmp_path):
+    """Unknown feature set; a track the car cannot start on (narrower than the car): one line, exit 2."""
+    from gprace.cli import main
+
+    out = tmp_path / "it"
+    assert main(["iterate", "--features", "magic", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "magic" in err[0] and "paper, full" in err[0]
+    assert main(["eval", "timetrial", "--features", "magic", "--out", str(out)]) == 2
+    capsys.readouterr()
+    narrow = tmp_path / "narrow.toml"
+    narrow.write_text('name = "narrow"\nclosed = true\nwidth = 1.0\n\n[[segments]]\ntype = "arc"\nradius = 100.0\nangle_deg = 360.0\n')
+    assert main(["iterate", "--track", str(narrow), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and ("narrower" in err[0] or "start" in err[0]), err
+    assert not out.exists()
+
+
+def test_oracle_is_unknown_for_commonroad():
+    from gprace.timetrial.iterate import IterateSettings, oracle_lap
+
+    res = oracle_lap(IterateSettings(plant="bmw_commonroad", vehicle="bmw_320i"))
+    assert res["known"] is False and "commonroad" in res["why"] and "driven" not in res

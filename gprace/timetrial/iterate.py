@@ -207,8 +207,7 @@ def _prepare(settings: IterateSettings, out: Path, share: Path | None = None) ->
     from gprace.tracks import load_track
 
     settings.check()
-    load_track(settings.track)  # fail early on a bad name, before anything is written
-    load_plant(settings.plant)
+    _check_start(settings)  # a bad track, plant or vehicle, or a car that cannot start: before anything is written
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
     mine = json.loads(json.dumps(asdict(settings)))
@@ -232,6 +231,22 @@ def _prepare(settings: IterateSettings, out: Path, share: Path | None = None) ->
     if share is None and not steps.done("oracle"):
         tasks.append({"out": str(out), "oracle": True, "settings": mine})
     return tasks
+
+
+def _check_start(settings: IterateSettings) -> None:
+    """Load track, plant and vehicle, and check the car can start on iteration 0's plan (InputError)."""
+    from gprace.config import load_plant, load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import curvature_plan
+    from gprace.timetrial.drive import start_state
+    from gprace.tracks import load_track
+
+    track = load_track(settings.track)
+    load_plant(settings.plant)
+    model = NominalModel(load_vehicle(settings.vehicle))
+    if not track.closed:
+        raise InputError(f"--track {settings.track}: an open track; the time trial needs a closed lap")
+    start_state(curvature_plan(track, model, ds=settings.plan_ds, speed_scale=settings.first_speed_scale), track, model.vehicle)
 
 
 def _heldout(settings: IterateSettings, out: Path) -> None:
