@@ -34,7 +34,8 @@ from scipy import sparse
 NXS, NUS = 6, 2
 EY = 4
 GRIP_STATES = (0, 1, 2)  # state entries a grip row may weigh: v_x, v_y, yaw_rate
-GRIP_OPEN = 10.0         # bound of an inactive grip row (a slip angle never reaches it)
+GRIP_OPEN = 1.0          # bound of an inactive grip row (its coefficients are zero)
+ETA_UNIT = 0.01          # the grip slack's unit in the standard form [rad]: keeps its weights near the others
 
 
 class QPStatus(enum.Enum):
@@ -149,7 +150,7 @@ class SparseQP:
             d[self.iu(k): self.iu(k) + NUS] += 2 * R
             d[self.ix(k + 1): self.ix(k + 1) + NXS] += 2 * Q
             d[self.ie(k + 1)] += 2 * w.slack_l2
-            d[self.ig(k + 1)] += 2 * w.grip_l2
+            d[self.ig(k + 1)] += 2 * w.grip_l2 * ETA_UNIT**2
         # steering-rate term r (delta_k - delta_{k-1})^2
         for k in range(N):
             d[self.iu(k)] += 2 * w.r_delta
@@ -174,7 +175,7 @@ class SparseQP:
         q[: NUS * N] = (-2 * self.Rd * pb.uref).ravel()
         q[NUS * N: NUS * N + NXS * N] = (-2 * self.Qd * pb.xref).ravel()
         q[NUS * N + NXS * N: NUS * N + NXS * N + N] = w.slack_l1
-        q[NUS * N + NXS * N + N:] = w.grip_l1
+        q[NUS * N + NXS * N + N:] = w.grip_l1 * ETA_UNIT
         q[self.iu(0)] += -2 * w.r_delta * pb.delta_prev
         return q
 
@@ -232,7 +233,7 @@ class SparseQP:
                 for j, st in enumerate(GRIP_STATES):
                     add(g + row, self.ix(k) + st, off_S + (k - 1) * 6 + row * 3 + j)
             for row in range(3):
-                add(g + row, self.ig(k), off_G + len(gvals) + len(gfix)); gfix.append(-1.0)
+                add(g + row, self.ig(k), off_G + len(gvals) + len(gfix)); gfix.append(-ETA_UNIT)
             g += 3
         gvals += gfix
         self._gvals = np.array(gvals)
