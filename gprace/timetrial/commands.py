@@ -29,6 +29,16 @@ def _floats(text: str, what: str) -> tuple[float, ...]:
         raise ConfigError(f"{what}: expected comma-separated numbers, got {text!r}") from None
     return vals
 
+# options shared by iterate and eval timetrial
+PLANT = typer.Option("audi_hidden", "--plant", help="Plant config.")
+VEHICLE = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle of planner and MPC.")
+DICTIONARY = typer.Option(1000, "--dictionary-size", help="GP dictionary size M per GP.")
+FEATURES = typer.Option("full", "--features", help="GP inputs: full [v_x, v_y, yaw_rate, delta, a_x] or paper [v_y, yaw_rate, delta].")
+SEED = typer.Option(0, "--seed", help="Base seed.")
+EXECUTOR = typer.Option("local", "--executor", help="local or dask.")
+WORKERS = typer.Option(2, "--workers", help="Parallel trials.")
+SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address.")
+
 
 def register(app: typer.Typer) -> None:
     @app.command("plan")
@@ -138,17 +148,17 @@ def register(app: typer.Typer) -> None:
         iterations: int = typer.Option(7, "--iterations", help="GP iterations after the nominal iteration 0."),
         trials: int = typer.Option(3, "--trials", help="Independent repetitions (seeds)."),
         selection: str = typer.Option("diverse", "--selection", help="Data selection: diverse (paper) or random (baseline)."),
-        plant: str = typer.Option("audi_hidden", "--plant", help="Plant config."),
+        plant: str = PLANT,
         track: str = typer.Option("gprace_ring", "--track", help="Track."),
-        vehicle: str = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle of planner and MPC."),
-        dictionary: int = typer.Option(1000, "--dictionary-size", help="GP dictionary size M per GP."),
-        features: str = typer.Option("full", "--features", help="GP inputs: full [v_x, v_y, yaw_rate, delta, a_x] or paper [v_y, yaw_rate, delta]."),
+        vehicle: str = VEHICLE,
+        dictionary: int = DICTIONARY,
+        features: str = FEATURES,
         grip: bool = typer.Option(True, "--grip/--no-grip", help="Rear-slip (grip) constraint in the tracking MPC; --no-grip is the paper's QP."),
         solver: str = typer.Option("clarabel", "--solver", help="QP backend."),
-        seed: int = typer.Option(0, "--seed", help="Base seed."),
-        executor: str = typer.Option("local", "--executor", help="local or dask."),
-        workers: int = typer.Option(2, "--workers", help="Parallel trials."),
-        scheduler: str | None = typer.Option(None, "--scheduler", help="Dask scheduler address."),
+        seed: int = SEED,
+        executor: str = EXECUTOR,
+        workers: int = WORKERS,
+        scheduler: str | None = SCHEDULER,
         out: Path = typer.Option(Path("iterate_out"), "--out", help="Folder for every artifact (rerun to resume)."),
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
     ) -> None:
@@ -166,17 +176,17 @@ def register(app: typer.Typer) -> None:
 
     @_group(app, "eval", "Evaluation protocols of the paper.").command("timetrial")
     def eval_timetrial(
-        plant: str = typer.Option("audi_hidden", "--plant", help="Plant config."),
+        plant: str = PLANT,
         track: str = typer.Option("gprace_ring", "--track", help="Track: shipped name or a TUM CSV/TOML path."),
-        vehicle: str = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle of planner and MPC."),
+        vehicle: str = VEHICLE,
         trials: int = typer.Option(3, "--trials", help="Independent repetitions (the same seeds in both variants)."),
         iterations: int = typer.Option(7, "--iterations", help="GP iterations after the nominal iteration 0."),
-        features: str = typer.Option("full", "--features", help="GP inputs: full or paper."),
-        dictionary: int = typer.Option(1000, "--dictionary-size", help="GP dictionary size M per GP."),
-        seed: int = typer.Option(0, "--seed", help="Base seed."),
-        executor: str = typer.Option("local", "--executor", help="local or dask."),
-        workers: int = typer.Option(2, "--workers", help="Parallel trials."),
-        scheduler: str | None = typer.Option(None, "--scheduler", help="Dask scheduler address."),
+        features: str = FEATURES,
+        dictionary: int = DICTIONARY,
+        seed: int = SEED,
+        executor: str = EXECUTOR,
+        workers: int = WORKERS,
+        scheduler: str | None = SCHEDULER,
         out: Path = typer.Option(Path("timetrial_out"), "--out", help="Folder of both variants (rerun to resume)."),
         as_json: bool = typer.Option(False, "--json", help="Print the table as JSON."),
     ) -> None:
