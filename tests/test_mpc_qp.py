@@ -75,7 +75,7 @@ def test_unconstrained_is_lqr(name):
     N = 15
     m = NominalModel(load_vehicle("audi_tt_cup"))
     A, B = m.jacobians(np.array([25.0, 0.2, 0.1, 0.0, 0.0, 0.0]), np.array([0.01, 0.0]), 0.004, 0.05)
-    w = Weights(Q=(1.0, 2.0, 5.0, 50.0, 10.0, 0.3), R=(30.0, 0.05), r_delta=0.0)
+    w = Weights(Q=(1.0, 2.0, 5.0, 50.0, 10.0, 0.3), R=(30.0, 0.05), r_delta=0.0, r_accel=0.0)
     Q, R = np.diag(w.Q), np.diag(w.R)
     x0 = np.array([1.0, 0.3, -0.1, 0.05, 0.8, -0.5])
     pb = LtvProblem(np.tile(A, (N, 1, 1)), np.tile(B, (N, 1, 1)), np.zeros((N, 6)), x0, np.zeros((N, 6)), np.zeros((N, 2)),

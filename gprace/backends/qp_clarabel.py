@@ -28,7 +28,7 @@ _STATUS = {
 class ClarabelQP:
     name = "clarabel"
 
-    def __init__(self, N: int, weights: Weights = Weights(), tol: float = 1e-8, max_iter: int = 100) -> None:
+    def __init__(self, N: int, weights: Weights = Weights(), tol: float = 1e-10, max_iter: int = 100) -> None:
         import clarabel
 
         self._cl = clarabel

@@ -34,6 +34,7 @@ class CvxpyClarabelQP:
         self.u_lo = cp.Parameter(NUS)
         self.u_hi = cp.Parameter(NUS)
         self.delta_prev = cp.Parameter()
+        self.a_prev = cp.Parameter()
         self.grip_G = cp.Parameter((N, NXS))
         self.grip_lo = cp.Parameter(N)
         self.grip_hi = cp.Parameter(N)
@@ -47,6 +48,8 @@ class CvxpyClarabelQP:
         cost += cp.sum_squares(cp.multiply(u - self.uref, np.tile(sr, (N, 1))))
         steer = cp.hstack([u[0, 0] - self.delta_prev, u[1:, 0] - u[:-1, 0]])
         cost += w.r_delta * cp.sum_squares(steer)
+        accel = cp.hstack([u[0, 1] - self.a_prev, u[1:, 1] - u[:-1, 1]])
+        cost += w.r_accel * cp.sum_squares(accel)
         cost += w.slack_l1 * cp.sum(eps) + w.slack_l2 * cp.sum_squares(eps)
         cost += w.grip_l1 * cp.sum(eta) + w.grip_l2 * cp.sum_squares(eta)
         cons = []
@@ -72,6 +75,7 @@ class CvxpyClarabelQP:
             self.ey_lo.value, self.ey_hi.value = pb.ey_lo, pb.ey_hi
             self.u_lo.value, self.u_hi.value = pb.u_lo, pb.u_hi
             self.delta_prev.value = pb.delta_prev
+            self.a_prev.value = pb.a_prev
             self.grip_G.value, self.grip_lo.value, self.grip_hi.value = pb.grip()
             self.problem.solve(solver=cp.CLARABEL, warm_start=False)
         except Exception as exc:

@@ -7,7 +7,8 @@ absolute progress made Clarabel report "Solved" with errors of 5e-2 m/s^2):
     z = [u_0 .. u_{N-1} (2N), x_1 .. x_N (6N), eps_1 .. eps_N (N), eta_1 .. eta_N (N)]
 
     min  sum_{k=1..N} |x_k - xref_k|_Q^2 + sum_{k=0..N-1} |u_k - uref_k|_R^2
-         + r_delta sum_{k=0..N-1} (delta_k - delta_{k-1})^2 + rho_1 sum eps_k + rho_2 sum eps_k^2
+         + r_delta sum_{k=0..N-1} (delta_k - delta_{k-1})^2 + r_accel sum_{k=0..N-1} (a_k - a_{k-1})^2
+         + rho_1 sum eps_k + rho_2 sum eps_k^2
          + rho_g1 sum eta_k + rho_g2 sum eta_k^2
     s.t. x_{k+1} = A_k x_k + B_k u_k + c_k              (x_0 given; c_k holds the GP mean)
          u_lo <= u_k <= u_hi
@@ -18,7 +19,9 @@ The grip row ``G_k x_k`` (only ``v_x, v_y, yaw_rate`` enter) is the linearised r
 the tracking MPC (:mod:`gprace.mpc.tracking`), softened by its own slack ``eta``. A problem
 without a grip constraint leaves ``G_k = 0`` and wide bounds: the structure is always the same.
 
-``delta_{-1}`` is the last applied steering angle. The lateral bounds are soft (exact L1 penalty
+``delta_{-1}`` and ``a_{-1}`` are the last applied steering angle and acceleration command. The
+``r_accel`` term is beyond the paper: without it the QP switched between full braking and full
+drive within 0.2 s in a fast chicane, which locked the rear wheels of the commonroad BMW. The lateral bounds are soft (exact L1 penalty
 ``rho_1`` large): a racing MPC must return an input even when a disturbance has already pushed the
 car past a tightened bound. ``Q`` and ``R`` are diagonal.
 """
@@ -69,6 +72,7 @@ class Weights:
     Q: tuple[float, ...] = (1.0, 2.0, 20.0, 200.0, 20.0, 0.5)   # v_x, v_y, yaw_rate, e_psi, e_y, s
     R: tuple[float, ...] = (20.0, 0.02)                          # delta, a_x
     r_delta: float = 2000.0                                      # (delta_k - delta_{k-1})^2
+    r_accel: float = 0.5                                         # (a_k - a_{k-1})^2
     slack_l1: float = 2000.0
     slack_l2: float = 2000.0
     grip_l1: float = 1e5        # slack of the grip rows (per rad of rear slip beyond its bound): an exact penalty
@@ -94,6 +98,7 @@ class LtvProblem:
     grip_G: np.ndarray | None = None   # (N, 6) grip row per step (None: no grip constraint)
     grip_lo: np.ndarray | None = None  # (N,)
     grip_hi: np.ndarray | None = None  # (N,)
+    a_prev: float = 0.0                # last applied acceleration command (for the r_accel term)
 
     @property
     def N(self) -> int:
@@ -151,15 +156,16 @@ class SparseQP:
             d[self.ix(k + 1): self.ix(k + 1) + NXS] += 2 * Q
             d[self.ie(k + 1)] += 2 * w.slack_l2
             d[self.ig(k + 1)] += 2 * w.grip_l2 * ETA_UNIT**2
-        # steering-rate term r (delta_k - delta_{k-1})^2
-        for k in range(N):
-            d[self.iu(k)] += 2 * w.r_delta
-            if k >= 1:
-                d[self.iu(k - 1)] += 2 * w.r_delta
-                a, b = self.iu(k - 1), self.iu(k)
-                rows += [a, b]
-                cols += [b, a]
-                vals += [-2 * w.r_delta, -2 * w.r_delta]
+        # input-rate terms r (u_k - u_{k-1})^2 for steering (j = 0) and acceleration (j = 1)
+        for j, r in ((0, w.r_delta), (1, w.r_accel)):
+            for k in range(N):
+                d[self.iu(k) + j] += 2 * r
+                if k >= 1:
+                    d[self.iu(k - 1) + j] += 2 * r
+                    a, b = self.iu(k - 1) + j, self.iu(k) + j
+                    rows += [a, b]
+                    cols += [b, a]
+                    vals += [-2 * r, -2 * r]
         P = sparse.coo_matrix((np.concatenate([d, vals]), (np.concatenate([np.arange(self.nz), rows]),
                                                             np.concatenate([np.arange(self.nz), cols]))),
                               shape=(self.nz, self.nz)).tocsc()
@@ -177,11 +183,14 @@ class SparseQP:
         q[NUS * N + NXS * N: NUS * N + NXS * N + N] = w.slack_l1
         q[NUS * N + NXS * N + N:] = w.grip_l1 * ETA_UNIT
         q[self.iu(0)] += -2 * w.r_delta * pb.delta_prev
+        q[self.iu(0) + 1] += -2 * w.r_accel * pb.a_prev
         return q
 
     def constant(self, pb: LtvProblem) -> float:
         """Cost terms that do not depend on z (so objectives compare across backends)."""
-        return float(np.sum(self.Qd * pb.xref**2) + np.sum(self.Rd * pb.uref**2) + self.weights.r_delta * pb.delta_prev**2)
+        w = self.weights
+        return float(np.sum(self.Qd * pb.xref**2) + np.sum(self.Rd * pb.uref**2) + w.r_delta * pb.delta_prev**2
+                     + w.r_accel * pb.a_prev**2)
 
     # constraints ----------------------------------------------------------------------------
     def _build_M(self) -> None:

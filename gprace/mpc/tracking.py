@@ -51,7 +51,8 @@ from gprace.mpc.qp import EY, LtvProblem, QPStatus, Weights
 
 FEATURES = DYN_INPUTS
 EXPLORED = ("v_y", "yaw_rate", "delta")
-RECOVER_STEPS = 10  # periods over which a rear slip beyond its bound is brought back  # features Algorithm 1 may move the reference to
+RECOVER_STEPS = 10  # periods over which a rear slip beyond its bound is brought back
+MIN_GAIN = 0.3      # share of the nominal input gain the GP-compensated model keeps (keep_gain)  # features Algorithm 1 may move the reference to
 _REF = {"v_x": ("x", 0), "v_y": ("x", 1), "yaw_rate": ("x", 2), "delta": ("u", 0), "a_x": ("u", 1)}
 
 
@@ -120,6 +121,23 @@ def rear_slip_rows(X: np.ndarray, lr: float, v_min: float) -> tuple[np.ndarray, 
     return -np.arctan(w / vx), G
 
 
+def keep_gain(b: np.ndarray, j: np.ndarray, floor: float = MIN_GAIN) -> np.ndarray:
+    """The GP's gradient ``j (N, 2)`` on an input column, shrunk where it would leave the
+    compensated gain ``b + j`` with less than ``floor`` of the nominal gain ``b (N, 2)`` along ``b``.
+
+    A GP fitted where the tires saturate may say an input does nothing (or the opposite); a QP
+    that believes it saturates the input (measured: full steering lock at 39 m/s on the
+    commonroad BMW). The model's own gain keeps its sign and at least ``floor`` of its size.
+    """
+    bb = np.einsum("ki,ki->k", b, b)
+    jb = np.einsum("ki,ki->k", j, b)
+    ok = bb > 0
+    t = np.ones(len(b))
+    low = ok & (bb + jb < floor * bb)
+    t[low] = (floor - 1.0) * bb[low] / jb[low]
+    return j * np.clip(t, 0.0, 1.0)[:, None]
+
+
 def peak_slip(b: float, c: float) -> float:
     """Slip angle [rad] of the peak of ``sin(C atan(B alpha))``: ``tan(pi / (2 C)) / B``."""
     return float(np.tan(np.pi / (2.0 * c)) / b) if c > 1.0 else float(np.pi / 2)
@@ -150,7 +168,7 @@ class TrackingMPC:
         self.half = 0.5 * model.vehicle.width + settings.margin
         self.prev_x: np.ndarray | None = None  # (N, 6) absolute s
         self.prev_u: np.ndarray | None = None  # (N, 2)
-        self.delta_prev = 0.0
+        self.delta_prev = self.a_prev = 0.0
         self.fallbacks = 0
         self.steps = 0
         self.last_target: np.ndarray | None = None
@@ -172,9 +190,9 @@ class TrackingMPC:
         f = ca.Function("lin", [x, u, k], [xn, ca.jacobian(xn, x), ca.jacobian(xn, u)])
         return f.map(self.N)
 
-    def reset(self, delta_prev: float = 0.0) -> None:
+    def reset(self, delta_prev: float = 0.0, a_prev: float = 0.0) -> None:
         self.prev_x = self.prev_u = None
-        self.delta_prev = float(delta_prev)
+        self.delta_prev, self.a_prev = float(delta_prev), float(a_prev)
 
     # --------------------------------------------------------------------------------------
     def reference(self, s_abs: float) -> tuple[np.ndarray, np.ndarray]:
@@ -247,7 +265,10 @@ class TrackingMPC:
                 A, B = A.copy(), B.copy()
                 for j, name in enumerate(self.inputs):
                     where, col = _REF[name]
-                    (A if where == "x" else B)[:, 1:3, col] += J[:, :, j]
+                    if where == "x":
+                        A[:, 1:3, col] += J[:, :, j]
+                    else:
+                        B[:, 1:3, col] += keep_gain(B[:, 1:3, col], J[:, :, j])
             else:
                 mean, var = self.gp(dyn_inputs(Xb, Ub, self.inputs))
         c = xn - np.einsum("kij,kj->ki", A, Xr) - np.einsum("kij,kj->ki", B, Ub)
@@ -277,7 +298,8 @@ class TrackingMPC:
             a_now = abs(float(rear_slip_rows(x_meas[None, :6], self.model.params.lr, self.model.params.vmin)[0][0]))
             room = np.maximum(room, a_now * (1.0 - np.arange(1, N + 1) / RECOVER_STEPS))
             grip = {"grip_G": G, "grip_lo": -room - off, "grip_hi": room - off}
-        pb = LtvProblem(A, B, c, x0, xref, uref, lo, hi, self.u_lo, self.u_hi, self.delta_prev, self.s.weights, **grip)
+        pb = LtvProblem(A, B, c, x0, xref, uref, lo, hi, self.u_lo, self.u_hi, self.delta_prev, self.s.weights, **grip,
+                        a_prev=self.a_prev)
         return pb, {"gamma": gamma, "s0": s0, "xref": xref, "uref": uref, "explored": xref is not xr0}
 
     def step(self, x_meas: np.ndarray) -> tuple[np.ndarray, dict]:
@@ -300,6 +322,6 @@ class TrackingMPC:
             x_seq[:, 5] += info["s0"]
         self.prev_u, self.prev_x = u_seq, x_seq
         u = np.clip(u_seq[0], self.u_lo, self.u_hi)
-        self.delta_prev = float(u[0])
+        self.delta_prev, self.a_prev = float(u[0]), float(u[1])
         info.update(solve_time=res.solve_time, status=res.status, fallback=fallback, iterations=res.iterations)
         return u, info

@@ -55,7 +55,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     x0, u0 = start_state(plan, track, model.vehicle)
     plant = make_plant(plant_config, track, dt)
     y = plant.reset(x0, u0)
-    mpc.reset(delta_prev=float(u0[0]))
+    mpc.reset(delta_prev=float(u0[0]), a_prev=float(u0[1]))
 
     L = track.length
     goal = settings.laps * L
