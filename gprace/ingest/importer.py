@@ -63,7 +63,7 @@ def import_recording(path: str | Path, *, track=None, rmap: RecordingMap | None 
     else:
         trk = load_track(track) if isinstance(track, (str, Path)) else track
         reference = "track"
-    fr = project(gs, trk, str(path))
+    fr = project(gs, trk, str(path), origin_at_start=reference == "path")
     t = gs.t[m]
     data = {
         "t": t - t[0], "s": fr["s"], "e_y": fr["e_y"], "e_psi": fr["e_psi"], "v_x": gs.v_x[m],

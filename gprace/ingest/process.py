@@ -348,8 +348,12 @@ def check_units(raw: Raw, gs: GlobalState, vals: dict, dt: float, window: float 
 # projection
 
 
-def project(gs: GlobalState, track, source: str) -> dict[str, np.ndarray]:
-    """Frenet coordinates of the valid grid rows on ``track``; laps from the continued ``s``."""
+def project(gs: GlobalState, track, source: str, origin_at_start: bool = False) -> dict[str, np.ndarray]:
+    """Frenet coordinates of the valid grid rows on ``track``; laps from the continued ``s``.
+
+    ``origin_at_start`` (path-derived reference lines): ``s`` and the laps count from the first
+    sample's projection, so the recording starts at ``s = 0``, lap 0.
+    """
     m = gs.valid
     x, y = gs.x[m], gs.y[m]
     s, e_y = track.to_frenet(x, y)
@@ -367,12 +371,15 @@ def project(gs: GlobalState, track, source: str) -> dict[str, np.ndarray]:
             s, e_y = track.to_frenet(x, y, s_hint=s_hint, window=max(50.0, 0.05 * L))
             ds = track._ds(s[1:], s[:-1])
         s_cont = s[0] + np.concatenate([[0.0], np.cumsum(ds)])
+        s_track = track.wrap(s_cont)
+        if origin_at_start:
+            s_cont = s_cont - s_cont[0]
         lap = np.floor((s_cont + 1e-6) / L)
-        s = track.wrap(s_cont - lap * L)
-        s = np.where(s >= L, 0.0, s)
+        s = np.maximum(s_cont - lap * L, 0.0)
     else:
         lap = np.zeros(len(s))
-    wl, wr = track.width_left(s), track.width_right(s)
+        s_track = s
+    wl, wr = track.width_left(s_track), track.width_right(s_track)
     outside = np.maximum(e_y - wl, -e_y - wr)
     if np.all(outside > 0.5):
         i = int(np.argmin(outside))
@@ -381,8 +388,8 @@ def project(gs: GlobalState, track, source: str) -> dict[str, np.ndarray]:
             f"{abs(e_y[i]):.1f} m from the centre line ({outside[i]:.1f} m outside the border, at s = {s[i]:.0f} m); "
             "wrong track, or positions in another frame (lat/lon, offset origin)?"
         )
-    e_psi = wrap(gs.yaw[m] - track.heading(s))
-    return {"s": s, "e_y": e_y, "e_psi": e_psi, "kappa": track.kappa(s), "lap": lap}
+    e_psi = wrap(gs.yaw[m] - track.heading(s_track))
+    return {"s": s, "e_y": e_y, "e_psi": e_psi, "kappa": track.kappa(s_track), "lap": lap}
 
 
 def segments(t: np.ndarray, dt: float) -> np.ndarray:
