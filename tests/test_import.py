@@ -318,6 +318,7 @@ def test_read_run_dispatches_raw_recordings(sim, tmp_path):
 # diagnose on imported recordings
 
 
+@pytest.mark.slow  # ~40 s on a shared 2-core machine
 def test_diagnose_gives_the_same_verdict_on_the_imported_recording(tmp_path):
     from gprace.config import EffectConfig, load_vehicle
     from gprace.diagnose.synth import record
@@ -348,6 +349,7 @@ def test_diagnose_gives_the_same_verdict_on_the_imported_recording(tmp_path):
     assert abs(pa - 0.3) < 0.05 and abs(pa - pb) < 0.01
 
 
+@pytest.mark.slow  # the commonroad plant integrates at 1 ms in Python: ~60 s
 def test_commonroad_recording_in_the_global_frame_imports_and_diagnoses(tmp_path):
     """x, y, yaw, speed and course from the commonroad model's own state, nothing from gprace's
     Frenet code on the way out; imported and diagnosed against the nominal BMW."""
@@ -365,7 +367,7 @@ def test_commonroad_recording_in_the_global_frame_imports_and_diagnoses(tmp_path
     u0 = np.array([veh.wheelbase * float(track.kappa(0.0)), 0.0])
     drv.delta_prev = float(u0[0])
     y = plant.reset(np.array([v0, 0.0, v0 * float(track.kappa(0.0)), 0.0, 0.0, 0.0]), u0)
-    n = int(30.0 / dt)
+    n = int(15.0 / dt)  # 300 samples: diagnose needs 200
     Z, U, X = np.empty((n, 9)), np.empty((n, 2)), np.empty((n, 6))
     for k in range(n):  # a time simulation (sequential by nature)
         u = drv(y)
@@ -473,7 +475,7 @@ def test_wrong_units_name_column_and_probable_unit(sim, tmp_path, column, factor
     line = _bad(_cli("import", rec, "--track", NORIS, "-o", out), 2, out,
                 f"column '{column}'", dimension_hint, f"looks like {unit}", f'[units] {column} = "{unit}"')
     ratio = float(line.split("by a factor ")[1].split(" ")[0])
-    assert abs(ratio / factor - 1.0) < 0.05
+    assert abs(ratio / factor - 1.0) < 0.1
 
 
 def test_flipped_yaw_rate_sign_is_named(sim, tmp_path):

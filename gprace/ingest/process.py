@@ -242,6 +242,8 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
 
 def _probable_unit(dimension: str, declared: str, ratio: float) -> str | None:
     """The unit whose factor explains a measured/expected ``ratio`` (within 12 %), if any."""
+    if not ratio > 0:
+        return None
     f_true = UNITS[dimension][declared] / ratio
     best = min(UNITS[dimension].items(), key=lambda kv: abs(math.log(kv[1] / f_true)))
     return best[0] if abs(math.log(best[1] / f_true)) < math.log(1.12) and best[0] != declared else None
