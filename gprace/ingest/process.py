@@ -376,7 +376,7 @@ def project(gs: GlobalState, track, source: str, origin_at_start: bool = False) 
         s_track = track.wrap(s_cont)
         if origin_at_start:
             s_cont = s_cont - s_cont[0]
-        lap = np.floor((s_cont + 1e-6) / L)
+        lap = np.floor((s_cont + 1e-3) / L)  # within 1 mm before the line is on it
         s = np.maximum(s_cont - lap * L, 0.0)
     else:
         lap = np.zeros(len(s))
