@@ -17,6 +17,7 @@ Time stamps come out in seconds (the recording's own epoch); nothing is resample
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -195,34 +196,29 @@ def ros_typestore(ros1: bool = False):
 
 
 def read_ros(path: Path, rmap: RecordingMap) -> Raw:
-    from rosbags.highlevel import AnyReader, AnyReaderError
-
     tp = rmap.topics
     raw = Raw(str(path), kind="ros")
     raw.hints = {
         "x": f"topic {tp.odometry!r} or {tp.pose!r}", "yaw": f"topic {tp.odometry!r} or {tp.pose!r}",
         "delta": f"topic {tp.ackermann!r}", "yaw_rate": f"topic {tp.imu!r} or {tp.odometry!r}",
     }
-    try:
-        reader = AnyReader([path], default_typestore=ros_typestore(path.suffix.lower() == ".bag"))
-        reader.open()
-    except (AnyReaderError, Exception) as exc:  # noqa: BLE001 - rosbags raises several kinds
-        raise InputError(f"{path}: not a readable ROS bag / MCAP file ({type(exc).__name__}: {exc})") from None
-    try:
-        topics = {c.topic: c.msgtype for c in reader.connections}
-        raw.present = [f"{k} ({v})" for k, v in sorted(topics.items())]
-        wanted = {tp.odometry: ODOMETRY, tp.pose: POSE, tp.imu: IMU, tp.ackermann: ACKERMANN}
-        for topic, typ in wanted.items():
-            if topic in topics and topics[topic] != typ:
-                raise InputError(f"{path}: topic {topic!r} has message type {topics[topic]}, expected {typ}")
-        got: dict[str, dict[str, np.ndarray]] = {}
-        for topic, typ in wanted.items():
-            if topic not in topics:
-                continue
-            conns = [c for c in reader.connections if c.topic == topic]
-            got[typ] = _ros_fields(reader, conns, typ, tp.stamp == "header")
-    finally:
-        reader.close()
+    wanted = {tp.odometry: ODOMETRY, tp.pose: POSE, tp.imu: IMU, tp.ackermann: ACKERMANN}
+    from gprace.ingest import mcap_fast
+
+    got = None
+    mc = mcap_fast.mcap_file(path)
+    if mc is not None:
+        try:
+            topics, got = _ros_fast(mc, wanted, tp.stamp == "header", mcap_fast)
+        except mcap_fast.Unsupported:
+            got = None
+        except InputError:
+            raise
+        except (struct.error, ValueError, IndexError, OSError):
+            got = None  # a damaged file: the general reader gives the error
+    if got is None:
+        topics, got = _ros_general(path, wanted, tp.stamp == "header")
+    raw.present = [f"{k} ({v})" for k, v in sorted(topics.items())]
 
     def add(q: str, typ: str, key: str, what: str) -> None:
         d = got.get(typ)
@@ -248,6 +244,57 @@ def read_ros(path: Path, rmap: RecordingMap) -> Raw:
         if "a_x" not in raw.signals:
             add("a_x", typ, "a_x", "drive.acceleration" if typ == ACKERMANN else "linear_acceleration.x")
     return raw
+
+
+def _check_types(path: Path, topics: dict[str, str], wanted: dict[str, str]) -> None:
+    for topic, typ in wanted.items():
+        if topic in topics and topics[topic] != typ:
+            raise InputError(f"{path}: topic {topic!r} has message type {topics[topic]}, expected {typ}")
+
+
+def _ros_fast(path: Path, wanted: dict[str, str], use_header: bool, mcap_fast):
+    """Topics and fields through :mod:`gprace.ingest.mcap_fast` (raises Unsupported)."""
+    channels, msgs = mcap_fast.scan(path)
+    topics = {topic: typ for topic, typ, _enc in channels.values()}
+    _check_types(path, topics, wanted)
+    got: dict[str, dict[str, np.ndarray]] = {}
+    for topic, typ in wanted.items():
+        cids = [c for c, (tpc, _t, enc) in channels.items() if tpc == topic]
+        if not cids:
+            continue
+        if any(channels[c][2] != "cdr" for c in cids):
+            raise mcap_fast.Unsupported("not CDR")
+        logt = [x for c in cids for x in msgs.get(c, ([], []))[0]]
+        data = [x for c in cids for x in msgs.get(c, ([], []))[1]]
+        order = np.argsort(np.asarray(logt, dtype=np.int64), kind="stable")
+        if np.any(np.diff(order) != 1):
+            logt = [logt[i] for i in order]
+            data = [data[i] for i in order]
+        got[typ] = mcap_fast.decode(typ, data, logt, use_header)
+    return topics, got
+
+
+def _ros_general(path: Path, wanted: dict[str, str], use_header: bool):
+    """Topics and fields through rosbags' AnyReader (every bag format, one message at a time)."""
+    from rosbags.highlevel import AnyReader
+
+    try:
+        reader = AnyReader([path], default_typestore=ros_typestore(path.suffix.lower() == ".bag"))
+        reader.open()
+    except Exception as exc:  # noqa: BLE001 - rosbags raises several kinds on bad files
+        raise InputError(f"{path}: not a readable ROS bag / MCAP file ({type(exc).__name__}: {exc})") from None
+    try:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+        _check_types(path, topics, wanted)
+        got: dict[str, dict[str, np.ndarray]] = {}
+        for topic, typ in wanted.items():
+            if topic not in topics:
+                continue
+            conns = [c for c in reader.connections if c.topic == topic]
+            got[typ] = _ros_fields(reader, conns, typ, use_header)
+    finally:
+        reader.close()
+    return topics, got
 
 
 def _ros_fields(reader, conns, typ: str, use_header: bool) -> dict[str, np.ndarray]:
