@@ -107,7 +107,7 @@ def write_global_csv(sim, path: Path, keep: np.ndarray | None = None, **replace)
     return path
 
 
-def write_mcap(sim, path: Path, topics=("/odom", "/imu", "/drive"), types=None, every=(3, 1, 5)) -> Path:
+def write_mcap(sim, path: Path, topics=("/odom", "/imu", "/drive"), types=None, every=(3, 1, 5), storage="mcap") -> Path:
     """rosbag2 (MCAP storage): Odometry every 3rd sample (33 Hz), Imu at 100 Hz, Ackermann at 20 Hz."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -152,7 +152,8 @@ def write_mcap(sim, path: Path, topics=("/odom", "/imu", "/drive"), types=None, 
     makers = {"/odom": ("nav_msgs/msg/Odometry", odom), "/imu": ("sensor_msgs/msg/Imu", imu),
               "/drive": ("ackermann_msgs/msg/AckermannDriveStamped", ack)}
     shutil.rmtree(path, ignore_errors=True)
-    with Writer(path, version=8, storage_plugin=StoragePlugin.MCAP) as w:
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    with Writer(path, version=8, storage_plugin=plugin) as w:
         for topic, step in zip(("/odom", "/imu", "/drive"), every):
             if topic not in topics:
                 continue
@@ -161,7 +162,7 @@ def write_mcap(sim, path: Path, topics=("/odom", "/imu", "/drive"), types=None, 
             conn = w.add_connection(name, typ, typestore=store)
             for k in range(0, len(t), step):
                 w.write(conn, int(round(t[k] * 1e9)), store.serialize_cdr(fn(k), typ))
-    return path / f"{path.name}.mcap"
+    return path / f"{path.name}.{'mcap' if storage == 'mcap' else 'db3'}"
 
 
 def write_mdf(sim, path: Path) -> Path:
@@ -261,6 +262,100 @@ def test_mdf4_with_own_names_and_units_round_trips(sim, tmp_path):
     # the channel's own units (km/h, deg) were applied; steering wheel / ratio gives delta
     assert e["v_x"] < 1e-6 and e["delta"] < 1e-9
     assert imp.meta["map_file"] == str(mp) and "steering_ratio = 15.0" in imp.meta["map_toml"]
+
+
+def test_rosbag2_sqlite_db3_round_trips(sim, tmp_path):
+    db3 = write_mcap(sim, tmp_path / "bag", storage="sqlite3")
+    assert db3.suffix == ".db3"
+    out = tmp_path / "imp.h5"
+    code, _, err = _cli("import", db3, "--track", NORIS, "-o", out)
+    assert code == 0, err
+    imp = read_run(out)
+    e, idx = _compare(imp, sim["run"], sim["track"])
+    _check_whole_lap(imp, sim, e, idx)
+
+
+def test_tangent_plane_matches_the_textbook_radii():
+    """East along a parallel = N cos(lat) sin(dlon); north along a meridian = M dlat (to 1 cm at 1 km)."""
+    from gprace.ingest.process import enu_from_latlon
+
+    a, f = 6378137.0, 1 / 298.257223563
+    e2 = f * (2 - f)
+    lat0, lon0 = np.radians(48.1), np.radians(11.5)
+    N = a / np.sqrt(1 - e2 * np.sin(lat0) ** 2)
+    M = a * (1 - e2) / (1 - e2 * np.sin(lat0) ** 2) ** 1.5
+    dlon, dlat = 1000.0 / (N * np.cos(lat0)), 1000.0 / M
+    e, n = enu_from_latlon(np.array([lat0, lat0 + dlat]), np.array([lon0 + dlon, lon0]), lat0, lon0)
+    assert abs(e[0] - N * np.cos(lat0) * np.sin(dlon)) < 1e-3 and abs(n[1] - 1000.0) < 0.01
+    # the parallel bends towards the pole in the tangent plane by x^2 tan(lat) / 2N (8.7 cm at 1 km)
+    assert abs(e[1]) < 1e-6 and abs(n[0] - 1000.0**2 * np.tan(lat0) / (2 * N)) < 1e-3
+
+
+def _latlon_of(x, y, lat0, lon0):
+    """Inverse of the tangent-plane projection by Newton steps on it (test helper)."""
+    from gprace.ingest.process import enu_from_latlon
+
+    R = 6378137.0
+    la = lat0 + y / R
+    lo = lon0 + x / (R * np.cos(lat0))
+    for _ in range(5):
+        e, n = enu_from_latlon(la, lo, lat0, lon0)
+        h = 1e-7
+        e_la, n_la = enu_from_latlon(la + h, lo, lat0, lon0)
+        e_lo, n_lo = enu_from_latlon(la, lo + h, lat0, lon0)
+        J = np.stack([[(e_la - e) / h, (e_lo - e) / h], [(n_la - n) / h, (n_lo - n) / h]])
+        det = J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0]
+        rx, ry = x - e, y - n
+        la = la + (J[1, 1] * rx - J[0, 1] * ry) / det
+        lo = lo + (-J[1, 0] * rx + J[0, 0] * ry) / det
+    return np.degrees(la), np.degrees(lo)
+
+
+def test_gnss_log_lat_lon_speed_course_steering_wheel(sim, tmp_path):
+    """A GNSS-style CSV: lat/lon in the track's tangent plane, speed + course over ground, the
+    steering-wheel angle in degrees, yaw rate in deg/s, no a_x (derived from speed)."""
+    r = sim["run"]
+    lat0, lon0 = 49.4271, 11.1022
+    lat, lon = _latlon_of(sim["x"], sim["y"], np.radians(lat0), np.radians(lon0))
+    beta = np.arctan2(r["v_y"], r["v_x"])
+    cols = {"time_ms": 1e3 * r["t"], "lat": lat, "lon": lon, "heading": np.degrees(sim["yaw"]),
+            "gps_speed": 3.6 * np.hypot(r["v_x"], r["v_y"]), "cog": np.degrees(sim["yaw"] + beta),
+            "gyro_z": np.degrees(r["yaw_rate"]), "swa": np.degrees(14.0 * r["delta"])}
+    rec = tmp_path / "gnss.csv"
+    np.savetxt(rec, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="", fmt="%.12g")
+    mp = tmp_path / "gnss.toml"
+    mp.write_text(f"""steering_ratio = 14.0
+origin = [{lat0}, {lon0}]
+[columns]
+t = "time_ms"
+yaw = "heading"
+speed = "gps_speed"
+course = "cog"
+yaw_rate = "gyro_z"
+steering_wheel = "swa"
+[units]
+t = "ms"
+yaw = "deg"
+speed = "km/h"
+course = "deg"
+yaw_rate = "deg/s"
+steering_wheel = "deg"
+""")
+    out = tmp_path / "imp.h5"
+    code, _, err = _cli("import", rec, "--track", NORIS, "--map", mp, "-o", out)
+    assert code == 0, err
+    assert "no a_x: from the change of v_x" in err
+    imp = read_run(out)
+    idx = np.rint(imp["t"] / DT_SIM).astype(int)
+    L = sim["track"].length
+    ds = (imp["s"] - r["s"][idx] + 0.5 * L) % L - 0.5 * L
+    assert np.abs(ds).max() < 0.1 and np.abs(imp["e_y"] - r["e_y"][idx]).max() < 0.05
+    assert np.abs(imp["e_psi"] - r["e_psi"][idx]).max() < 0.01
+    assert np.abs(imp["v_x"] - r["v_x"][idx]).max() < 1e-6 and np.abs(imp["v_y"] - r["v_y"][idx]).max() < 1e-6
+    assert np.abs(imp["delta"] - r["delta"][idx]).max() < 1e-9
+    # a_x from the change of speed: close to the simulator's acceleration where it is smooth
+    dv = np.gradient(r["v_x"], DT_SIM)[idx]
+    assert np.median(np.abs(imp["a_x"] - dv)) < 0.1
 
 
 def test_without_track_a_reference_line_from_the_path(sim, tmp_path):

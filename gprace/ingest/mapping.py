@@ -132,6 +132,7 @@ class RecordingMap(Frozen):
     units: Units = Field(default_factory=Units)
     signs: Signs = Field(default_factory=Signs)
     steering_ratio: float = Field(1.0, gt=0, description="steering-wheel angle / road-wheel angle [-]")
+    origin: tuple[float, float] | None = Field(None, description="[lat, lon] in degrees of the tangent plane that lat/lon are projected on (the track's frame); default the first fix")
     hold: tuple[str, ...] = Field(("delta", "a_x"), description="quantities resampled by zero-order hold (commands); the others linearly")
     max_gap: float | None = Field(None, gt=0, description="a source silent for longer than this [s] is a gap; default 5 median periods of that source (at least 2 dt)")
     check_units: bool = Field(True, description="cross-check speeds and yaw rate against the positions (robust statistics)")
@@ -158,7 +159,12 @@ def default_map_toml() -> str:
     d = RecordingMap().model_dump(mode="json")
     d.pop("max_gap", None)
     d.pop("track", None)
-    return head + dumps_toml(d) + '# max_gap = 0.5      # seconds; default 5 periods of each source\n# track = "Monza.csv"  # for stages reading this recording directly\n'
+    d.pop("origin", None)
+    return head + dumps_toml(d) + (
+        '# max_gap = 0.5          # seconds; default 5 periods of each source\n'
+        '# origin = [48.3, 11.6]  # lat, lon [deg] of the tangent plane (the track frame); default the first fix\n'
+        '# track = "Monza.csv"    # for stages reading this recording directly\n'
+    )
 
 
 def si_factor(quantity: str, unit: str) -> float:

@@ -176,7 +176,10 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
         vals[q] = v
         valid &= ok
     if pos == ("lat", "lon"):
-        lat0, lon0 = float(S["lat"].v[0]), float(S["lon"].v[0])
+        if rmap.origin is not None:
+            lat0, lon0 = math.radians(rmap.origin[0]), math.radians(rmap.origin[1])
+        else:
+            lat0, lon0 = float(S["lat"].v[0]), float(S["lon"].v[0])
         x, y = enu_from_latlon(vals["lat"], vals["lon"], lat0, lon0)
         notes.append(f"lat/lon projected on the tangent plane at ({math.degrees(lat0):.6f}, {math.degrees(lon0):.6f})")
     else:
@@ -376,6 +379,7 @@ def project(gs: GlobalState, track, source: str, origin_at_start: bool = False) 
         s_track = track.wrap(s_cont)
         if origin_at_start:
             s_cont = s_cont - s_cont[0]
+        s_cont = s_cont - L * np.floor((s_cont[0] + 1e-3) / L)  # lap 0 at the start, even on the line
         lap = np.floor((s_cont + 1e-3) / L)  # within 1 mm before the line is on it
         s = np.maximum(s_cont - lap * L, 0.0)
     else:
