@@ -113,16 +113,18 @@ def write_mcap(sim, path: Path, topics=("/odom", "/imu", "/drive"), types=None, 
 
     from gprace.ingest.readers import ros_typestore
 
-    store = ros_typestore()
+    ros1 = storage == "ros1"
+    store = ros_typestore(ros1=ros1)
     M = store.types
     r = sim["run"]
     t = r["t"] + T_OFFSET
     V3 = M["geometry_msgs/msg/Vector3"]
     zeros36, zeros9 = np.zeros(36), np.zeros(9)
+    extra = {"seq": 0} if ros1 else {}  # ROS 1 headers carry a sequence number
 
     def hdr(k):
         sec = int(np.floor(t[k]))
-        return M["std_msgs/msg/Header"](stamp=M["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((t[k] - sec) * 1e9))), frame_id="map")
+        return M["std_msgs/msg/Header"](**extra, stamp=M["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((t[k] - sec) * 1e9))), frame_id="map")
 
     def odom(k):
         yaw = sim["yaw"][k]
@@ -152,8 +154,15 @@ def write_mcap(sim, path: Path, topics=("/odom", "/imu", "/drive"), types=None, 
     makers = {"/odom": ("nav_msgs/msg/Odometry", odom), "/imu": ("sensor_msgs/msg/Imu", imu),
               "/drive": ("ackermann_msgs/msg/AckermannDriveStamped", ack)}
     shutil.rmtree(path, ignore_errors=True)
-    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    with Writer(path, version=8, storage_plugin=plugin) as w:
+    if ros1:
+        from rosbags.rosbag1 import Writer as Writer1
+
+        path.unlink(missing_ok=True)
+        writer, ser = Writer1(path), store.serialize_ros1
+    else:
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        writer, ser = Writer(path, version=8, storage_plugin=plugin), store.serialize_cdr
+    with writer as w:
         for topic, step in zip(("/odom", "/imu", "/drive"), every):
             if topic not in topics:
                 continue
@@ -161,7 +170,9 @@ def write_mcap(sim, path: Path, topics=("/odom", "/imu", "/drive"), types=None, 
             name = (types or {}).get(topic, topic)  # publish under another topic name (wrong type test)
             conn = w.add_connection(name, typ, typestore=store)
             for k in range(0, len(t), step):
-                w.write(conn, int(round(t[k] * 1e9)), store.serialize_cdr(fn(k), typ))
+                w.write(conn, int(round(t[k] * 1e9)), ser(fn(k), typ))
+    if ros1:
+        return path
     return path / f"{path.name}.{'mcap' if storage == 'mcap' else 'db3'}"
 
 
@@ -269,6 +280,16 @@ def test_rosbag2_sqlite_db3_round_trips(sim, tmp_path):
     assert db3.suffix == ".db3"
     out = tmp_path / "imp.h5"
     code, _, err = _cli("import", db3, "--track", NORIS, "-o", out)
+    assert code == 0, err
+    imp = read_run(out)
+    e, idx = _compare(imp, sim["run"], sim["track"])
+    _check_whole_lap(imp, sim, e, idx)
+
+
+def test_ros1_bag_round_trips(sim, tmp_path):
+    bag = write_mcap(sim, tmp_path / "log.bag", storage="ros1")
+    out = tmp_path / "imp.h5"
+    code, _, err = _cli("import", bag, "--track", NORIS, "-o", out)
     assert code == 0, err
     imp = read_run(out)
     e, idx = _compare(imp, sim["run"], sim["track"])

@@ -130,6 +130,8 @@ def read_csv(path: Path, rmap: RecordingMap) -> Raw:
     if not header or header == [""]:
         raise InputError(f"{path}: empty file")
     arr = _csv_numbers(path, header)
+    if len(arr) == 0:
+        raise InputError(f"{path}: no data rows after the header")
     cols = rmap.columns
     raw = Raw(str(path), present=header, kind="csv", hints={q: f"column {getattr(cols, q)!r}" for q in QUANTITIES})
     if cols.t not in header:

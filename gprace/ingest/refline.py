@@ -23,7 +23,7 @@ def path_reference(x: np.ndarray, y: np.ndarray, *, smoothing: float = 10.0, hal
     cum = np.concatenate([[0.0], np.cumsum(d)])
     total = float(cum[-1])
     if total < 20.0 * spacing:
-        raise InputError(f"{source or name}: the car drives only {total:.1f} m; too short to make a reference line from the path (give --track)")
+        raise InputError(f"{source or name}: the car drives only {total:.1f} m; too short to make a reference line from the path; give a track (`gprace import --track`, or `track = ...` in the recording's .map.toml)")
     idx = np.unique(np.searchsorted(cum, np.arange(0.0, total, spacing)))
     px, py, pc = x[idx], y[idx], cum[idx]
     tol = max(5.0, 3.0 * spacing)
