@@ -594,6 +594,31 @@ def test_wrong_units_name_column_and_probable_unit(sim, tmp_path, column, factor
     assert abs(ratio / factor - 1.0) < 0.1
 
 
+def test_time_stamps_in_ms_are_named(sim, tmp_path):
+    rec = write_global_csv(sim, tmp_path / "log.csv", t=1e3 * sim["run"]["t"])
+    out = tmp_path / "o.h5"
+    _bad(_cli("import", rec, "--track", NORIS, "-o", out, "--dt", "50"), 2, out, "--dt")  # 50 s: rejected first
+    _bad(_cli("import", rec, "--track", NORIS, "-o", out, "--dt", "0.05"), 2, out,
+         "time stamps look like ms", '[units] t = "ms"')
+
+
+def test_map_hold_names_are_checked(tmp_path):
+    from gprace.errors import ConfigError
+    from gprace.ingest.mapping import load_map
+
+    p = tmp_path / "m.toml"
+    p.write_text('hold = ["delta", "steer"]\n')
+    with pytest.raises(ConfigError, match="hold: unknown quantity steer"):
+        load_map(p)
+
+
+def test_missing_odometry_and_pose(sim, tmp_path):
+    bag = write_mcap(sim, tmp_path / "bag", topics=("/imu", "/drive"))
+    out = tmp_path / "o.h5"
+    line = _bad(_cli("import", bag, "--track", NORIS, "-o", out), 2, out, "no position (topic '/odom' or '/pose' not found)")
+    assert "/drive (ackermann_msgs/msg/AckermannDriveStamped)" in line
+
+
 def test_flipped_yaw_rate_sign_is_named(sim, tmp_path):
     rec = write_global_csv(sim, tmp_path / "log.csv", yaw_rate=-sim["run"]["yaw_rate"])
     out = tmp_path / "o.h5"

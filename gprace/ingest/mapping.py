@@ -25,7 +25,7 @@ import math
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from gprace.config import Frozen, dumps_toml, read_toml, validate
 
@@ -139,6 +139,15 @@ class RecordingMap(Frozen):
     reference_smoothing: float = Field(10.0, ge=0, description="Whittaker smoothing length of the path-derived reference line [m]")
     reference_width: float = Field(6.0, gt=0, description="half width given to the path-derived reference line [m]")
     track: str | None = Field(None, description="track used when the recording is read by another stage (path or shipped name); none: the path-derived reference line")
+
+
+    @field_validator("hold")
+    @classmethod
+    def _known(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        bad = [q for q in v if q not in QUANTITIES]
+        if bad:
+            raise ValueError(f"unknown quantit{'ies' if len(bad) > 1 else 'y'} {', '.join(bad)} (known: {', '.join(QUANTITIES)})")
+        return v
 
 
 def load_map(path: str | Path | None) -> RecordingMap:

@@ -159,10 +159,14 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
         raise raw.missing("position", ("x", "y"))
     if "delta" not in S and "steering_wheel" not in S:
         raise raw.missing("steering angle", ("delta", "steering_wheel"))
-    used = [q for q in S if q in ("x", "y", "lat", "lon", "yaw", "v_x", "v_y", "speed", "course",
-                                  "v_east", "v_north", "yaw_rate", "a_x")]
+    used = list(pos) + [q for q in ("yaw", "yaw_rate", "a_x") if q in S]
+    if "yaw" not in S and "course" in S:
+        used.append("course")
+    for group in (("v_x", "v_y"), ("speed", "course"), ("v_east", "v_north"), ("speed",)):
+        if group[0] in S and (len(group) == 1 or group[1] in S or group[0] == "v_x"):
+            used += [q for q in group if q in S and q not in used]
+            break
     used.append("delta" if "delta" in S else "steering_wheel")
-    used = [q for q in used if not (q in ("lat", "lon") and pos == ("x", "y"))]
     start = max(float(S[q].t[0]) for q in used)
     end = min(float(S[q].t[-1]) for q in used)
     if not end > start + 2 * dt:
@@ -296,7 +300,8 @@ def check_units(raw: Raw, gs: GlobalState, vals: dict, dt: float, window: float 
     units = raw.units
     T = k * dt
     chord_v = np.hypot(gs.x[i + k] - gs.x[i], gs.y[i + k] - gs.y[i]) / T
-    moving = chord_v > 2.0
+    moving = (chord_v > 2.0) | (_wmean(np.hypot(gs.v_x, gs.v_y), i, k) > 2.0)  # either says it moves
+    moving &= chord_v > 1e-3 * np.median(chord_v[moving]) if moving.any() else moving
     if moving.sum() < 20:
         return
     i, chord_v = i[moving], chord_v[moving]
@@ -305,6 +310,14 @@ def check_units(raw: Raw, gs: GlobalState, vals: dict, dt: float, window: float 
         if q in vals:
             meas = _wmean(np.hypot(gs.v_x, gs.v_y), i, k)
             ratio = float(np.median(meas / chord_v))
+            t_unit = units.get("t", "s")
+            for unit, f in UNITS["time"].items():  # every speed off by 1000^k: the clock's unit
+                if unit != t_unit and abs(math.log(ratio * f / UNITS["time"][t_unit])) < math.log(1.12):
+                    raise InputError(
+                        f"{raw.source}: {raw.signals[q].origin} disagrees with the speed from successive "
+                        f"positions by a factor {ratio:.3g}: the time stamps look like {unit}, not {t_unit}: "
+                        f"set [units] t = \"{unit}\" in the map"
+                    )
             if not (1 / 1.2 < ratio < 1.2):
                 raise _unit_error(raw, q, "speed", units[q], ratio, "the speed from successive positions", len(i))
             break

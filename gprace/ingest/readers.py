@@ -73,7 +73,7 @@ class Raw:
         return q in self.signals
 
     def missing(self, what: str, quantities: tuple[str, ...]) -> InputError:
-        where = ", ".join(self.hints.get(q, q) for q in quantities)
+        where = ", ".join(dict.fromkeys(self.hints.get(q, q) for q in quantities))
         listing = ", ".join(self.present) if self.present else "nothing"
         noun = {"csv": "columns", "ros": "topics", "mdf": "channels"}[self.kind]
         return InputError(f"{self.source}: no {what} ({where} not found); {noun} present: {listing}")
@@ -137,6 +137,7 @@ def read_csv(path: Path, rmap: RecordingMap) -> Raw:
     if cols.t not in header:
         raise raw.missing("time stamps", ("t",))
     t_all = arr[:, header.index(cols.t)] * si_factor("t", rmap.units.t)
+    raw.units["t"] = rmap.units.t
     keep_t = np.isfinite(t_all)
     for q in QUANTITIES[1:]:
         name = getattr(cols, q)
@@ -201,7 +202,8 @@ def read_ros(path: Path, rmap: RecordingMap) -> Raw:
     tp = rmap.topics
     raw = Raw(str(path), kind="ros")
     raw.hints = {
-        "x": f"topic {tp.odometry!r} or {tp.pose!r}", "yaw": f"topic {tp.odometry!r} or {tp.pose!r}",
+        "x": f"topic {tp.odometry!r} or {tp.pose!r}", "y": f"topic {tp.odometry!r} or {tp.pose!r}",
+        "yaw": f"topic {tp.odometry!r} or {tp.pose!r}",
         "delta": f"topic {tp.ackermann!r}", "yaw_rate": f"topic {tp.imu!r} or {tp.odometry!r}",
     }
     wanted = {tp.odometry: ODOMETRY, tp.pose: POSE, tp.imu: IMU, tp.ackermann: ACKERMANN}
