@@ -191,7 +191,6 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
     vxw, okx = seg_gradient(x, valid, dt)
     vyw, oky = seg_gradient(y, valid, dt)
     path_heading = np.unwrap(np.arctan2(vyw, vxw))
-    speed_pos = np.hypot(vxw, vyw)
 
     if "yaw" in vals:
         yaw = vals["yaw"]
@@ -200,6 +199,7 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
         notes.append("no yaw: heading of the velocity used (v_y = 0)")
     else:
         yaw = path_heading
+        valid = valid & okx & oky
         notes.append("no yaw: heading of the path used (v_y = 0)")
     if "v_x" in vals:
         v_x = vals["v_x"]
@@ -207,6 +207,7 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
             v_y = vals["v_y"]
         else:
             v_y = -np.sin(yaw) * vxw + np.cos(yaw) * vyw
+            valid = valid & okx & oky
             notes.append("no v_y: from successive positions")
     elif "speed" in vals and "course" in vals:
         v_x, v_y = vals["speed"] * np.cos(vals["course"] - yaw), vals["speed"] * np.sin(vals["course"] - yaw)

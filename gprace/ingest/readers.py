@@ -104,9 +104,8 @@ def read_raw(path: Path, rmap: RecordingMap) -> Raw:
     raise InputError(f"{path}: unknown recording format {path.suffix!r} (expected .csv, .mcap, .db3, .bag, a rosbag2 folder, .mf4 or .mdf)")
 
 
-
 def check_time(t: np.ndarray, source: str, what: str) -> None:
-    """Time stamps must not go backwards (equal stamps are allowed and averaged later)."""
+    """Time stamps must not go backwards (equal stamps are allowed: the last sample counts)."""
     bad = np.flatnonzero(np.diff(t) < 0)
     if len(bad):
         i = int(bad[0])
