@@ -426,8 +426,10 @@ def test_read_run_dispatches_raw_recordings(sim, tmp_path):
     # a Frenet CSV is read as before
     write_run_csv(sim["run"], tmp_path / "frenet.csv")
     assert "reference" not in read_run(tmp_path / "frenet.csv").meta
-    code, out, err = _cli("show", bag.parent)
+    code, out, err = _cli("show", bag.parent, "--json")
     assert code == 0, err
+    info = json.loads(out)
+    assert info["format"] == "ros recording (imported)" and info["arrays"]["e_y"]["shape"] == [run.n]
 
 
 # ------------------------------------------------------------------------------------------

@@ -149,7 +149,9 @@ def describe(path: str | Path) -> dict[str, Any]:
     from gprace.ingest.dispatch import is_raw_recording
 
     if is_raw_recording(path):  # ROS bag / MCAP, MDF4, global-frame CSV: read through the importer
-        return _describe_csv(path)
+        from gprace.ingest.readers import recording_format
+
+        return {**_describe_csv(path), "format": f"{recording_format(path)} recording (imported)"}
     if path.is_dir():
         raise InputError(f"{path}: is a folder; use `gprace report {path}` for a folder")
     suffix = path.suffix.lower()
