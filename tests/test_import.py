@@ -426,6 +426,10 @@ def test_read_run_dispatches_raw_recordings(sim, tmp_path):
     # a Frenet CSV is read as before
     write_run_csv(sim["run"], tmp_path / "frenet.csv")
     assert "reference" not in read_run(tmp_path / "frenet.csv").meta
+    code, out, err = _cli("-q", "select-data", bag.parent, "--gp", "tracking", "--max-points", "50",
+                          "--selection", "random", "--vehicle", "audi_tt_cup", "-o", tmp_path / "data.h5")
+    assert code == 0, err
+    assert f"from {run.n - 1} new samples" in out  # every consecutive pair of the 0.05 s grid
     code, out, err = _cli("show", bag.parent, "--json")
     assert code == 0, err
     info = json.loads(out)
