@@ -412,6 +412,25 @@ def test_gaps_stay_gaps(sim, tmp_path):
     assert e["e_y"] < 0.05 and e["s"] < 0.1  # rows either side of the gap are exact
 
 
+def test_one_silent_source_is_a_gap_too(sim, tmp_path):
+    """Empty cells: the gyro drops out for 1.5 s while everything else keeps logging."""
+    r = sim["run"]
+    t = r["t"]
+    rate = r["yaw_rate"].copy()
+    rate[(t > 30.0) & (t < 31.5)] = np.nan
+    rec = write_global_csv(sim, tmp_path / "log.csv", yaw_rate=rate)
+    rec.write_text(rec.read_text().replace(",nan,", ",,"))
+    out = tmp_path / "imp.h5"
+    code, _, err = _cli("import", rec, "--track", NORIS, "-o", out)
+    assert code == 0, err
+    imp = read_run(out)
+    assert not np.any((imp["t"] > 30.0 + 1e-6) & (imp["t"] < 31.5 - 1e-6))
+    assert imp["segment"].max() == 1 and imp.meta["gaps"] == 1
+    # the grid rows on either side are still there: 30.00 and 31.50 fall on gyro samples
+    assert np.any(np.isclose(imp["t"], 30.0)) and np.any(np.isclose(imp["t"], 31.5))
+    assert imp.meta["rows_dropped"] == 29
+
+
 def test_read_run_dispatches_raw_recordings(sim, tmp_path):
     """Every stage reading a recording takes the raw formats too (map's track, else the path)."""
     bag = write_mcap(sim, tmp_path / "bag")
