@@ -15,7 +15,7 @@ def register(app: typer.Typer) -> None:
         track: Optional[str] = typer.Option(None, "--track", help="Track: a TUM CSV / segment TOML path or a shipped name; none: a reference line from the driven path."),
         output: Optional[Path] = typer.Option(None, "--output", "-o", help="Run file to write (.h5, or .csv with provenance in <name>.meta.json)."),
         map_file: Optional[Path] = typer.Option(None, "--map", help="Recording map (TOML): columns, topics, channels, units, signs."),
-        dt: float = typer.Option(0.05, "--dt", help="Period of the written run [s]."),
+        dt: float = typer.Option(0.05, "--dt", help="Period of the written run, seconds."),
         print_map: bool = typer.Option(False, "--print-map", help="Print the default map (TOML) and exit."),
         json_out: bool = typer.Option(False, "--json", help="Summary as JSON on stdout."),
     ) -> None:
