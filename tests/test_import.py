@@ -543,8 +543,9 @@ def test_commonroad_recording_in_the_global_frame_imports_and_diagnoses(tmp_path
 # bad input: one line, exit 2, no file written
 
 
-def _bad(capsys_out, code, out_file, *needles):
-    code_, stdout, err = capsys_out
+def _bad(result, out_file, *needles):
+    """``result`` of :func:`_cli`: exit 2, one line naming ``needles``, no output file."""
+    code_, stdout, err = result
     lines = [ln for ln in err.strip().splitlines() if ln.strip()]
     assert code_ == 2, err
     assert len(lines) == 1 and lines[0].startswith("error: "), err
@@ -559,14 +560,14 @@ def _bad(capsys_out, code, out_file, *needles):
 def test_missing_topic_lists_the_topics_present(sim, tmp_path):
     bag = write_mcap(sim, tmp_path / "bag", topics=("/odom", "/imu"))
     out = tmp_path / "o.h5"
-    line = _bad(_cli("import", bag, "--track", NORIS, "-o", out), 2, out, "no steering angle", "'/drive'")
+    line = _bad(_cli("import", bag, "--track", NORIS, "-o", out), out, "no steering angle", "'/drive'")
     assert "/imu (sensor_msgs/msg/Imu)" in line and "/odom (nav_msgs/msg/Odometry)" in line
 
 
 def test_wrong_message_type(sim, tmp_path):
     bag = write_mcap(sim, tmp_path / "bag", topics=("/imu", "/drive"), types={"/imu": "/odom"})
     out = tmp_path / "o.h5"
-    _bad(_cli("import", bag, "--track", NORIS, "-o", out), 2, out,
+    _bad(_cli("import", bag, "--track", NORIS, "-o", out), out,
          "topic '/odom' has message type sensor_msgs/msg/Imu, expected nav_msgs/msg/Odometry")
 
 
@@ -575,7 +576,7 @@ def test_missing_mdf_channel_lists_the_channels(sim, tmp_path):
     mp = tmp_path / "map.toml"
     mp.write_text(MDF_MAP.replace('"PosX"', '"Pos_X"'))
     out = tmp_path / "o.h5"
-    _bad(_cli("import", rec, "--track", NORIS, "--map", mp, "-o", out), 2, out,
+    _bad(_cli("import", rec, "--track", NORIS, "--map", mp, "-o", out), out,
          "no position", "channel 'Pos_X'", "PosX", "VelX")
 
 
@@ -584,13 +585,13 @@ def test_time_going_backwards(sim, tmp_path):
     t[400], t[401] = t[401], t[400]
     rec = write_global_csv(sim, tmp_path / "log.csv", t=t)
     out = tmp_path / "o.h5"
-    _bad(_cli("import", rec, "--track", NORIS, "-o", out), 2, out, "time stamps go backwards", "sample 402")
+    _bad(_cli("import", rec, "--track", NORIS, "-o", out), out, "time stamps go backwards", "sample 402")
 
 
 def test_recording_never_on_the_track(sim, tmp_path):
     rec = write_global_csv(sim, tmp_path / "log.csv", x=sim["x"] + 5000.0)
     out = tmp_path / "o.h5"
-    line = _bad(_cli("import", rec, "--track", NORIS, "-o", out), 2, out, "never comes within track 'Norisring'")
+    line = _bad(_cli("import", rec, "--track", NORIS, "-o", out), out, "never comes within track 'Norisring'")
     dist = float(line.split("closest point is ")[1].split(" m")[0])
     assert 4000.0 < dist < 6000.0
 
@@ -600,7 +601,7 @@ def test_map_with_unknown_key(sim, tmp_path):
     mp = tmp_path / "map.toml"
     mp.write_text('[columns]\nyaw_rat = "gyro_z"\n')
     out = tmp_path / "o.h5"
-    _bad(_cli("import", rec, "--map", mp, "-o", out), 2, out, "map.toml", "columns.yaw_rat: unknown key")
+    _bad(_cli("import", rec, "--map", mp, "-o", out), out, "map.toml", "columns.yaw_rat: unknown key")
 
 
 @pytest.mark.parametrize("column,factor,unit,dimension_hint", [
@@ -613,7 +614,7 @@ def test_wrong_units_name_column_and_probable_unit(sim, tmp_path, column, factor
     base = {"v_x": r["v_x"], "yaw_rate": r["yaw_rate"], "yaw": np.unwrap(sim["yaw"])}[column]
     rec = write_global_csv(sim, tmp_path / "log.csv", **{column: factor * base})
     out = tmp_path / "o.h5"
-    line = _bad(_cli("import", rec, "--track", NORIS, "-o", out), 2, out,
+    line = _bad(_cli("import", rec, "--track", NORIS, "-o", out), out,
                 f"column '{column}'", dimension_hint, f"looks like {unit}", f'[units] {column} = "{unit}"')
     ratio = float(line.split("by a factor ")[1].split(" ")[0])
     assert abs(ratio / factor - 1.0) < 0.1
@@ -622,8 +623,8 @@ def test_wrong_units_name_column_and_probable_unit(sim, tmp_path, column, factor
 def test_time_stamps_in_ms_are_named(sim, tmp_path):
     rec = write_global_csv(sim, tmp_path / "log.csv", t=1e3 * sim["run"]["t"])
     out = tmp_path / "o.h5"
-    _bad(_cli("import", rec, "--track", NORIS, "-o", out, "--dt", "50"), 2, out, "--dt")  # 50 s: rejected first
-    _bad(_cli("import", rec, "--track", NORIS, "-o", out, "--dt", "0.05"), 2, out,
+    _bad(_cli("import", rec, "--track", NORIS, "-o", out, "--dt", "50"), out, "--dt")  # 50 s: rejected first
+    _bad(_cli("import", rec, "--track", NORIS, "-o", out, "--dt", "0.05"), out,
          "time stamps look like ms", '[units] t = "ms"')
 
 
@@ -640,14 +641,14 @@ def test_map_hold_names_are_checked(tmp_path):
 def test_missing_odometry_and_pose(sim, tmp_path):
     bag = write_mcap(sim, tmp_path / "bag", topics=("/imu", "/drive"))
     out = tmp_path / "o.h5"
-    line = _bad(_cli("import", bag, "--track", NORIS, "-o", out), 2, out, "no position (topic '/odom' or '/pose' not found)")
+    line = _bad(_cli("import", bag, "--track", NORIS, "-o", out), out, "no position (topic '/odom' or '/pose' not found)")
     assert "/drive (ackermann_msgs/msg/AckermannDriveStamped)" in line
 
 
 def test_flipped_yaw_rate_sign_is_named(sim, tmp_path):
     rec = write_global_csv(sim, tmp_path / "log.csv", yaw_rate=-sim["run"]["yaw_rate"])
     out = tmp_path / "o.h5"
-    _bad(_cli("import", rec, "--track", NORIS, "-o", out), 2, out, "column 'yaw_rate'", "[signs] yaw_rate = -1")
+    _bad(_cli("import", rec, "--track", NORIS, "-o", out), out, "column 'yaw_rate'", "[signs] yaw_rate = -1")
 
 
 def test_print_map_is_valid_and_round_trips(tmp_path):
