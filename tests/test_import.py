@@ -608,10 +608,11 @@ def test_map_with_unknown_key(sim, tmp_path):
     ("v_x", 3.6, "km/h", "speed from successive positions"),
     ("yaw_rate", 180.0 / np.pi, "deg/s", "heading change"),
     ("yaw", 180.0 / np.pi, "deg", "heading change of the path"),
+    ("a_x", 1.0 / 9.80665, "g", "change of speed"),
 ])
 def test_wrong_units_name_column_and_probable_unit(sim, tmp_path, column, factor, unit, dimension_hint):
     r = sim["run"]
-    base = {"v_x": r["v_x"], "yaw_rate": r["yaw_rate"], "yaw": np.unwrap(sim["yaw"])}[column]
+    base = {"v_x": r["v_x"], "yaw_rate": r["yaw_rate"], "yaw": np.unwrap(sim["yaw"]), "a_x": r["a_x"]}[column]
     rec = write_global_csv(sim, tmp_path / "log.csv", **{column: factor * base})
     out = tmp_path / "o.h5"
     line = _bad(_cli("import", rec, "--track", NORIS, "-o", out), out,

@@ -257,7 +257,8 @@ def _probable_unit(dimension: str, declared: str, ratio: float) -> str | None:
     return best[0] if abs(math.log(best[1] / f_true)) < math.log(1.12) and best[0] != declared else None
 
 
-def _unit_error(raw: Raw, q: str, dimension: str, declared: str, ratio: float, against: str, m: int) -> InputError:
+def _unit_error(raw: Raw, q: str, dimension: str, declared: str, ratio: float, against: str, m: int,
+                stat: str = "median") -> InputError:
     where = raw.signals[q].origin
     unit = _probable_unit(dimension, declared, ratio)
     if unit is not None:
@@ -268,7 +269,7 @@ def _unit_error(raw: Raw, q: str, dimension: str, declared: str, ratio: float, a
         hint = f"check its unit and sign (declared {declared})"
     return InputError(
         f"{raw.source}: {where} disagrees with {against} by a factor {ratio:.3g} "
-        f"(median over {m} samples); {hint}"
+        f"({stat} over {m} windows); {hint}"
     )
 
 
@@ -292,7 +293,7 @@ def check_units(raw: Raw, gs: GlobalState, vals: dict, dt: float, window: float 
     dominate the differences): chord speed of the positions vs the mean measured speed, change of
     the chord heading vs the change of yaw, change of yaw vs the integral of the yaw rate, change
     of v_x vs the integral of a_x. A ratio is the median over the windows where the car moves
-    (and turns, or accelerates); the checks ignore the sign of nothing but name a flipped one.
+    (and turns, or accelerates); a ratio near -1 is named as a flipped sign.
     """
     k = max(1, int(round(window / dt)))
     i = _window(gs.valid, 2 * k)
@@ -348,9 +349,10 @@ def check_units(raw: Raw, gs: GlobalState, vals: dict, dt: float, window: float 
         a = _wmean(gs.a_x, i, k)
         acc = np.abs(a) > 0.5
         if acc.sum() >= 20:
-            ratio = float(np.sum(a[acc] * dv[acc]) / np.sum(a[acc] ** 2))
+            ratio = float(np.sum(a[acc] ** 2) / np.sum(a[acc] * dv[acc]))  # measured / expected
             if _probable_unit("accel", units["a_x"], ratio) is not None and not (0.4 < ratio < 2.5):
-                raise _unit_error(raw, "a_x", "accel", units["a_x"], ratio, "the change of speed", int(acc.sum()))
+                raise _unit_error(raw, "a_x", "accel", units["a_x"], ratio, "the change of speed", int(acc.sum()),
+                                  "least squares")
     # 5. steering: a road-wheel angle above ~70 deg is an angle in degrees or a steering-wheel angle
     q = "delta" if "delta" in vals else "steering_wheel"
     p99 = float(np.percentile(np.abs(gs.delta[gs.valid]), 99)) if gs.valid.any() else 0.0
