@@ -35,6 +35,7 @@ COMMAND_MODULES = (
     "gprace.h2h.commands",
     "gprace.timetrial.commands",
     "gprace.diagnose.commands",
+    "gprace.ingest.commands",
 )
 
 

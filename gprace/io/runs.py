@@ -105,9 +105,15 @@ def check_columns(data: dict[str, np.ndarray], source: str) -> None:
 
 
 def read_run(path: str | Path) -> Run:
+    """A run from HDF5 or a Frenet CSV; raw recordings (ROS bag / MCAP, MDF4, a global-frame
+    CSV) go through the importer (:mod:`gprace.ingest.dispatch`)."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
+    from gprace.ingest.dispatch import is_raw_recording, read_recording
+
+    if is_raw_recording(path):
+        return read_recording(path)
     if path.suffix.lower() == ".csv":
         return _read_csv(path)
     art = read_artifact(path, "run")

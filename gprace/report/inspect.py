@@ -146,6 +146,12 @@ def describe(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
+    from gprace.ingest.dispatch import is_raw_recording
+
+    if is_raw_recording(path):  # ROS bag / MCAP, MDF4, global-frame CSV: read through the importer
+        from gprace.ingest.readers import recording_format
+
+        return {**_describe_csv(path), "format": f"{recording_format(path)} recording (imported)"}
     if path.is_dir():
         raise InputError(f"{path}: is a folder; use `gprace report {path}` for a folder")
     suffix = path.suffix.lower()

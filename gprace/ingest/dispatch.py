@@ -1,0 +1,55 @@
+"""Which recordings need the importer when a stage reads them (:func:`gprace.io.runs.read_run`).
+
+A raw recording is a ROS bag / MCAP / rosbag2 folder, an MDF4 file, or a CSV whose header has
+global columns (``x, y`` or ``lat, lon``) but no Frenet ones (``s, e_y``). Such a file is imported
+with the map next to it (``<name>.map.toml``, else the defaults) at the map's ``track`` (else a
+reference line made from the driven path) and period 0.05 s. Kept light: no heavy import here.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+SIDECAR = ".map.toml"
+DEFAULT_DT = 0.05
+
+
+def sidecar_map(path: Path) -> Path:
+    return path.with_name(path.name.rsplit(".", 1)[0] + SIDECAR if path.suffix else path.name + SIDECAR)
+
+
+def is_raw_recording(path: Path) -> bool:
+    from gprace.ingest.readers import recording_format
+
+    fmt = recording_format(path)
+    if fmt in ("ros", "mdf"):
+        return True
+    if fmt != "csv":
+        return False
+    try:
+        with path.open() as fh:
+            header = {h.strip() for h in fh.readline().lstrip("#").split(",")}
+    except (OSError, UnicodeDecodeError):
+        return False
+    if {"s", "e_y"} <= header:
+        return False
+    from gprace.ingest.mapping import load_map
+
+    sc = sidecar_map(path)
+    cols = load_map(sc if sc.exists() else None).columns
+    return {cols.x, cols.y} <= header or {cols.lat, cols.lon} <= header
+
+
+def read_recording(path: str | Path):
+    """A raw recording as a Run, for stages that take a recording (see module docstring)."""
+    from gprace.console import console
+    from gprace.ingest.importer import import_recording
+    from gprace.ingest.mapping import load_map
+
+    path = Path(path)
+    sc = sidecar_map(path)
+    rmap = load_map(sc if sc.exists() else None)
+    if rmap.track is None:
+        console.info(f"{path}: raw recording, no track in a map ({sc.name}): projected on a reference line made from the driven path")
+    run, _ = import_recording(path, track=rmap.track, rmap=rmap, dt=DEFAULT_DT)
+    return run

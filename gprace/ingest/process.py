@@ -1,0 +1,419 @@
+"""From raw signals (:class:`~gprace.ingest.readers.Raw`) to a Frenet :class:`~gprace.io.runs.Run`.
+
+Pipeline (all vectorised over samples; see docs/decisions.md, "Import (issue 15)"):
+
+1. **Time base.** One uniform grid of period ``dt`` over the span every used source covers.
+   Each quantity is resampled on its own: linearly (angles unwrapped first), or by zero-order hold
+   for commands (``hold`` in the map: a command holds until the next one).
+2. **Gaps stay gaps.** A grid point is *valid* for a source when the source has samples on both
+   sides no further apart than ``max_gap`` (or a sample within 1 us of it). Rows where any used
+   source is invalid are left out: the ``t`` column jumps over the gap and a ``segment`` column
+   counts the contiguous pieces. Derivatives (speed from positions, yaw rate from heading, a_x from
+   speed) never reach across a gap (one-sided differences at segment ends).
+3. **Global state.** Position from ``x, y`` or ``lat, lon`` (local tangent plane at the first
+   fix, WGS84); heading from ``yaw`` (else the velocity heading, then the path heading); body
+   velocities from ``v_x, v_y``, or speed + course, or world-frame velocities, or positions.
+4. **Unit checks** (robust medians over the moving samples): the speed the velocity columns give vs
+   the speed from successive positions, the heading change vs the path's, the yaw rate vs the
+   heading change, a_x vs the change of speed, the steering range. A ratio off by a known unit
+   factor (3.6, 2.237, 57.3, 9.81) names the column and the probable unit.
+5. **Projection** onto the centre line (``Track.to_frenet``: nearest point, then a second pass with
+   the continued ``s`` as hint so self-crossing tracks follow the driven branch): ``s, e_y``,
+   ``e_psi = yaw - heading(s)``, ``kappa(s)``; laps counted from the continued ``s``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from gprace.errors import InputError
+from gprace.ingest.mapping import UNITS, RecordingMap
+from gprace.ingest.readers import Raw, Signal
+
+ANGLES = ("yaw", "course", "lat", "lon")
+TOL = 1e-6
+"""Time tolerance [s] for a sample to count as exactly on a grid point."""
+
+
+@dataclass
+class Grid:
+    t: np.ndarray  # (n,) grid times [s], recording epoch
+    valid: np.ndarray  # (n,) bool: every used source is valid
+    dt: float
+
+
+# ----------------------------------------------------------------------------------------------
+# resampling
+
+
+def _dedupe(sig: Signal) -> tuple[np.ndarray, np.ndarray]:
+    t, v = sig.t, sig.v
+    if len(t) > 1:
+        keep = np.concatenate([np.diff(t) > 0, [True]])  # equal stamps: keep the last
+        t, v = t[keep], v[keep]
+    return t, v
+
+
+def default_max_gap(t: np.ndarray, dt: float) -> float:
+    per = float(np.median(np.diff(t))) if len(t) > 1 else dt
+    return max(5.0 * per, 2.0 * dt)
+
+
+def resample(sig: Signal, tg: np.ndarray, dt: float, max_gap: float | None, hold: bool, angle: bool):
+    """Values of ``sig`` at grid times ``tg`` and a validity mask (gaps, outside the span)."""
+    t, v = _dedupe(sig)
+    if len(t) == 0:
+        return np.zeros(len(tg)), np.zeros(len(tg), dtype=bool)
+    gap = default_max_gap(t, dt) if max_gap is None else max_gap
+    if angle:
+        v = np.unwrap(v)
+    i0 = np.searchsorted(t, tg + TOL, side="right") - 1  # last sample at or before tg
+    i0c = np.clip(i0, 0, len(t) - 1)
+    i1c = np.clip(i0 + 1, 0, len(t) - 1)
+    exact = (i0 >= 0) & (np.abs(tg - t[i0c]) <= TOL)
+    inside = (i0 >= 0) & (i0 + 1 < len(t))
+    if hold:
+        val = v[i0c]
+        ok = exact | ((i0 >= 0) & (tg - t[i0c] <= gap) & ((t[i1c] - t[i0c] <= gap) | (i0 + 1 >= len(t))))
+        ok &= tg <= t[-1] + gap
+    else:
+        val = np.interp(tg, t, v)
+        ok = exact | (inside & (t[i1c] - t[i0c] <= gap))
+    return val, ok
+
+
+def seg_gradient(v: np.ndarray, valid: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """d v / dt on a uniform grid by central differences inside valid runs, one-sided at their
+    ends; never across an invalid sample. Returns the derivative and where it is defined."""
+    n = len(v)
+    fwd = np.full(n, np.nan)
+    bwd = np.full(n, np.nan)
+    pair = valid[:-1] & valid[1:]
+    d = np.diff(v) / dt
+    fwd[:-1] = np.where(pair, d, np.nan)
+    bwd[1:] = np.where(pair, d, np.nan)
+    both = np.isfinite(fwd) & np.isfinite(bwd)
+    out = np.where(both, 0.5 * (fwd + bwd), np.where(np.isfinite(fwd), fwd, bwd))
+    ok = np.isfinite(out) & valid
+    return np.where(ok, out, 0.0), ok
+
+
+def wrap(a):
+    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+# ----------------------------------------------------------------------------------------------
+# geodesy
+
+
+def enu_from_latlon(lat_rad: np.ndarray, lon_rad: np.ndarray, lat0: float, lon0: float):
+    """East/north [m] of WGS84 points in the local tangent plane at ``(lat0, lon0)`` (height 0)."""
+    a, f = 6378137.0, 1.0 / 298.257223563
+    e2 = f * (2.0 - f)
+
+    def ecef(la, lo):
+        n = a / np.sqrt(1.0 - e2 * np.sin(la) ** 2)
+        return n * np.cos(la) * np.cos(lo), n * np.cos(la) * np.sin(lo), n * (1.0 - e2) * np.sin(la)
+
+    x, y, z = ecef(lat_rad, lon_rad)
+    x0, y0, z0 = ecef(np.array(lat0), np.array(lon0))
+    dx, dy, dz = x - x0, y - y0, z - z0
+    sl, cl, so, co = math.sin(lat0), math.cos(lat0), math.sin(lon0), math.cos(lon0)
+    east = -so * dx + co * dy
+    north = -sl * co * dx - sl * so * dy + cl * dz
+    return east, north
+
+
+# ----------------------------------------------------------------------------------------------
+# global state on the grid
+
+
+@dataclass
+class GlobalState:
+    t: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray  # unwrapped
+    v_x: np.ndarray
+    v_y: np.ndarray
+    yaw_rate: np.ndarray
+    delta: np.ndarray
+    a_x: np.ndarray
+    valid: np.ndarray
+    notes: list[str]
+    origin: dict[str, str]
+
+
+def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
+    """Resample every quantity onto one grid and derive the full global state (module docstring)."""
+    S = raw.signals
+    notes: list[str] = []
+    if S.get("x") is not None and S.get("y") is not None:
+        pos = ("x", "y")
+    elif S.get("lat") is not None and S.get("lon") is not None:
+        pos = ("lat", "lon")
+    else:
+        raise raw.missing("position", ("x", "y"))
+    if "delta" not in S and "steering_wheel" not in S:
+        raise raw.missing("steering angle", ("delta", "steering_wheel"))
+    used = list(pos) + [q for q in ("yaw", "yaw_rate", "a_x") if q in S]
+    if "yaw" not in S and "course" in S:
+        used.append("course")
+    for group in (("v_x", "v_y"), ("speed", "course"), ("v_east", "v_north"), ("speed",)):
+        if group[0] in S and (len(group) == 1 or group[1] in S or group[0] == "v_x"):
+            used += [q for q in group if q in S and q not in used]
+            break
+    used.append("delta" if "delta" in S else "steering_wheel")
+    start = max(float(S[q].t[0]) for q in used)
+    end = min(float(S[q].t[-1]) for q in used)
+    if not end > start + 2 * dt:
+        spans = ", ".join(f"{S[q].origin} {S[q].t[0]:.3f}..{S[q].t[-1]:.3f} s" for q in used)
+        raise InputError(f"{raw.source}: the sources do not overlap in time for more than 2 periods ({spans})")
+    n = int(math.floor((end - start) / dt + 1e-9)) + 1
+    tg = start + dt * np.arange(n)
+    vals, valid = {}, np.ones(n, dtype=bool)
+    for q in used:
+        v, ok = resample(S[q], tg, dt, rmap.max_gap, q in rmap.hold, q in ANGLES)
+        vals[q] = v
+        valid &= ok
+    if pos == ("lat", "lon"):
+        if rmap.origin is not None:
+            lat0, lon0 = math.radians(rmap.origin[0]), math.radians(rmap.origin[1])
+        else:
+            lat0, lon0 = float(S["lat"].v[0]), float(S["lon"].v[0])
+        x, y = enu_from_latlon(vals["lat"], vals["lon"], lat0, lon0)
+        notes.append(f"lat/lon projected on the tangent plane at ({math.degrees(lat0):.6f}, {math.degrees(lon0):.6f})")
+    else:
+        x, y = vals["x"], vals["y"]
+    vxw, okx = seg_gradient(x, valid, dt)
+    vyw, oky = seg_gradient(y, valid, dt)
+    path_heading = np.unwrap(np.arctan2(vyw, vxw))
+
+    if "yaw" in vals:
+        yaw = vals["yaw"]
+    elif "course" in vals:
+        yaw = vals["course"]
+        notes.append("no yaw: heading of the velocity used (v_y = 0)")
+    else:
+        yaw = path_heading
+        valid = valid & okx & oky
+        notes.append("no yaw: heading of the path used (v_y = 0)")
+    if "v_x" in vals:
+        v_x = vals["v_x"]
+        if "v_y" in vals:
+            v_y = vals["v_y"]
+        else:
+            v_y = -np.sin(yaw) * vxw + np.cos(yaw) * vyw
+            valid = valid & okx & oky
+            notes.append("no v_y: from successive positions")
+    elif "speed" in vals and "course" in vals:
+        v_x, v_y = vals["speed"] * np.cos(vals["course"] - yaw), vals["speed"] * np.sin(vals["course"] - yaw)
+    elif "v_east" in vals and "v_north" in vals:
+        c, s_ = np.cos(yaw), np.sin(yaw)
+        v_x, v_y = c * vals["v_east"] + s_ * vals["v_north"], -s_ * vals["v_east"] + c * vals["v_north"]
+    elif "speed" in vals:
+        v_x, v_y = vals["speed"] * np.cos(path_heading - yaw), vals["speed"] * np.sin(path_heading - yaw)
+    else:
+        c, s_ = np.cos(yaw), np.sin(yaw)
+        v_x, v_y = c * vxw + s_ * vyw, -s_ * vxw + c * vyw
+        valid = valid & okx & oky
+        notes.append("no velocities: from successive positions")
+    if "yaw_rate" in vals:
+        yaw_rate = vals["yaw_rate"]
+    else:
+        yaw_rate, ok = seg_gradient(yaw, valid, dt)
+        valid &= ok
+        notes.append("no yaw_rate: from the heading")
+    if "delta" in vals:
+        delta = vals["delta"]
+    else:
+        delta = vals["steering_wheel"] / rmap.steering_ratio
+    if "a_x" in vals:
+        a_x = vals["a_x"]
+    else:
+        a_x, ok = seg_gradient(v_x, valid, dt)
+        valid &= ok
+        notes.append("no a_x: from the change of v_x")
+    origin = {q: S[q].origin for q in S}
+    gs = GlobalState(tg, x, y, yaw, v_x, v_y, yaw_rate, delta, a_x, valid, notes, origin)
+    if rmap.check_units:
+        check_units(raw, gs, vals, dt)
+    return gs
+
+
+# ----------------------------------------------------------------------------------------------
+# unit checks
+
+
+def _probable_unit(dimension: str, declared: str, ratio: float) -> str | None:
+    """The unit whose factor explains a measured/expected ``ratio`` (within 12 %), if any."""
+    if not ratio > 0:
+        return None
+    f_true = UNITS[dimension][declared] / ratio
+    best = min(UNITS[dimension].items(), key=lambda kv: abs(math.log(kv[1] / f_true)))
+    return best[0] if abs(math.log(best[1] / f_true)) < math.log(1.12) and best[0] != declared else None
+
+
+def _unit_error(raw: Raw, q: str, dimension: str, declared: str, ratio: float, against: str, m: int,
+                stat: str = "median") -> InputError:
+    where = raw.signals[q].origin
+    unit = _probable_unit(dimension, declared, ratio)
+    if unit is not None:
+        hint = f"it looks like {unit}, not {declared}: set [units] {q} = \"{unit}\" in the map"
+    elif ratio < 0 and abs(abs(ratio) - 1.0) < 0.2:
+        hint = f"its sign is flipped: set [signs] {q} = -1 in the map"
+    else:
+        hint = f"check its unit and sign (declared {declared})"
+    return InputError(
+        f"{raw.source}: {where} disagrees with {against} by a factor {ratio:.3g} "
+        f"({stat} over {m} windows); {hint}"
+    )
+
+
+def _window(valid: np.ndarray, k: int) -> np.ndarray:
+    """Start indices ``i`` whose window ``[i, i + k]`` holds only valid samples."""
+    bad = np.concatenate([[0], np.cumsum(~valid)])
+    i = np.arange(len(valid) - k)
+    return i[(bad[i + k + 1] - bad[i]) == 0]
+
+
+def _wmean(v: np.ndarray, i: np.ndarray, k: int) -> np.ndarray:
+    """Trapezoidal mean of ``v`` over the windows ``[i, i + k]``."""
+    c = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]))])
+    return (c[i + k] - c[i]) / k
+
+
+def check_units(raw: Raw, gs: GlobalState, vals: dict, dt: float, window: float = 0.5) -> None:
+    """Cross-check channels against the positions with robust statistics (module docstring).
+
+    Everything is compared over windows of ``window`` seconds (so position noise does not
+    dominate the differences): chord speed of the positions vs the mean measured speed, change of
+    the chord heading vs the change of yaw, change of yaw vs the integral of the yaw rate, change
+    of v_x vs the integral of a_x. A ratio is the median over the windows where the car moves
+    (and turns, or accelerates); a ratio near -1 is named as a flipped sign.
+    """
+    k = max(1, int(round(window / dt)))
+    i = _window(gs.valid, 2 * k)
+    if len(i) < 20:
+        return
+    units = raw.units
+    T = k * dt
+    chord_v = np.hypot(gs.x[i + k] - gs.x[i], gs.y[i + k] - gs.y[i]) / T
+    moving = (chord_v > 2.0) | (_wmean(np.hypot(gs.v_x, gs.v_y), i, k) > 2.0)  # either says it moves
+    moving &= chord_v > 1e-3 * np.median(chord_v[moving]) if moving.any() else moving
+    if moving.sum() < 20:
+        return
+    i, chord_v = i[moving], chord_v[moving]
+    # 1. speed columns vs the speed from successive positions
+    for q in ("v_x", "speed", "v_east"):
+        if q in vals:
+            meas = _wmean(np.hypot(gs.v_x, gs.v_y), i, k)
+            ratio = float(np.median(meas / chord_v))
+            t_unit = units.get("t", "s")
+            for unit, f in UNITS["time"].items():  # every speed off by 1000^k: the clock's unit
+                if unit != t_unit and abs(math.log(ratio * f / UNITS["time"][t_unit])) < math.log(1.12):
+                    raise InputError(
+                        f"{raw.source}: {raw.signals[q].origin} disagrees with the speed from successive "
+                        f"positions by a factor {ratio:.3g}: the time stamps look like {unit}, not {t_unit}: "
+                        f"set [units] t = \"{unit}\" in the map"
+                    )
+            if not (1 / 1.2 < ratio < 1.2):
+                raise _unit_error(raw, q, "speed", units[q], ratio, "the speed from successive positions", len(i))
+            break
+    # 2. heading change vs the change of the chord heading (a yaw in degrees turns 57 times too fast)
+    i2 = i  # windows of 2k valid samples
+    if "yaw" in vals:
+        h_a = np.arctan2(gs.y[i2 + k] - gs.y[i2], gs.x[i2 + k] - gs.x[i2])
+        h_b = np.arctan2(gs.y[i2 + 2 * k] - gs.y[i2 + k], gs.x[i2 + 2 * k] - gs.x[i2 + k])
+        d_path = wrap(h_b - h_a)
+        d_yaw = gs.yaw[i2 + k + k // 2] - gs.yaw[i2 + k // 2]
+        turn = np.abs(d_path) > 0.05 * T
+        if turn.sum() >= 20:
+            ratio = float(np.median(d_yaw[turn] / d_path[turn]))
+            if not (0.6 < ratio < 1.6):
+                raise _unit_error(raw, "yaw", "angle", units["yaw"], ratio, "the heading change of the path", int(turn.sum()))
+    # 3. yaw rate vs the change of yaw
+    if "yaw_rate" in vals:
+        d_yaw = gs.yaw[i + k] - gs.yaw[i]
+        turn = np.abs(d_yaw) > 0.05 * T
+        if turn.sum() >= 20:
+            ratio = float(np.median(_wmean(gs.yaw_rate, i, k)[turn] * T / d_yaw[turn]))
+            if not (0.7 < ratio < 1.4):
+                raise _unit_error(raw, "yaw_rate", "rate", units["yaw_rate"], ratio, "the heading change", int(turn.sum()))
+    # 4. a_x vs the change of speed: least-squares slope over windows with clear acceleration
+    if "a_x" in vals:
+        dv = (gs.v_x[i + k] - gs.v_x[i]) / T
+        a = _wmean(gs.a_x, i, k)
+        acc = np.abs(a) > 0.5
+        if acc.sum() >= 20:
+            ratio = float(np.sum(a[acc] ** 2) / np.sum(a[acc] * dv[acc]))  # measured / expected
+            if _probable_unit("accel", units["a_x"], ratio) is not None and not (0.4 < ratio < 2.5):
+                raise _unit_error(raw, "a_x", "accel", units["a_x"], ratio, "the change of speed", int(acc.sum()),
+                                  "least squares")
+    # 5. steering: a road-wheel angle above ~70 deg is an angle in degrees or a steering-wheel angle
+    q = "delta" if "delta" in vals else "steering_wheel"
+    p99 = float(np.percentile(np.abs(gs.delta[gs.valid]), 99)) if gs.valid.any() else 0.0
+    if p99 > 1.2:
+        what = raw.signals[q].origin
+        probable = "deg" if units[q] == "rad" else "a steering-wheel angle"
+        raise InputError(
+            f"{raw.source}: {what} reaches {p99:.3g} rad (99th percentile), no road-wheel angle does; "
+            f"it looks like {probable}: set [units] {q} = \"deg\" or give it as steering_wheel with a steering_ratio"
+        )
+
+
+# ----------------------------------------------------------------------------------------------
+# projection
+
+
+def project(gs: GlobalState, track, source: str, origin_at_start: bool = False) -> dict[str, np.ndarray]:
+    """Frenet coordinates of the valid grid rows on ``track``; laps from the continued ``s``.
+
+    ``origin_at_start`` (path-derived reference lines): ``s`` and the laps count from the first
+    sample's projection, so the recording starts at ``s = 0``, lap 0.
+    """
+    m = gs.valid
+    x, y = gs.x[m], gs.y[m]
+    s, e_y = track.to_frenet(x, y)
+    L = track.length
+    speed = np.hypot(gs.v_x[m], gs.v_y[m])
+    if track.closed and len(s) > 1:
+        # continue s through time; a jump that the speed cannot explain is a wrong branch
+        ds = track._ds(s[1:], s[:-1])
+        dt_rows = np.diff(gs.t[m])
+        expect = 0.5 * (speed[1:] + speed[:-1]) * dt_rows
+        jump = np.abs(ds - expect) > np.maximum(5.0, 0.5 * expect)
+        if jump.any():
+            ds = np.where(jump, expect, ds)
+            s_hint = track.wrap(s[0] + np.concatenate([[0.0], np.cumsum(ds)]))
+            s, e_y = track.to_frenet(x, y, s_hint=s_hint, window=max(50.0, 0.05 * L))
+            ds = track._ds(s[1:], s[:-1])
+        s_cont = s[0] + np.concatenate([[0.0], np.cumsum(ds)])
+        s_track = track.wrap(s_cont)
+        if origin_at_start:
+            s_cont = s_cont - s_cont[0]
+        s_cont = s_cont - L * np.floor((s_cont[0] + 1e-3) / L)  # lap 0 at the start, even on the line
+        lap = np.floor((s_cont + 1e-3) / L)  # within 1 mm before the line is on it
+        s = np.maximum(s_cont - lap * L, 0.0)
+    else:
+        lap = np.zeros(len(s))
+        s_track = s
+    wl, wr = track.width_left(s_track), track.width_right(s_track)
+    outside = np.maximum(e_y - wl, -e_y - wr)
+    if np.all(outside > 0.5):
+        i = int(np.argmin(outside))
+        raise InputError(
+            f"{source}: the recording never comes within track {track.name!r}: its closest point is "
+            f"{abs(e_y[i]):.1f} m from the centre line ({outside[i]:.1f} m outside the border, at s = {s[i]:.0f} m); "
+            "wrong track, or positions in another frame (lat/lon, offset origin)?"
+        )
+    e_psi = wrap(gs.yaw[m] - track.heading(s_track))
+    return {"s": s, "e_y": e_y, "e_psi": e_psi, "kappa": track.kappa(s_track), "lap": lap}
+
+
+def segments(t: np.ndarray, dt: float) -> np.ndarray:
+    """Contiguous-piece counter: increments where the time step exceeds 1.5 dt."""
+    return np.concatenate([[0], np.cumsum(np.diff(t) > 1.5 * dt)]).astype(float)
