@@ -104,6 +104,8 @@ def test_grip_limits_widen_hold_and_back_off():
     np.testing.assert_allclose(next_limits(prev, [10.0, 1.0, 9.0], True, 0.4, cap, 0.05), [10.5, 4.2, 9.45])  # unused axis
     np.testing.assert_allclose(next_limits(prev, [np.nan] * 3, False, np.nan, cap, 0.05), 0.9 * prev)   # failed lap
     np.testing.assert_allclose(next_limits(prev * 2, prev * 2, True, 0.1, cap, 0.05), cap)
+    # a level that lost the car earlier is not tried again: stay 5 % below it
+    np.testing.assert_allclose(next_limits(prev, prev, True, 0.4, cap, 0.05, failed=[1.04 * prev]), 1.04 * 0.95 * prev)
 
 
 def test_grip_rows_agree_across_backends_and_bind():
@@ -194,6 +196,30 @@ def test_bad_input_exits_2_before_anything_is_written(capsys, tmp_path):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and ("narrower" in err[0] or "start" in err[0]), err
     assert not out.exists()
+
+
+def test_eval_timetrial_runs_both_variants_and_resumes(capsys, tmp_path):
+    """A tiny comparison: both variants' folders, the table, a resumed rerun that redoes nothing."""
+    import json
+
+    from gprace.cli import main
+
+    out = tmp_path / "tt"
+    args = ["eval", "timetrial", "--plant", "audi_nominal", "--track", "circle_100", "--trials", "1", "--iterations", "1",
+            "--dictionary-size", "100", "--workers", "1", "--out", str(out), "--json"]
+    assert main(args) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert set(res["variants"]) == {"exploration", "double_gp"}
+    for name, rows in res["variants"].items():
+        assert [r["iteration"] for r in rows] == [0, 1]
+        assert json.loads((out / name / "settings.json").read_text())["selection"] == ("diverse" if name == "exploration" else "random")
+    # the same seeds: iteration 0 is the same lap in both variants
+    assert res["variants"]["exploration"][0]["driven_mean"] == res["variants"]["double_gp"][0]["driven_mean"]
+    assert res["oracle"]["known"] and (out / "double_gp" / "oracle.json").exists()
+    stamp = (out / "double_gp" / "trial_0" / "iter_01" / "run.h5").stat().st_mtime_ns
+    assert main(args) == 0
+    assert json.loads(capsys.readouterr().out)["variants"] == res["variants"]
+    assert (out / "double_gp" / "trial_0" / "iter_01" / "run.h5").stat().st_mtime_ns == stamp
 
 
 def test_oracle_is_unknown_for_commonroad():

@@ -11,7 +11,8 @@ scheme of Wischnewski et al. 2019 (start conservative, widen from measured accel
   (an axis the lap used less than half of keeps its previous limit);
 - a failed lap (spin, off track): the next limits are the failed plan's times ``1 - 2 widen``, so
   a plan that was not driveable is never driven again unchanged;
-- never above ``cap`` (the nominal model's own limits times the planner's grip share).
+- never above ``cap`` (the nominal model's own limits times the planner's grip share), and never
+  again at a level whose lap failed (``widen`` below it).
 
 All functions are pure and vectorised over the run's samples.
 """
@@ -62,8 +63,12 @@ def nominal_cap(model, share: float) -> np.ndarray:
 
 
 def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, util: float, cap: np.ndarray,
-                widen: float = 0.05, hold: float = 0.8) -> np.ndarray:
-    """Limits of the next plan from the last plan's ``previous`` limits and the lap it gave."""
+                widen: float = 0.05, hold: float = 0.8, failed=()) -> np.ndarray:
+    """Limits of the next plan from the last plan's ``previous`` limits and the lap it gave.
+
+    ``failed`` are the limits of earlier plans whose laps failed: the next limits stay below
+    each of them by ``widen`` (a level that lost the car is not tried again).
+    """
     previous, measured, cap = (np.asarray(a, dtype=float) for a in (previous, measured, cap))
     if not completed or not np.all(np.isfinite(measured)):
         out = previous * (1.0 - 2.0 * widen)
@@ -73,4 +78,8 @@ def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, uti
         # an axis the lap hardly used (a partial lap that never braked) tells nothing: keep its limit
         base = np.where(measured >= 0.5 * previous, np.minimum(measured, previous), previous)
         out = base if np.isfinite(util) and util >= hold else base * (1.0 + widen)
+    for f in failed:
+        f = np.asarray(f, dtype=float)
+        if np.all(out >= f * (1.0 - widen)):
+            out = np.minimum(out, f * (1.0 - widen))
     return np.minimum(out, cap)
