@@ -121,23 +121,6 @@ def rear_slip_rows(X: np.ndarray, lr: float, v_min: float) -> tuple[np.ndarray, 
     return -np.arctan(w / vx), G
 
 
-def keep_gain(b: np.ndarray, j: np.ndarray, floor: float = MIN_GAIN) -> np.ndarray:
-    """The GP's gradient ``j (N, 2)`` on an input column, shrunk where it would leave the
-    compensated gain ``b + j`` with less than ``floor`` of the nominal gain ``b (N, 2)`` along ``b``.
-
-    A GP fitted where the tires saturate may say an input does nothing (or the opposite); a QP
-    that believes it saturates the input (measured: full steering lock at 39 m/s on the
-    commonroad BMW). The model's own gain keeps its sign and at least ``floor`` of its size.
-    """
-    bb = np.einsum("ki,ki->k", b, b)
-    jb = np.einsum("ki,ki->k", j, b)
-    ok = bb > 0
-    t = np.ones(len(b))
-    low = ok & (bb + jb < floor * bb)
-    t[low] = (floor - 1.0) * bb[low] / jb[low]
-    return j * np.clip(t, 0.0, 1.0)[:, None]
-
-
 def peak_slip(b: float, c: float) -> float:
     """Slip angle [rad] of the peak of ``sin(C atan(B alpha))``: ``tan(pi / (2 C)) / B``."""
     return float(np.tan(np.pi / (2.0 * c)) / b) if c > 1.0 else float(np.pi / 2)
@@ -265,10 +248,7 @@ class TrackingMPC:
                 A, B = A.copy(), B.copy()
                 for j, name in enumerate(self.inputs):
                     where, col = _REF[name]
-                    if where == "x":
-                        A[:, 1:3, col] += J[:, :, j]
-                    else:
-                        B[:, 1:3, col] += keep_gain(B[:, 1:3, col], J[:, :, j])
+                    (A if where == "x" else B)[:, 1:3, col] += J[:, :, j]
             else:
                 mean, var = self.gp(dyn_inputs(Xb, Ub, self.inputs))
         c = xn - np.einsum("kij,kj->ki", A, Xr) - np.einsum("kij,kj->ki", B, Ub)
