@@ -50,9 +50,8 @@ from gprace.gp.features import DYN_INPUTS, dyn_inputs
 from gprace.mpc.qp import EY, LtvProblem, QPStatus, Weights
 
 FEATURES = DYN_INPUTS
-EXPLORED = ("v_y", "yaw_rate", "delta")
+EXPLORED = ("v_y", "yaw_rate", "delta")  # features Algorithm 1 may move the reference to
 RECOVER_STEPS = 10  # periods over which a rear slip beyond its bound is brought back
-MIN_GAIN = 0.3      # share of the nominal input gain the GP-compensated model keeps (keep_gain)  # features Algorithm 1 may move the reference to
 _REF = {"v_x": ("x", 0), "v_y": ("x", 1), "yaw_rate": ("x", 2), "delta": ("u", 0), "a_x": ("u", 1)}
 
 
