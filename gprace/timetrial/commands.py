@@ -251,7 +251,8 @@ def _print_summary(summary: dict, as_json: bool) -> None:
         lines.append("")
         if o.get("known"):
             lines.append(f"oracle lap (true physics: {', '.join(o.get('effects', []))}): planned {_cell(o['planned']).strip()} s, "
-                         f"driven {_cell(o['driven']).strip()} s" + ("" if o.get("completed") else f" ({o.get('reason')})"))
+                         f"driven {_cell(o['driven']).strip()} s" + ("" if o.get("completed") else f" ({o.get('reason')})")
+                         + f"; 'closed' measured against the {o.get('basis', 'driven')} lap")
         else:
             lines.append(f"oracle lap: unknown ({o.get('why', 'plant physics not known')})")
     console.result("\n".join(lines))

@@ -96,7 +96,8 @@ def format_table(res: dict) -> str:
     lines.append("")
     if o.get("known"):
         lines.append(f"oracle lap: planned {cell(o['planned']).strip()} s, driven {cell(o['driven']).strip()} s"
-                     + ("" if o.get("completed") else f" (not completed: {o.get('reason')})"))
+                     + ("" if o.get("completed") else f" (not completed: {o.get('reason')})")
+                     + f"; 'closed' measured against the {o.get('basis', 'driven')} lap")
     else:
         lines.append(f"oracle lap: unknown ({o.get('why', 'no oracle')})")
     return "\n".join(lines)
