@@ -236,7 +236,9 @@ class HardDriver:
         self.dprev = delta
         vr = float(np.interp((s + 0.5 * v) % self.tr.length, self.tr.s_tab, self.v_ref, period=self.tr.length))
         ax = 2.5 * (vr - vx) + 0.7 * self.na
-        ax = min(max(ax, self.amin * 0.8), self.amax)  # full drive on corner exits, hard braking
+        # full drive on corner exits (trimmed by feel on the friction circle), hard braking
+        circle = math.sqrt(max(1.0 - (v * r / (CAR["mu"] * G0)) ** 2, 0.15))
+        ax = min(max(ax, self.amin * 0.8 * circle), self.amax * circle)
         return delta, ax
 
 
