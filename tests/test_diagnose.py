@@ -349,7 +349,7 @@ def test_envelope_mask_on_constructed_data():
     spin = rep.excluded[0]
     assert abs(spin.t_start - t[90]) < 1e-12 and abs(spin.s_start - s[90]) < 1e-12
     note = rep.note()
-    assert "spin: 51 samples (2.5 s)" in note and "143 of 1000 samples" in note and "gap of 2.05 s" in note
+    assert "spin: 51 samples (2.6 s)" in note and "143 of 1000 samples" in note and "gap of 2.05 s" in note
     # nothing outside: an empty report and an all-true mask
     keep2, rep2 = envelope({**data, "t": dt * np.arange(n), "v_x": np.full(n, 20.0), "v_y": np.zeros(n)}, "clean")
     assert keep2.all() and rep2.excluded == () and rep2.note() == ""
