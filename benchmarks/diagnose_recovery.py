@@ -19,7 +19,8 @@ effects named exactly, pairs named exactly, false alarms on nulls, window IoU of
 friction patch), time per recording, the confusion between effects, plus the per-case rows and the
 runtime of a 6,000-sample recording per source.
 
-    python benchmarks/diagnose_recovery.py [--quick] [--workers 2] [--seed 0] [--sources gprace,independent]
+    python benchmarks/diagnose_recovery.py [--quick | --quick-gprace] [--workers 2] [--seed 0]
+        [--sources gprace,independent,commonroad] [--only steering_lag,null]
 
 Parameter error: ``|fitted - true| / |true - neutral|`` for each parameter that the truth moves
 away from its neutral value (0, or 1 for factors), i.e. relative to the size of the effect.
@@ -313,13 +314,14 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--laps", type=float, default=2.0)
     ap.add_argument("--sources", default="gprace,independent,commonroad")
+    ap.add_argument("--quick-gprace", action="store_true", help="--quick for the gprace source only")
     ap.add_argument("--only", default="", help="comma-separated effect names (subset of the cases)")
     ap.add_argument("--no-timing", action="store_true")
     args = ap.parse_args()
     sources = args.sources.split(",")
     cases = []
     if "gprace" in sources:
-        cases += build_cases(args.quick, args.seed)
+        cases += build_cases(args.quick or args.quick_gprace, args.seed)
     if "independent" in sources:
         cases += build_indep_cases(args.quick, args.seed)
     if "commonroad" in sources:
