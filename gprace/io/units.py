@@ -35,12 +35,18 @@ def check_units(data: dict[str, np.ndarray], source: str, plausible: dict) -> No
     3. ``yaw_rate`` against the heading change ``d(e_psi)/dt + kappa ds/dt``, as a two-factor fit
        ``yaw_rate = a d(e_psi)/dt + b kappa ds/dt`` (a = b = 1 in SI; both 57.3 for deg/s; a = 1/57.3
        for e_psi in degrees).
-    Medians and fits over the whole file, so a spin or a slide does not move them; a check runs
+    Quantiles over the samples inside the envelope (:mod:`gprace.io.envelope`), medians and fits over
+    the whole file, so a spin or a slide does not move them; a check runs
     only when the file has enough motion to decide. The error names the column and the probable unit.
     """
+    from gprace.io.envelope import envelope
+
     n = len(data["t"])
+    keep, _ = envelope(data)  # magnitudes over the samples a model can describe (not a long spin)
+    if keep.sum() < max(0.2 * n, 2):
+        keep = np.ones(n, dtype=bool)
     for c, (q, lim, hint) in plausible.items():
-        m = float(np.quantile(np.abs(data[c]), q))
+        m = float(np.quantile(np.abs(data[c][keep]), q))
         if m > lim:
             raise InputError(
                 f"{source}: column {c!r} has a typical magnitude of {m:.3g} ({100 * q:.0f}th percentile of |{c}|), "
