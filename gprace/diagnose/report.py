@@ -41,7 +41,9 @@ def summary_lines(rep: dict[str, Any]) -> list[str]:
         out.append(f"  region {r['channel']}: s {r['s_start']:.0f}..{r['s_end']:.0f} m ({r['description']})")
     for e in rep["effects"]:
         amb = f" (ambiguous with {', '.join(e['ambiguous_with'])})" if e["ambiguous_with"] else ""
-        out.append(f"  effect {e['name']}{amb}: improvement {100 * e['improvement']:.0f}%")
+        where = e.get("significant_where", "all windows")
+        where = f" (significant where it acts: {where})" if where and where != "all windows" else ""
+        out.append(f"  effect {e['name']}{amb}: improvement {100 * e['improvement']:.0f}%{where}")
         for k, p in e["parameters"].items():
             lo, hi = p["ci95"]
             out.append(f"      {k} = {p['value']:.4g} {p['unit']}  (95% [{lo:.4g}, {hi:.4g}])")

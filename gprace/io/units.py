@@ -1,0 +1,126 @@
+"""Unit checks of a recording by robust statistics and by consistency between its channels.
+
+A speed column in km/h is off by 3.6 everywhere, not in one slide; a yaw rate in deg/s is 57.3
+times the heading change that ``e_psi``, ``kappa`` and ``s`` imply. So the checks rest on
+quantiles and medians of the whole file and on the kinematic relations of the Frenet frame, and a
+spin (a few seconds of large ``v_y`` and ``yaw_rate``) passes: it is cut out by
+:mod:`gprace.io.envelope`, not read as a units error. Called by
+:func:`gprace.io.runs.check_columns`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gprace.errors import InputError
+
+_UNITS = ((3.6, "km/h instead of m/s"), (1 / 3.6, "m/s where km/h was expected"),
+          (57.3, "degrees instead of rad"), (1 / 57.3, "rad where degrees were expected"))
+_LAG_S = 0.5  # consistency checks compare channels over this interval (sensor noise averages out)
+
+
+def unit_hint(ratio: float) -> str:
+    for f, text in _UNITS:
+        if abs(np.log(ratio / f)) < np.log(1.25):
+            return f" ({text}?)"
+    return ""
+
+
+def check_units(data: dict[str, np.ndarray], source: str, plausible: dict) -> None:
+    """Units by robust statistics of the whole file and by consistency between channels.
+
+    1. robust magnitudes (a quantile of |x|, ``plausible``: column -> (quantile, limit, hint));
+    2. the speed along the path from ``s`` and ``t`` against the one the Frenet kinematics give
+       from ``v_x, v_y, e_psi, e_y, kappa`` (``s' = (v_x cos e_psi - v_y sin e_psi)/(1 - kappa e_y)``);
+    3. ``yaw_rate`` against the heading change ``d(e_psi)/dt + kappa ds/dt``, as a two-factor fit
+       ``yaw_rate = a d(e_psi)/dt + b kappa ds/dt`` (a = b = 1 in SI; both 57.3 for deg/s; a = 1/57.3
+       for e_psi in degrees).
+    Quantiles over the samples inside the envelope (:mod:`gprace.io.envelope`), medians and fits over
+    the whole file, so a spin or a slide does not move them; a check runs
+    only when the file has enough motion to decide. The error names the column and the probable unit.
+    """
+    from gprace.io.envelope import envelope
+
+    n = len(data["t"])
+    keep, _ = envelope(data)  # magnitudes over the samples a model can describe (not a long spin)
+    if keep.sum() < max(0.2 * n, 2):
+        keep = np.ones(n, dtype=bool)
+    for c, (q, lim, hint) in plausible.items():
+        m = float(np.quantile(np.abs(data[c][keep]), q))
+        if m > lim:
+            raise InputError(
+                f"{source}: column {c!r} has a typical magnitude of {m:.3g} ({100 * q:.0f}th percentile of |{c}|), "
+                f"implausible in SI units (limit {lim}); check units ({hint})"
+            )
+    t, s = data["t"], data["s"]
+    dt = float(np.median(np.diff(t)))
+    k = int(np.clip(round(_LAG_S / max(dt, 1e-9)), 1, max(n // 4, 1)))
+    if n < 4 * k + 4:
+        return
+    ds, dT = s[k:] - s[:-k], t[k:] - t[:-k]
+
+    def mean_over(x):  # mean of x over each interval [i, i+k]
+        c = np.concatenate([[0.0], np.cumsum(x)])
+        return (c[k + 1:] - c[:-k - 1]) / (k + 1)
+
+    vx, vy, epsi, ey, kap = (data[c] for c in ("v_x", "v_y", "e_psi", "e_y", "kappa"))
+    denom = 1.0 - kap * ey
+    sdot_model = mean_over((vx * np.cos(epsi) - vy * np.sin(epsi)) / np.where(np.abs(denom) > 0.1, denom, 1.0))
+    sdot = ds / dT
+    gap_free = dT < 1.5 * k * dt
+    moving = gap_free & (ds > 0) & (sdot_model > 2.0) & (sdot < 3.0 * np.quantile(sdot, 0.99) + 1.0)
+    # lap wraps make ds negative and are dropped by ds > 0
+    if moving.sum() >= 20:
+        ratio = float(np.median(sdot_model[moving] / np.maximum(sdot[moving], 1e-9)))
+        if not (0.67 < ratio < 1.5):
+            raise InputError(
+                f"{source}: column 'v_x' is {ratio:.3g} times the speed along the path from 's' and 't' "
+                f"(median over the file){unit_hint(ratio) or ' (check units of v_x, s and t)'}"
+            )
+        # yaw rate vs heading change
+        depsi = (epsi[k:] - epsi[:-k]) / dT
+        rate = mean_over(data["yaw_rate"])[moving]
+        X = np.column_stack([depsi[moving], (mean_over(kap)[moving] * sdot[moving])])
+        _lateral_checks(data, source, k, dT, moving, mean_over, rate)
+        if np.std(X[:, 1]) > 0.02 and np.std(rate) > 0.02:
+            coef, *_ = np.linalg.lstsq(X, rate, rcond=None)
+            a, b = (float(x) for x in coef)
+            fit = X @ coef
+            r2 = 1.0 - np.sum((rate - fit) ** 2) / max(np.sum((rate - rate.mean()) ** 2), 1e-300)
+            if r2 > 0.5:  # the channels do carry a heading relation: check its factors
+                if not (0.67 < b < 1.5):
+                    raise InputError(
+                        f"{source}: column 'yaw_rate' is {b:.3g} times the heading change from 'kappa' and "
+                        f"'s'{unit_hint(b) or ' (check units of yaw_rate and kappa)'}")
+                if abs(a) > 1e-9 and not (0.5 < a < 2.0) and unit_hint(a):
+                    raise InputError(
+                        f"{source}: column 'e_psi' changes {1 / a:.3g} times faster than 'yaw_rate' allows"
+                        f"{unit_hint(1 / a)}")
+
+
+def _fit1(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Slope of ``y = c x`` (through 0) and its R^2."""
+    c = float(np.dot(x, y) / max(np.dot(x, x), 1e-300))
+    r2 = 1.0 - float(np.sum((y - c * x) ** 2) / max(np.sum((y - y.mean()) ** 2), 1e-300))
+    return c, r2
+
+
+def _lateral_checks(data, source, k, dT, moving, mean_over, rate) -> None:
+    """``v_y`` against the lateral motion ``d(e_y)/dt - v_x sin(e_psi)`` (slope 1 in SI, 1/3.6 for
+    km/h), and ``delta`` against the yaw rate it produces: ``yaw_rate ~ v_x delta / l`` with an
+    effective wheelbase ``l`` of 0.1 to 10 m for any car; degrees make it 57 times longer."""
+    vx, vy, epsi, ey, delta = (data[c] for c in ("v_x", "v_y", "e_psi", "e_y", "delta"))
+    dey = (ey[k:] - ey[:-k]) / dT
+    lat = (dey - mean_over(vx * np.sin(epsi)))[moving]
+    vyc = mean_over(vy * np.cos(epsi))[moving]
+    if np.std(vyc) > 0.05:
+        c, r2 = _fit1(vyc, lat)
+        if r2 > 0.5 and not (0.5 < c < 2.0):
+            raise InputError(f"{source}: column 'v_y' is {1 / c:.3g} times the lateral speed from 'e_y' and 'e_psi'"
+                             f"{unit_hint(1 / c) or ' (check units of v_y and e_y)'}")
+    x = mean_over(vx * delta)[moving]
+    if np.std(x) > 0.05 and np.std(rate) > 0.02:
+        c, r2 = _fit1(x, rate)
+        if r2 > 0.5 and 0.0 < c < 0.05:
+            raise InputError(f"{source}: column 'delta' turns the car like a {1 / c:.0f} m wheelbase "
+                             f"(yaw_rate / (v_x delta)); check units (degrees instead of rad?)")
