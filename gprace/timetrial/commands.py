@@ -250,8 +250,9 @@ def _print_summary(summary: dict, as_json: bool) -> None:
     if o is not None:
         lines.append("")
         if o.get("known"):
-            lines.append(f"oracle lap (true physics: {', '.join(o.get('effects', []))}): planned {_cell(o['planned']).strip()} s, "
-                         f"driven {_cell(o['driven']).strip()} s" + ("" if o.get("completed") else f" ({o.get('reason')})")
+            planned, driven = (float("nan") if o.get(k) is None else o[k] for k in ("planned", "driven"))
+            lines.append(f"oracle lap (true physics: {', '.join(o.get('effects', []))}): planned {_cell(planned).strip()} s, "
+                         f"driven {_cell(driven).strip()} s" + ("" if o.get("completed") else f" ({o.get('reason')})")
                          + f"; 'closed' measured against the {o.get('basis', 'driven')} lap")
         else:
             lines.append(f"oracle lap: unknown ({o.get('why', 'plant physics not known')})")
