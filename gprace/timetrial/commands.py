@@ -12,12 +12,9 @@ def evaluate_group(app: typer.Typer) -> typer.Typer:
 
     Other stages add their subcommands with ``evaluate_group(app).command("name")``.
     """
-    for g in app.registered_groups:
-        if g.name == "evaluate" and g.typer_instance is not None:
-            return g.typer_instance
-    sub = typer.Typer(help="Evaluate results: iterate folders, GP models, head-to-head.", no_args_is_help=True)
-    app.add_typer(sub, name="evaluate")
-    return sub
+    from gprace.h2h.commands import _group
+
+    return _group(app, "evaluate", "Evaluate results: iterate folders, GP models.")
 
 
 def _floats(text: str, what: str) -> tuple[float, ...]:

@@ -43,8 +43,9 @@ def compare(base, out: str | Path, executor: str = "local", workers: int = 1, sc
         iterate_many(experiments, executor, workers, scheduler)
     except RunFailedError as exc:  # report what finished, then fail
         error = str(exc)
-    table = {name: figure_data(build_summary(folder)) for name, (_, folder) in zip(VARIANTS, experiments)}
-    oracle = build_summary(experiments[0][1]).get("oracle")
+    summaries = {name: build_summary(folder) for name, (_, folder) in zip(VARIANTS, experiments)}
+    table = {name: figure_data(summary) for name, summary in summaries.items()}
+    oracle = summaries["exploration"].get("oracle")
     return {"plant": base.plant, "track": base.track, "trials": base.trials, "iterations": base.iterations,
             "features": base.features, "oracle": oracle, "variants": table, "error": error}
 
