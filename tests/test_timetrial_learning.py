@@ -50,6 +50,31 @@ def test_mean_gradient_matches_finite_differences():
     np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-7)
 
 
+def test_spectral_variance_bounds_the_exact_one():
+    """The MPC's real-time variance never falls below the exact posterior variance, exceeds it by
+    less than 1e-3 of the prior at the data (the bound of ExactGP._spectral), and a rough kernel
+    (most eigenpairs needed) takes the exact path."""
+    from gprace.gp import make_gp
+
+    rng = np.random.default_rng(4)
+    Z = rng.uniform(-3, 3, (400, 3))
+    Y = np.column_stack([np.sin(Z[:, 0]) * np.cos(Z[:, 1]), 0.3 * Z[:, 2] ** 2]) + rng.normal(0, 0.05, (400, 2))
+    Q = np.vstack([Z[:50], rng.uniform(-4, 4, (50, 3))])
+    smooth = make_gp("exact", optimize=False, length_scale=2.5, noise=1e-2, shared_kernel=True).fit(Z, Y)
+    ex = smooth.predict_with_gradient(Q, variance="exact")
+    sp = smooth.predict_with_gradient(Q, variance="spectral")
+    assert smooth._spectral(0).shape[1] < 100  # a smooth kernel: few eigenpairs
+    np.testing.assert_allclose(sp[0], ex[0], atol=1e-12)  # same mean and gradient
+    np.testing.assert_allclose(sp[2], ex[2], atol=1e-12)
+    np.testing.assert_allclose(ex[1], smooth.predict(Q)[1], rtol=1e-9, atol=1e-14)
+    prior = np.exp(smooth.hyper_.log_sf2) * smooth.hyper_.y_scale**2
+    assert np.all(sp[1] >= ex[1] - 1e-12 * prior)
+    assert np.all(sp[1][:50] - ex[1][:50] <= 1e-3 * prior)
+    rough = make_gp("exact", optimize=False, length_scale=0.05, noise=1e-2, shared_kernel=True).fit(Z, Y)
+    assert rough._spectral(0) is None
+    np.testing.assert_allclose(rough.predict_with_gradient(Q)[1], rough.predict(Q)[1], rtol=1e-9, atol=1e-14)
+
+
 def test_coverage_and_calibration_on_known_noise():
     """A GP with the right noise covers ~95 %; one told a tenth of the noise is recalibrated to it."""
     from gprace.gp import make_gp

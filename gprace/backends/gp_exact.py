@@ -139,6 +139,20 @@ class ExactGP(GPBackend):
         for g in self._group_list:
             a = self.Z_ / h.ls(g[0])
             self._scaled.append((a, np.einsum("ij,ij->i", a, a)))
+        self._alpha_z = [np.hstack([self.alpha_[:, g]] + [self.alpha_[:, [q]] * self.Z_ for q in g])
+                         for g in self._group_list]
+        self._spectra: dict[int, np.ndarray | None] = {}
+
+    def _block(self, gi: int, Zn: np.ndarray) -> np.ndarray:
+        """Kernel block ``K* (m, M)`` of factor group ``gi`` between normalised queries and the data."""
+        h = self.hyper_
+        o = self._group_list[gi][0]
+        a, a2 = self._scaled[gi]
+        b = Zn / h.ls(o)
+        d2 = np.einsum("ij,ij->i", b, b)[:, None] + a2[None, :]
+        d2 -= 2.0 * (b @ a.T)
+        np.maximum(d2, 0.0, out=d2)
+        return from_sqdist(h.kernel, d2, h.sf2(o))
 
     def _predict_normalised(self, Zn):
         h = self.hyper_
@@ -147,45 +161,93 @@ class ExactGP(GPBackend):
         var = np.empty((m, h.p))
         for gi, g in enumerate(self._group_list):
             o = g[0]
-            a, a2 = self._scaled[gi]
             sf2 = h.sf2(o)
             for s in range(0, m, _CHUNK):
-                b = Zn[s:s + _CHUNK] / h.ls(o)
-                d2 = np.einsum("ij,ij->i", b, b)[:, None] + a2[None, :]
-                d2 -= 2.0 * (b @ a.T)
-                np.maximum(d2, 0.0, out=d2)
-                Ks = from_sqdist(h.kernel, d2, sf2)
+                Ks = self._block(gi, Zn[s:s + _CHUNK])
                 mean[s:s + _CHUNK, g] = Ks @ self.alpha_[:, g]
                 V = solve_triangular(self.L_[gi], Ks.T, lower=True, check_finite=False)
                 var[s:s + _CHUNK, g] = (sf2 - np.einsum("ij,ij->j", V, V))[:, None]
         return mean, var
 
     def mean_gradient(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Posterior mean ``(m, p)`` and its gradient ``(m, p, d)`` with respect to the inputs.
+        """Posterior mean ``(m, p)`` and its gradient ``(m, p, d)`` with respect to the inputs."""
+        mean, _, grad = self.predict_with_gradient(Z, variance="none")
+        return mean, grad
+
+    def predict_with_gradient(self, Z: np.ndarray, variance: str = "spectral") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Mean ``(m, p)``, latent variance ``(m, p)`` and mean gradient ``(m, p, d)``, one kernel block.
 
         Squared-exponential kernel: ``d k(z, z_i) / d z = -k(z, z_i) (z - z_i) / l^2`` (normalised
         inputs), so the gradient costs one more product with the kernel block. Used by the tracking
         MPC to linearise the GP along with the nominal model. Other kernels: NotImplementedError.
+
+        ``variance``: ``"exact"`` (a triangular solve against all M points, 8 ms at M = 2000 and
+        a 20-step horizon), ``"spectral"`` (the real-time path, see :meth:`_spectral`: never below
+        the exact variance, its std 1 to 3 % above it on the time-trial GPs, 0.4 ms) or ``"none"`` (zeros).
         """
         h = self._fitted()
         if h.kernel != "se":
             raise NotImplementedError("mean_gradient: squared-exponential kernel only")
+        if variance not in ("exact", "spectral", "none"):
+            raise ValueError(f"variance must be exact, spectral or none, got {variance!r}")
         Zn = (np.asarray(Z, dtype=float) - h.z_mean) / h.z_scale
         m = Zn.shape[0]
         mean = np.empty((m, h.p))
+        var = np.zeros((m, h.p))
         grad = np.empty((m, h.p, h.d))
         for gi, g in enumerate(self._group_list):
-            o = g[0]
-            ls = h.ls(o)
-            a, a2 = self._scaled[gi]
-            b = Zn / ls
-            d2 = np.einsum("ij,ij->i", b, b)[:, None] + a2[None, :] - 2.0 * (b @ a.T)
-            Ks = from_sqdist(h.kernel, np.maximum(d2, 0.0), h.sf2(o))
-            for q in g:
-                W = Ks * self.alpha_[:, q][None, :]
-                mean[:, q] = W.sum(axis=1)
-                grad[:, q, :] = (W @ self.Z_ - mean[:, q][:, None] * Zn) / ls**2
-        return mean * h.y_scale + h.y_mean, grad * h.y_scale[None, :, None] / h.z_scale[None, None, :]
+            ls, sf2 = h.ls(g[0]), h.sf2(g[0])
+            Ks = self._block(gi, Zn)
+            # one product for the means, the gradient sums and the spectral variance:
+            # Ks @ [alpha_q, alpha_q * Z, W]
+            W = self._spectral(gi) if variance == "spectral" else None
+            P = Ks @ (self._alpha_z[gi] if W is None else self._alpha_zw(gi))
+            for j, q in enumerate(g):
+                mean[:, q] = P[:, j]
+                grad[:, q, :] = (P[:, len(g) + j * h.d:len(g) + (j + 1) * h.d] - P[:, [j]] * Zn) / ls**2
+            if variance == "none":
+                continue
+            if W is None:
+                V = solve_triangular(self.L_[gi], Ks.T, lower=True, check_finite=False)
+                var[:, g] = np.maximum(sf2 - np.einsum("ij,ij->j", V, V), 0.0)[:, None]
+            else:
+                Q = P[:, self._alpha_z[gi].shape[1]:]
+                var[:, g] = np.maximum(sf2 - np.einsum("ij,ij->i", Q, Q), 0.0)[:, None]
+        return (mean * h.y_scale + h.y_mean, var * h.y_scale**2,
+                grad * h.y_scale[None, :, None] / h.z_scale[None, None, :])
+
+    def _spectral(self, gi: int) -> np.ndarray | None:
+        """``W (M, r)`` with ``k*^T W W^T k*`` a lower bound of ``k*^T (K + sn2 I)^-1 k*`` (cached).
+
+        From the eigenpairs ``(lam_i, v_i)`` of ``K + sn2 I``: the quadratic form is the sum of
+        ``(v_i^T k*)^2 / lam_i``, all terms positive, so keeping only the ``r`` eigenpairs whose
+        noise-free eigenvalue ``lam_i - sn2`` exceeds ``tau = 0.03 sqrt(sf2 sn2)`` leaves a
+        variance never below the exact one. At a dictionary point a dropped term is at most
+        ``(lam_i - sn2)^2 / lam_i < tau^2 / sn2 = 1e-3 sf2``, summed with weights ``v_ij^2`` that
+        add to one: the excess is below 0.1 % of the prior variance. A smooth kernel has few large
+        eigenvalues (measured on the GPs of the README job: r = 70 to 210 of M = 1000, predicted std 1 to 3 %
+        above the exact one in the median, at most 8 %), so a query costs
+        one ``(m, M) x (M, r)`` product instead of a triangular solve (8 -> 0.4 ms at M = 2000).
+        One eigendecomposition per fit, on first use (0.3 s at M = 1000, 2.5 s at M = 2000).
+        ``None`` when more than half the eigenpairs are needed (a rough kernel: short length
+        scales): the exact triangular solve is then the cheaper one.
+        """
+        if gi not in self._spectra:
+            h = self.hyper_
+            o = self._group_list[gi][0]
+            L = self.L_[gi]
+            lam, V = np.linalg.eigh(L @ L.T)
+            sn2, sf2 = h.sn2(o), h.sf2(o)
+            keep = lam - sn2 > 0.03 * np.sqrt(sf2 * sn2)
+            self._spectra[gi] = np.ascontiguousarray(V[:, keep] / np.sqrt(lam[keep])) if 2 * keep.sum() <= len(lam) else None
+        return self._spectra[gi]
+
+    def _alpha_zw(self, gi: int) -> np.ndarray:
+        """``[alpha_q, alpha_q * Z, W]`` of group ``gi`` in one array (cached with the spectrum)."""
+        key = ("azw", gi)
+        if key not in self._spectra:
+            self._spectra[key] = np.ascontiguousarray(np.hstack([self._alpha_z[gi], self._spectral(gi)]))
+        return self._spectra[key]
 
     # -- state -----------------------------------------------------------------------------------
     def _state_arrays(self):

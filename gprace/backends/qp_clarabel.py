@@ -41,6 +41,10 @@ class ClarabelQP:
         st.max_iter = max_iter
         st.tol_gap_abs = st.tol_gap_rel = tol
         st.tol_feas = tol
+        # measured on 150 MPC problems of gprace_ring: iterative refinement of every KKT solve
+        # costs a third of the solve time (2.8 -> 1.9 ms median) and moves the first input by
+        # less than 1e-4; the interior-point iterations converge to the same tolerance without it
+        st.iterative_refinement_enable = False
         self.settings = st
         self.cones = [clarabel.ZeroConeT(self.form.neq), clarabel.NonnegativeConeT(self.form.nin)]
         self._solver = None

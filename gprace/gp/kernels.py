@@ -48,7 +48,8 @@ def sqdist(A: np.ndarray, B: np.ndarray, ls: np.ndarray) -> np.ndarray:
 def from_sqdist(name: str, d2: np.ndarray, sf2: float) -> np.ndarray:
     """Kernel values from squared ARD-scaled distances ``d2``."""
     if name == "se":
-        K = np.exp(-0.5 * d2)
+        K = np.multiply(d2, -0.5)
+        np.exp(K, out=K)
     else:
         r = np.sqrt(d2)
         r *= _SQRT3

@@ -75,14 +75,17 @@ class Plan:
         T, L = self.lap_time, self.track_length
         laps = np.floor(t / T)
         tw = t - laps * T
+        # one lookup for all eight columns (periodic closure: the first node again at t = T)
+        table = np.column_stack([self.v_x, self.v_y, self.yaw_rate, self.e_psi, self.e_y, self.s, self.delta, self.a_x])
+        end = table[:1].copy()
+        end[0, 5] = L
+        table = np.vstack([table, end])
         tp = np.append(self.t, T)
-        cols = []
-        for name in ("v_x", "v_y", "yaw_rate", "e_psi", "e_y"):
-            a = getattr(self, name)
-            cols.append(np.interp(tw, tp, np.append(a, a[0])))
-        cols.append(np.interp(tw, tp, np.append(self.s, L)) + laps * L)
-        U = np.column_stack([np.interp(tw, tp, np.append(a, a[0])) for a in (self.delta, self.a_x)])
-        return np.column_stack(cols), U
+        i = np.clip(np.searchsorted(tp, tw, side="right") - 1, 0, len(tp) - 2)
+        w = np.clip((tw - tp[i]) / np.maximum(tp[i + 1] - tp[i], 1e-12), 0.0, 1.0)[:, None]
+        out = (1.0 - w) * table[i] + w * table[i + 1]
+        out[:, 5] += laps * L
+        return out[:, :6], out[:, 6:]
 
     def check_track(self, track, where: str = "plan") -> None:
         """Raise InputError unless the plan was made on this track geometry."""
