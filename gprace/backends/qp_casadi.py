@@ -28,12 +28,13 @@ class CasadiQP:
         self.N = N
         f = self.form
         P = f.P
-        # simple bounds (inputs, slack >= 0) go to lbx/ubx; keep the equality and lateral rows of M
+        # simple bounds (inputs, slack >= 0) go to lbx/ubx; keep the equality, lateral, grip and
+        # steering-rate rows of M
         g0 = f.neq
         nub = 2 * 2 * N
         # the two-sided rows of the lateral and grip blocks (their slack >= 0 rows become bounds)
         lat = g0 + nub + np.arange(6 * N).reshape(2 * N, 3)[:, :2].ravel()
-        self._rows = np.concatenate([np.arange(g0), lat])
+        self._rows = np.concatenate([np.arange(g0), lat, f.i_rate + np.arange(2 * N)])
         Mi = f.M.copy()
         Mi.data = np.arange(1, Mi.nnz + 1, dtype=float)
         M = Mi[self._rows, :].tocsc()
@@ -51,7 +52,7 @@ class CasadiQP:
         self.plugin = plugin
         self.solver = ca.conic("mpc_qp", plugin, {"h": self._Hsp, "a": self._Asp}, opts)
         self._H = ca.DM(self._Hsp, P.data)
-        self._lba = np.concatenate([np.zeros(f.neq), np.full(len(lat), -np.inf)])
+        self._lba = np.concatenate([np.zeros(f.neq), np.full(len(lat) + 2 * N, -np.inf)])
 
     def solve(self, pb: LtvProblem) -> QPResult:
         ca, f = self.ca, self.form

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from gprace.mpc.qp import EY, NUS, NXS, LtvProblem, QPResult, QPStatus, Weights, check_result, fail_result
+from gprace.mpc.qp import EY, NUS, NXS, STEER_OPEN, LtvProblem, QPResult, QPStatus, Weights, check_result, fail_result
 
 
 class CvxpyClarabelQP:
@@ -38,6 +38,7 @@ class CvxpyClarabelQP:
         self.grip_G = cp.Parameter((N, NXS))
         self.grip_lo = cp.Parameter(N)
         self.grip_hi = cp.Parameter(N)
+        self.steer_step = cp.Parameter(nonneg=True)
         x = cp.Variable((N, NXS))      # x_1 .. x_N
         u = cp.Variable((N, NUS))      # u_0 .. u_{N-1}
         eps = cp.Variable(N)           # lateral slack
@@ -61,6 +62,7 @@ class CvxpyClarabelQP:
         cons += [x[:, EY] <= self.ey_hi + eps, x[:, EY] >= self.ey_lo - eps, eps >= 0]
         grip = cp.sum(cp.multiply(self.grip_G, x), axis=1)  # G_k x_k per step
         cons += [grip <= self.grip_hi + eta, grip >= self.grip_lo - eta, eta >= 0]
+        cons += [steer <= self.steer_step, steer >= -self.steer_step]
         self.problem = cp.Problem(cp.Minimize(cost), cons)
 
     def solve(self, pb: LtvProblem) -> QPResult:
@@ -75,6 +77,7 @@ class CvxpyClarabelQP:
             self.ey_lo.value, self.ey_hi.value = pb.ey_lo, pb.ey_hi
             self.u_lo.value, self.u_hi.value = pb.u_lo, pb.u_hi
             self.delta_prev.value = pb.delta_prev
+            self.steer_step.value = STEER_OPEN if pb.steer_step is None else float(pb.steer_step)
             self.a_prev.value = pb.a_prev
             self.grip_G.value, self.grip_lo.value, self.grip_hi.value = pb.grip()
             self.problem.solve(solver=cp.CLARABEL, warm_start=False)

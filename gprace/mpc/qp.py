@@ -14,6 +14,7 @@ absolute progress made Clarabel report "Solved" with errors of 5e-2 m/s^2):
          u_lo <= u_k <= u_hi
          ey_lo_k - eps_k <= e_y,k <= ey_hi_k + eps_k,  eps_k >= 0
          g_lo_k - eta_k <= G_k x_k <= g_hi_k + eta_k,   eta_k >= 0   (grip row, see below)
+         |delta_k - delta_{k-1}| <= steer_step               (the actuator's rate limit)
 
 The grip row ``G_k x_k`` (only ``v_x, v_y, yaw_rate`` enter) is the linearised rear slip angle of
 the tracking MPC (:mod:`gprace.mpc.tracking`), softened by its own slack ``eta``. A problem
@@ -24,6 +25,12 @@ without a grip constraint leaves ``G_k = 0`` and wide bounds: the structure is a
 drive within 0.2 s in a fast chicane, which locked the rear wheels of the commonroad BMW. The lateral bounds are soft (exact L1 penalty
 ``rho_1`` large): a racing MPC must return an input even when a disturbance has already pushed the
 car past a tightened bound. ``Q`` and ``R`` are diagonal.
+
+The steering-rate rows are beyond the paper too: the commonroad BMW's servo turns at most
+0.4 rad/s, and a QP that did not know it asked for reversals of 0.2 rad within 0.4 s in the
+S-bend of gprace_ring; the lagging wheel turned the correction into a growing oscillation and a
+spin (on the nominal MPC as well). They are hard: ``delta_k = delta_{-1}`` always satisfies them.
+``steer_step = None`` leaves them open (``STEER_OPEN``).
 """
 
 from __future__ import annotations
@@ -38,6 +45,7 @@ NXS, NUS = 6, 2
 EY = 4
 GRIP_STATES = (0, 1, 2)  # state entries a grip row may weigh: v_x, v_y, yaw_rate
 GRIP_OPEN = 1.0          # bound of an inactive grip row (its coefficients are zero)
+STEER_OPEN = 10.0        # steering change per step [rad] of an open rate row
 ETA_UNIT = 0.01          # the grip slack's unit in the standard form [rad]: keeps its weights near the others
 
 
@@ -99,6 +107,7 @@ class LtvProblem:
     grip_lo: np.ndarray | None = None  # (N,)
     grip_hi: np.ndarray | None = None  # (N,)
     a_prev: float = 0.0                # last applied acceleration command (for the r_accel term)
+    steer_step: float | None = None    # largest steering change per step [rad] (rate limit x dt)
 
     @property
     def N(self) -> int:
@@ -141,7 +150,8 @@ class SparseQP:
         self.ie = lambda k: nu + nx + (k - 1)
         self.ig = lambda k: nu + nx + N + (k - 1)  # grip slack eta_k
         self.neq = NXS * N
-        self.nin = 2 * NUS * N + 3 * N + 3 * N
+        self.nin = 2 * NUS * N + 3 * N + 3 * N + 2 * N
+        self.i_rate = self.neq + self.nin - 2 * N  # first steering-rate row of M
         self._build_P()
         self._build_M()
 
@@ -235,7 +245,9 @@ class SparseQP:
             add(g, self.ie(k), off_G + len(gvals)); gvals.append(-1.0); g += 1
             add(g, self.ie(k), off_G + len(gvals)); gvals.append(-1.0); g += 1
         # grip: G_k x_k - eta <= hi ; -G_k x_k - eta <= -lo ; -eta <= 0 (G values after the fixed ones)
-        off_S = off_G + len(gvals) + 3 * N  # the eta entries below are fixed values too
+        # the eta entries and the steering-rate entries below are fixed values too; the grip
+        # coefficients (filled per problem) come after them
+        off_S = off_G + len(gvals) + 3 * N + (4 * N - 2)
         gfix = []
         for k in range(1, N + 1):
             for sign, row in ((1, 0), (-1, 1)):
@@ -245,6 +257,16 @@ class SparseQP:
                 add(g + row, self.ig(k), off_G + len(gvals) + len(gfix)); gfix.append(-ETA_UNIT)
             g += 3
         gvals += gfix
+        # steering rate: delta_k - delta_{k-1} <= d ; -(delta_k - delta_{k-1}) <= d (delta_{-1} in b)
+        # (fixed values: stored after the grip-row entries, see _values_base)
+        rfix = []
+        for k in range(N):
+            for sign in (1.0, -1.0):
+                add(g, self.iu(k), off_G + len(gvals) + len(rfix)); rfix.append(sign)
+                if k >= 1:
+                    add(g, self.iu(k - 1), off_G + len(gvals) + len(rfix)); rfix.append(-sign)
+                g += 1
+        gvals += rfix
         self._gvals = np.array(gvals)
         self._off = (off_I, off_A, off_B, off_G)
         self._off_S = off_S
@@ -281,7 +303,10 @@ class SparseQP:
         hu[:, :, 1] = -pb.u_lo
         hl = np.column_stack([pb.ey_hi, -pb.ey_lo, np.zeros(N)])
         hg = np.column_stack([*grip_bounds(pb), np.zeros(N)])
-        b = np.concatenate([beq.ravel(), hu.ravel(), hl.ravel(), hg.ravel()])
+        d = STEER_OPEN if pb.steer_step is None else float(pb.steer_step)
+        hr = np.full((N, 2), d)
+        hr[0] += [pb.delta_prev, -pb.delta_prev]
+        b = np.concatenate([beq.ravel(), hu.ravel(), hl.ravel(), hg.ravel(), hr.ravel()])
         return v[self._perm], b
 
     def unpack(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -52,6 +52,7 @@ from gprace.mpc.qp import EY, LtvProblem, QPStatus, Weights
 FEATURES = DYN_INPUTS
 EXPLORED = ("v_y", "yaw_rate", "delta")  # features Algorithm 1 may move the reference to
 RECOVER_STEPS = 10  # periods over which a rear slip beyond its bound is brought back
+KAPPA_DS = 1.0  # half-width [m] of the central difference giving the curvature's slope
 _REF = {"v_x": ("x", 0), "v_y": ("x", 1), "yaw_rate": ("x", 2), "delta": ("u", 0), "a_x": ("u", 1)}
 
 
@@ -148,6 +149,7 @@ class TrackingMPC:
         self.u_lo = np.array([-lim.steering_max, lim.accel_min])
         self.u_hi = np.array([lim.steering_max, lim.accel_max])
         self.half = 0.5 * model.vehicle.width + settings.margin
+        self.steer_step = lim.steering_rate_max * self.dt  # the actuator's rate limit per period
         self.prev_x: np.ndarray | None = None  # (N, 6) absolute s
         self.prev_u: np.ndarray | None = None  # (N, 2)
         self.delta_prev = self.a_prev = 0.0
@@ -162,11 +164,17 @@ class TrackingMPC:
             raise ConfigError("tracking MPC: the controller's vehicle has effect states; use the stateless nominal vehicle")
         x = ca.SX.sym("x", 6)
         u = ca.SX.sym("u", 2)
-        k = ca.SX.sym("k")
+        k = ca.SX.sym("k", 3)  # curvature, its slope and the arc length they are taken at
+        # curvature affine in s over the step (RK4 stages and the Jacobian see it change): at
+        # 40 m/s a step covers 2 m, and in the S-bend of gprace_ring kappa moves by 0.014 1/m
+        # within one step. Held constant (the paper's), the heading predicted over one step was
+        # off by 0.015 rad, i.e. 0.3 rad/s of yaw rate the QP then commanded: the nominal MPC
+        # spun the commonroad BMW on a plan that drives straight through the bend.
+        kappa_of_s = lambda ss: k[0] + k[1] * (ss - k[2])  # noqa: E731
         if self.s.integrator == "euler":
-            xn = x + self.dt * self.model.symbolic(x, u, k)
+            xn = x + self.dt * self.model.symbolic(x, u, kappa_of_s(x[5]))
         elif self.s.integrator == "rk4":
-            xn = self.model.casadi_rk4(self.dt)(x, u, k)
+            xn = self.model.rk4_expression(x, u, kappa_of_s, self.dt)
         else:
             raise ConfigError(f"unknown integrator {self.s.integrator!r}; available: euler, rk4")
         f = ca.Function("lin", [x, u, k], [xn, ca.jacobian(xn, x), ca.jacobian(xn, u)])
@@ -227,8 +235,10 @@ class TrackingMPC:
             Xb = np.vstack([x_meas, self.prev_x[1:]])
             Ub = np.vstack([self.prev_u[1:], self.prev_u[-1:]])
         Xb[:, 5] = np.maximum.accumulate(Xb[:, 5])  # progress along the nominal cannot go back
-        kap = self.track.kappa(Xb[:, 5])
-        xn, A, B = self._lin(Xb.T, Ub.T, kap[None, :])
+        sb = Xb[:, 5]
+        kap = self.track.kappa(sb)
+        slope = (self.track.kappa(sb + KAPPA_DS) - self.track.kappa(sb - KAPPA_DS)) / (2 * KAPPA_DS)
+        xn, A, B = self._lin(Xb.T, Ub.T, np.vstack([kap, slope, sb]))
         xn, A, B = np.asarray(xn).T, np.asarray(A), np.asarray(B)
         A = A.reshape(6, N, 6).transpose(1, 0, 2)
         B = B.reshape(6, N, 2).transpose(1, 0, 2)
@@ -278,7 +288,7 @@ class TrackingMPC:
             room = np.maximum(room, a_now * (1.0 - np.arange(1, N + 1) / RECOVER_STEPS))
             grip = {"grip_G": G, "grip_lo": -room - off, "grip_hi": room - off}
         pb = LtvProblem(A, B, c, x0, xref, uref, lo, hi, self.u_lo, self.u_hi, self.delta_prev, self.s.weights, **grip,
-                        a_prev=self.a_prev)
+                        a_prev=self.a_prev, steer_step=self.steer_step)
         return pb, {"gamma": gamma, "s0": s0, "xref": xref, "uref": uref, "explored": xref is not xr0}
 
     def step(self, x_meas: np.ndarray) -> tuple[np.ndarray, dict]:
