@@ -30,9 +30,13 @@ def checks(res: dict) -> dict:
         failed = sum(r["laps"] - r["completed"] for r in gp_rows)
         racing = [r for r in gp_rows if r["alpha"] == 0.0]
         base = rows[0]["driven_mean"] if rows else float("nan")
+        trials = res["per_trial"][name]
         out[name] = {
             "failed_gp_laps": int(failed), "gp_laps": int(sum(r["laps"] for r in gp_rows)),
-            "worst_gap_closed_alpha0": float(np.nanmin([r["gap_closed_min"] for r in racing])) if racing else float("nan"),
+            "gap_closed_last_iteration_worst_trial": float(racing[-1]["gap_closed_min"]) if racing else float("nan"),
+            "gap_closed_best_alpha0_lap_worst_trial": float(np.nanmin([t["gap_closed_best"] for t in trials])),
+            "trials_faster_than_iteration0": int(sum(t["best_alpha0"] < t["iteration0"] for t in trials)),
+            "trials": len(trials),
             "best_driven_alpha0": float(np.nanmin([r["driven_mean"] for r in racing])) if racing else float("nan"),
             "iteration0_driven": base,
         }

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import typer
@@ -30,7 +31,7 @@ def _floats(text: str, what: str) -> tuple[float, ...]:
 PLANT = typer.Option("audi_hidden", "--plant", help="Plant config.")
 VEHICLE = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle of planner and MPC.")
 DICTIONARY = typer.Option(1000, "--dictionary-size", help="GP dictionary size M per GP.")
-FEATURES = typer.Option("full", "--features", help="GP inputs: full [v_x, v_y, yaw_rate, delta, a_x] or paper [v_y, yaw_rate, delta].")
+FEATURES = typer.Option("full", "--features", help="GP inputs: full (v_x, v_y, yaw_rate, delta, a_x) or paper (v_y, yaw_rate, delta).")
 SEED = typer.Option(0, "--seed", help="Base seed.")
 EXECUTOR = typer.Option("local", "--executor", help="local or dask.")
 WORKERS = typer.Option(2, "--workers", help="Parallel trials.")
@@ -253,6 +254,11 @@ def _print_summary(summary: dict, as_json: bool) -> None:
                          + f"; 'closed' measured against the {o.get('basis', 'driven')} lap")
         else:
             lines.append(f"oracle lap: unknown ({o.get('why', 'plant physics not known')})")
+    best = [t for t in summary.get("per_trial", []) if math.isfinite(t["best_alpha0"])]
+    if best:
+        lines.append("best alpha-0 lap per trial (iteration 0 -> best, share of the gap to the oracle closed): " + "; ".join(
+            f"trial {t['trial']}: {t['iteration0']:.2f} -> {t['best_alpha0']:.2f} s (it {t['best_iteration']}, {_cell(t['gap_closed_best']).strip()})"
+            for t in best))
     console.result("\n".join(lines))
 
 

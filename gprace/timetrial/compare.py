@@ -47,7 +47,8 @@ def compare(base, out: str | Path, executor: str = "local", workers: int = 1, sc
     table = {name: figure_data(summary) for name, summary in summaries.items()}
     oracle = summaries["exploration"].get("oracle")
     return {"plant": base.plant, "track": base.track, "trials": base.trials, "iterations": base.iterations,
-            "features": base.features, "oracle": oracle, "variants": table, "error": error}
+            "features": base.features, "oracle": oracle, "variants": table,
+            "per_trial": {name: summary["per_trial"] for name, summary in summaries.items()}, "error": error}
 
 
 def figure_data(summary: dict) -> list[dict]:

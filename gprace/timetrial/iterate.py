@@ -571,7 +571,17 @@ def build_summary(out: str | Path) -> dict:
             "gap_closed_min": float(np.nanmin([r["gap_closed"] for r in rs])) if i and o_lap is not None else float("nan"),
             "completed": int(sum(r["completed"] for r in rs)),
         })
-    return {"settings": json.loads((out / "settings.json").read_text()), "oracle": oracle, "rows": rows, "by_iteration": agg}
+    # per trial: its iteration-0 lap, its best driven alpha-0 lap (the racing laps after the
+    # exploration) and the share of the gap to the oracle that lap closed
+    per_trial = []
+    for j, b in sorted(base.items()):
+        racing = [r for r in rows if r["trial"] == j and r["iteration"] > 0 and r["alpha"] == 0.0 and r["completed"]]
+        best = min(racing, key=lambda r: r["driven"]) if racing else None
+        per_trial.append({"trial": j, "iteration0": b, "best_alpha0": best["driven"] if best else float("nan"),
+                          "best_iteration": best["iteration"] if best else None,
+                          "gap_closed_best": best["gap_closed"] if best else float("nan")})
+    return {"settings": json.loads((out / "settings.json").read_text()), "oracle": oracle, "rows": rows, "by_iteration": agg,
+            "per_trial": per_trial}
 
 
 SUMMARY_COLUMNS = ["iteration", "trial", "alpha", "planned", "driven", "gap", "err_tracking", "err_planning",
