@@ -245,6 +245,15 @@ def test_eval_timetrial_runs_both_variants_and_resumes(capsys, tmp_path):
     assert main(args) == 0
     assert json.loads(capsys.readouterr().out)["variants"] == res["variants"]
     assert (out / "double_gp" / "trial_0" / "iter_01" / "run.h5").stat().st_mtime_ns == stamp
+    # the report draws both variants side by side (Double GP shows as the random-selection baseline)
+    from gprace.report.collect import scan, timetrial_variants
+
+    names = {v["name"] for v in timetrial_variants(scan(out)).values()}
+    assert names == {"exploration", "baseline"}
+    page = tmp_path / "report.html"
+    assert main(["report", str(out), "--out", str(page)]) == 0
+    html = page.read_text()
+    assert 'data-section="timetrial"' in html and "only one iterate folder" not in html
 
 
 def test_oracle_is_unknown_for_commonroad():
