@@ -236,8 +236,8 @@ class TrackingMPC:
             Ub = np.vstack([self.prev_u[1:], self.prev_u[-1:]])
         Xb[:, 5] = np.maximum.accumulate(Xb[:, 5])  # progress along the nominal cannot go back
         sb = Xb[:, 5]
-        kap = self.track.kappa(sb)
-        slope = (self.track.kappa(sb + KAPPA_DS) - self.track.kappa(sb - KAPPA_DS)) / (2 * KAPPA_DS)
+        kap, k_up, k_dn = self.track.kappa(np.concatenate([sb, sb + KAPPA_DS, sb - KAPPA_DS])).reshape(3, -1)
+        slope = (k_up - k_dn) / (2 * KAPPA_DS)
         xn, A, B = self._lin(Xb.T, Ub.T, np.vstack([kap, slope, sb]))
         xn, A, B = np.asarray(xn).T, np.asarray(A), np.asarray(B)
         A = A.reshape(6, N, 6).transpose(1, 0, 2)
