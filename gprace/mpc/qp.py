@@ -28,9 +28,10 @@ car past a tightened bound. ``Q`` and ``R`` are diagonal.
 
 The steering-rate rows are beyond the paper too: the commonroad BMW's servo turns at most
 0.4 rad/s, and a QP that did not know it asked for reversals of 0.2 rad within 0.4 s in the
-S-bend of gprace_ring; the lagging wheel turned the correction into a growing oscillation and a
-spin (on the nominal MPC as well). They are hard: ``delta_k = delta_{-1}`` always satisfies them.
-``steer_step = None`` leaves them open (``STEER_OPEN``).
+S-bend of gprace_ring, so its predictions assumed a wheel the car cannot turn. (The spin there had
+another cause, the curvature held constant over a step: :mod:`gprace.mpc.tracking`.) They are
+hard: ``delta_k = delta_{-1}`` always satisfies them. ``steer_step = None`` leaves them open
+(``STEER_OPEN``).
 """
 
 from __future__ import annotations

@@ -116,7 +116,7 @@ class GPPredictor:
         """Mean ``(n, 2)``, variance ``(n, 2)`` and mean gradient ``(n, 2, d)`` w.r.t. the inputs.
 
         The exact backend computes all three from one kernel block, with its spectral variance
-        (an upper bound of the exact variance within 0.1 % of the prior, the MPC's real-time
+        (an upper bound of the exact variance, within 0.1 % of the prior at the data; the MPC's real-time
         path, ``ExactGP._spectral``); other backends: their variance and central differences of
         the mean.
         """
