@@ -378,6 +378,21 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
 
 def diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int = HORIZON, seed: int = 0,
              augmented_name: str | None = None, log: Callable[[str], None] | None = None) -> Diagnosis:
+    """Run the stages on ``runs`` against the nominal ``vehicle``.
+
+    Linear algebra runs on one BLAS thread: the matrices are small (ridge regressions of ~20
+    features, Jacobians of a few parameters), and on a shared machine a multi-threaded BLAS call
+    waits for a time slice of every thread (measured: 0.15 s instead of 0.5 ms per ridge fold
+    while another process held a core).
+    """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        return _diagnose(runs, vehicle, horizon=horizon, seed=seed, augmented_name=augmented_name, log=log)
+
+
+def _diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int, seed: int,
+              augmented_name: str | None, log: Callable[[str], None] | None) -> Diagnosis:
     t0 = time.perf_counter()
     log = log or (lambda s: None)
     p = prepare(runs, int(horizon))

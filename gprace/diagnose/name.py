@@ -92,12 +92,31 @@ class Problem:
     def residuals(self, model: NominalModel, starts: np.ndarray) -> np.ndarray:
         """(m, H, 3) normalised multi-step errors of the dynamic channels."""
         Z = lag_states(model, self.data) if model.nx > 6 else None
+        E = errors(self.data, starts, predict(model, self.data, starts, self.H, self._substeps(model), Z=Z))
+        return E[..., list(DYNAMIC)] / self.scale
+
+    def _substeps(self, model: NominalModel) -> int:
         sub = self.substeps
         for e in model.effects:  # resolve fast actuator lags: RK4 step no longer than tau
             if "tau" in e.values:
-                sub = max(sub, int(np.ceil(self.data.dt / max(e.values["tau"], 1e-3))))
-        E = errors(self.data, starts, predict(model, self.data, starts, self.H, min(sub, 20), Z=Z))
-        return E[..., list(DYNAMIC)] / self.scale
+                sub = max(sub, int(np.ceil(self.data.dt / max(float(np.min(e.values["tau"])), 1e-3))))
+        return min(sub, 20)
+
+    def residual_sets(self, name: str, sets: list[dict[str, float]], starts: np.ndarray) -> np.ndarray:
+        """(k, m, H, 3) normalised errors of the model with effect ``name`` at each of ``k``
+        parameter sets, in ONE batch: the effect's parameters are arrays with one value per
+        window, so the finite-difference Jacobian of a fit costs one model evaluation, not one
+        per parameter (the per-call cost of the vectorised model dominates at a few hundred
+        windows)."""
+        k, m = len(sets), len(starts)
+        vals = {key: np.repeat(np.array([v[key] for v in sets], dtype=float), m) for key in sets[0]}
+        model = self.model([EFFECTS[name](**vals)])
+        Z0 = None
+        if model.nx > 6:  # actuator-lag states from the command history, per parameter set
+            Z0 = np.vstack([lag_states(self.model([EFFECTS[name](**v)]), self.data)[starts] for v in sets])
+        S = np.tile(starts, k)
+        E = errors(self.data, S, predict(model, self.data, S, self.H, self._substeps(model), Z0=Z0))
+        return (E[..., list(DYNAMIC)] / self.scale).reshape(k, m, self.H, 3)
 
     def loss(self, model: NominalModel, starts: np.ndarray) -> np.ndarray:
         """Per-window loss: mean normalised squared error over horizon and channels."""
@@ -159,21 +178,36 @@ def fit_effect(prob: Problem, name: str, starts: np.ndarray, inits: list[dict[st
     free = free_params(name)
     fixed = {k: EFFECTS[name].params[k].default for k in EFFECTS[name].params if k in FIXED}
     lo, hi = _bounds(name, free, prob.data)
+    step = 1e-3 if any(k.startswith("s_") for k in free) else float(np.sqrt(np.finfo(float).eps))
     xs = np.array([SCALE.get(k, max(abs(hi[i] - lo[i]) * 0.05, 1e-3)) for i, k in enumerate(free)])
     best: Fit | None = None
 
+    def sets(X):
+        out = []
+        for x in X:
+            vals = dict(fixed)
+            vals.update(zip(free, (float(v) for v in x)))
+            if "s_start" in vals and vals["s_end"] < vals["s_start"] + 1.0:
+                vals["s_end"] = vals["s_start"] + 1.0
+            out.append(vals)
+        return out
+
+    def batch(X):
+        R = prob.residual_sets(name, sets(X), starts).reshape(len(X), -1)
+        return np.where(np.isfinite(R), R, 1e3)
+
     def fun(x):
-        vals = dict(fixed)
-        vals.update(zip(free, x))
-        if "s_start" in vals and vals["s_end"] < vals["s_start"] + 1.0:
-            vals["s_end"] = vals["s_start"] + 1.0
-        try:
-            eff = EFFECTS[name](**vals)
-        except Exception:  # outside bounds by rounding
-            return np.full(len(starts) * prob.H * 3, 1e3)
-        r = prob.residuals(prob.model([eff]), starts).ravel()
-        r = np.where(np.isfinite(r), r, 1e3)
-        return r
+        return batch([x])[0]
+
+    def jac(x):
+        """Forward differences (scipy's '2-point' steps, one-sided inside the bounds), all
+        parameters in one batched evaluation."""
+        sign = np.where(x >= 0, 1.0, -1.0)
+        h = step * sign * np.maximum(1.0, np.abs(x))
+        h = np.where((x + h > hi) | (x + h < lo), -h, h)
+        h = (x + h) - x
+        R = batch([x] + [x + np.eye(len(x))[i] * h[i] for i in range(len(x))])
+        return ((R[1:] - R[0]) / h[:, None]).T
 
     full = starts
     lo_all, hi_all = lo, hi
@@ -191,18 +225,17 @@ def fit_effect(prob: Problem, name: str, starts: np.ndarray, inits: list[dict[st
             lo[i1], hi[i1] = min(b - 1.0, 0.5 * (a + b) + 1.0), b + NEAR_MARGIN
         x0 = np.clip(np.array([init[k] for k in free], dtype=float), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         try:
-            sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=xs, method="trf", max_nfev=max_nfev,
-                                diff_step=1e-3 if any(k.startswith("s_") for k in free) else None)
+            sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=xs, method="trf", max_nfev=max_nfev)
         except (ValueError, FloatingPointError):
             continue
-        jac, res, win = sol.jac, sol.fun, starts
+        J, res, win = sol.jac, sol.fun, starts
         if len(starts) != len(full):  # cost over all windows (unchanged far from the window)
             starts = full
             cost = float(np.mean(fun(sol.x) ** 2))
         else:
             cost = float(np.mean(sol.fun**2))
         if best is None or cost < best.cost:
-            best = Fit(name, free, sol.x, fixed, cost, jac, res, win=win)
+            best = Fit(name, free, sol.x, fixed, cost, J, res, win=win)
     return best
 
 
