@@ -285,14 +285,17 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, log: Callable[[str], 
         names = [n for n in EFFECTS if n not in {f.name for f in fits} and n not in s.not_identifiable
                  and {CHANNELS.index(ch) for ch in EFFECTS[n].channels} & dyn_struct]
         cands = []
-        for n in names:
+        for n in names:  # a few iterations from every starting point, on the screening windows
             inits = nm.starts_for(n, loc.windows)
-            f = nm.fit_effect(prob, n, ctx.screen_w, inits, max_nfev=20) if inits else None
+            f = nm.fit_effect(prob, n, ctx.screen_w, inits, max_nfev=nm.PRESCREEN_NFEV) if inits else None
             if f is not None:
                 cands.append(f)
         if not cands:
             break
         cands.sort(key=lambda f: f.cost)
+        # only the most promising continue to the full screening fit, warm-started
+        cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=20) for f in cands[: nm.PRESCREEN_KEEP]),
+                       key=lambda f: f.cost)
         top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in cands[: nm.SCREEN_TOP]]
         cv = {f.name: nm.cv_channel_losses(prob, f, ctx.eval_w, ctx.fold,
                                             fit_stride=max(1, len(ctx.eval_w) // 400)) for f in top}

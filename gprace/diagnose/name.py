@@ -38,6 +38,13 @@ MIN_EXCESS_SHARE = 0.1
 """... and at least this share of the remaining excess over the noise floor."""
 AMBIGUOUS_SHARE = 0.1
 SCREEN_TOP = 3
+PRESCREEN_NFEV = 5
+"""Model evaluations per starting point when every candidate is first tried: a true effect
+removes most of its excess within a few trust-region steps (its parameters enter smoothly), so
+the ranking is settled long before convergence; most of the screening time was spent
+converging candidates (and window starting points) that cannot win."""
+PRESCREEN_KEEP = 2 * SCREEN_TOP
+"""Candidates carried from the prescreen to the full screening fit."""
 
 # starting values (no effect, or a small one where "none" is a bound) per effect parameter
 START = {
