@@ -114,7 +114,7 @@ class Problem:
         parameter sets, in ONE batch: the effect's parameters are arrays with one value per
         window, so the finite-difference Jacobian of a fit costs one model evaluation, not one
         per parameter (the per-call cost of the vectorised model dominates at a few hundred
-        windows)."""
+        windows). The RK4 substeps are those of the fastest lag among the sets."""
         k, m = len(sets), len(starts)
         vals = {key: np.repeat(np.array([v[key] for v in sets], dtype=float), m) for key in sets[0]}
         model = self.model([EFFECTS[name](**vals)])
