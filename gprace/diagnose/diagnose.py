@@ -154,6 +154,9 @@ class Ctx:
     fit_stride: int
     subsets: tuple[tuple[str, np.ndarray], ...]  # regimes / regions over eval_w
     t_subset: float
+    heldout_memo: dict = field(default_factory=dict, compare=False, repr=False)
+    """Cross-validated losses per set of fitted effects (parsimony and the final held-out fit
+    ask for the same set more than once)."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -567,6 +570,13 @@ def _heldout_losses(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
 def _heldout_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
     """(m, 3) cross-validated per-window, per-channel normalised squared error of the model with
     ``fits`` (each refitted without the held-out fold, the others fixed)."""
+    key = tuple((f.name, f.x.tobytes()) for f in fits)
+    if key not in ctx.heldout_memo:
+        ctx.heldout_memo[key] = _cv_channels(ctx, fits)
+    return ctx.heldout_memo[key]
+
+
+def _cv_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
     prob, eval_w, fold = ctx.prob, ctx.eval_w, ctx.fold
     out = np.empty((len(eval_w), 3))
     for fo in np.unique(fold):

@@ -203,8 +203,12 @@ def fit_effect(prob: Problem, name: str, starts: np.ndarray, inits: list[dict[st
         R = prob.residual_sets(name, sets(X), starts).reshape(len(X), -1)
         return np.where(np.isfinite(R), R, 1e3)
 
+    last: dict = {}  # the residuals at the latest point: least_squares asks for fun(x), then jac(x)
+
     def fun(x):
-        return batch([x])[0]
+        r = batch([x])[0]
+        last.update(x=np.array(x, copy=True), r=r, starts=starts)
+        return r
 
     def jac(x):
         """Forward differences (scipy's '2-point' steps, one-sided inside the bounds), all
@@ -213,8 +217,13 @@ def fit_effect(prob: Problem, name: str, starts: np.ndarray, inits: list[dict[st
         h = step * sign * np.maximum(1.0, np.abs(x))
         h = np.where((x + h > hi) | (x + h < lo), -h, h)
         h = (x + h) - x
-        R = batch([x] + [x + np.eye(len(x))[i] * h[i] for i in range(len(x))])
-        return ((R[1:] - R[0]) / h[:, None]).T
+        steps = [x + np.eye(len(x))[i] * h[i] for i in range(len(x))]
+        if last.get("starts") is starts and np.array_equal(last["x"], x):
+            R0, R = last["r"], batch(steps)
+        else:
+            R = batch([x] + steps)
+            R0, R = R[0], R[1:]
+        return ((R - R0) / h[:, None]).T
 
     full = starts
     lo_all, hi_all = lo, hi
