@@ -205,18 +205,19 @@ def run_case(case: dict, laps: float) -> dict:
     except Exception as exc:
         return {**case, "error": f"recording: {type(exc).__name__}: {exc}"}
     t_rec = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         rep = diagnose([run], vehicle, seed=case["seed"]).report
     except Exception as exc:  # a benchmark row, not a crash
         return {**case, "error": f"{type(exc).__name__}: {exc}"}
     t_diag = time.perf_counter() - t0
+    cpu_diag = time.process_time() - c0  # diagnose is single-threaded: ~ its time on an idle core
     truth = {n for n, _ in case["effects"]}
     named = [e["name"] for e in rep["effects"]]
     amb = {e["name"]: e["ambiguous_with"] for e in rep["effects"]}
     row = {**case, "samples": run.n, "verdict": rep["verdict"], "named": named, "ambiguous": amb,
            "excluded_s": round(sum(e["seconds_excluded"] for e in rep["excluded"]), 1),
-           "unexplained": rep["unexplained"], "t_record": round(t_rec, 1), "t_diagnose": round(t_diag, 1),
+           "unexplained": rep["unexplained"], "t_record": round(t_rec, 1), "t_diagnose": round(t_diag, 1), "cpu_diagnose": round(cpu_diag, 1),
            "load_1min": round(os.getloadavg()[0], 2),
            # commonroad: its own physics differ from the nominal bicycle, so the concealed effect must
            # be among the names; elsewhere the named set must equal the truth
@@ -287,6 +288,7 @@ def _summary(rows: list[dict]) -> dict:
         "misses": [{"truth": [n for n, _ in r["effects"]], "named": r["named"], "ambiguous": r["ambiguous"],
                     "unexplained": r["unexplained"], "seed": r["seed"]} for r in synth if not r["exact"]],
         "median_runtime_s": round(float(np.median([r["t_diagnose"] for r in ok])), 1) if ok else None,
+        "median_cpu_s": round(float(np.median([r["cpu_diagnose"] for r in ok])), 1) if ok else None,
         "median_load_1min": round(float(np.median([r["load_1min"] for r in ok])), 2) if ok else None,
         "max_runtime_s": round(float(np.max([r["t_diagnose"] for r in ok])), 1) if ok else None,
         "median_samples": int(np.median([r["samples"] for r in ok])) if ok else None,
@@ -307,7 +309,7 @@ def timing(source: str) -> dict:
         case["effects"] = [["gyro_bias", {"bias": 0.02}]]
     laps = {"gprace": 4.2, "independent": 300.0 / 90.0, "commonroad": 4.2}[source]
     row = run_case(case, laps)
-    return {k: row.get(k) for k in ("samples", "t_diagnose", "t_record", "named", "error")}
+    return {k: row.get(k) for k in ("samples", "t_diagnose", "cpu_diagnose", "load_1min", "t_record", "named", "error")}
 
 
 def main() -> int:
