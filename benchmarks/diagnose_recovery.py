@@ -20,7 +20,7 @@ friction patch), time per recording, the confusion between effects, plus the per
 runtime of a 6,000-sample recording per source.
 
     python benchmarks/diagnose_recovery.py [--quick | --quick-gprace] [--workers 2] [--seed 0]
-        [--sources gprace,independent,commonroad] [--only steering_lag,null]
+        [--sources gprace,independent,commonroad] [--only steering_lag,null] [--kinds single,null,pair]
 
 Parameter error: ``|fitted - true| / |true - neutral|`` for each parameter that the truth moves
 away from its neutral value (0, or 1 for factors), i.e. relative to the size of the effect.
@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -204,18 +205,20 @@ def run_case(case: dict, laps: float) -> dict:
     except Exception as exc:
         return {**case, "error": f"recording: {type(exc).__name__}: {exc}"}
     t_rec = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         rep = diagnose([run], vehicle, seed=case["seed"]).report
     except Exception as exc:  # a benchmark row, not a crash
         return {**case, "error": f"{type(exc).__name__}: {exc}"}
     t_diag = time.perf_counter() - t0
+    cpu_diag = time.process_time() - c0  # diagnose is single-threaded: ~ its time on an idle core
     truth = {n for n, _ in case["effects"]}
     named = [e["name"] for e in rep["effects"]]
     amb = {e["name"]: e["ambiguous_with"] for e in rep["effects"]}
     row = {**case, "samples": run.n, "verdict": rep["verdict"], "named": named, "ambiguous": amb,
            "excluded_s": round(sum(e["seconds_excluded"] for e in rep["excluded"]), 1),
-           "unexplained": rep["unexplained"], "t_record": round(t_rec, 1), "t_diagnose": round(t_diag, 1),
+           "unexplained": rep["unexplained"], "t_record": round(t_rec, 1), "t_diagnose": round(t_diag, 1), "cpu_diagnose": round(cpu_diag, 1),
+           "load_1min": round(os.getloadavg()[0], 2),
            # commonroad: its own physics differ from the nominal bicycle, so the concealed effect must
            # be among the names; elsewhere the named set must equal the truth
            "exact": truth <= set(named) if case["source"] == "commonroad" else set(named) == truth,
@@ -285,6 +288,8 @@ def _summary(rows: list[dict]) -> dict:
         "misses": [{"truth": [n for n, _ in r["effects"]], "named": r["named"], "ambiguous": r["ambiguous"],
                     "unexplained": r["unexplained"], "seed": r["seed"]} for r in synth if not r["exact"]],
         "median_runtime_s": round(float(np.median([r["t_diagnose"] for r in ok])), 1) if ok else None,
+        "median_cpu_s": round(float(np.median([r["cpu_diagnose"] for r in ok])), 1) if ok else None,
+        "median_load_1min": round(float(np.median([r["load_1min"] for r in ok])), 2) if ok else None,
         "max_runtime_s": round(float(np.max([r["t_diagnose"] for r in ok])), 1) if ok else None,
         "median_samples": int(np.median([r["samples"] for r in ok])) if ok else None,
         "seconds_excluded_by_envelope": [r["excluded_s"] for r in ok if r.get("excluded_s")],
@@ -304,7 +309,7 @@ def timing(source: str) -> dict:
         case["effects"] = [["gyro_bias", {"bias": 0.02}]]
     laps = {"gprace": 4.2, "independent": 300.0 / 90.0, "commonroad": 4.2}[source]
     row = run_case(case, laps)
-    return {k: row.get(k) for k in ("samples", "t_diagnose", "t_record", "named", "error")}
+    return {k: row.get(k) for k in ("samples", "t_diagnose", "cpu_diagnose", "load_1min", "t_record", "named", "error")}
 
 
 def main() -> int:
@@ -316,6 +321,7 @@ def main() -> int:
     ap.add_argument("--sources", default="gprace,independent,commonroad")
     ap.add_argument("--quick-gprace", action="store_true", help="--quick for the gprace source only")
     ap.add_argument("--only", default="", help="comma-separated effect names (subset of the cases)")
+    ap.add_argument("--kinds", default="single,null,pair", help="comma-separated case kinds to run")
     ap.add_argument("--no-timing", action="store_true")
     args = ap.parse_args()
     sources = args.sources.split(",")
@@ -329,6 +335,8 @@ def main() -> int:
     if args.only:
         keep = set(args.only.split(","))
         cases = [c for c in cases if {n for n, _ in c["effects"]} & keep or ("null" in keep and not c["effects"])]
+    cases = [c for c in cases if c["kind"] in set(args.kinds.split(","))]
+    load0 = os.getloadavg()
     t0 = time.perf_counter()
     rows = []
     with ProcessPoolExecutor(max_workers=args.workers) as ex:
@@ -338,6 +346,9 @@ def main() -> int:
     out = {"summary": summarise(rows), "wall_s": round(time.perf_counter() - t0, 1)}
     if not args.no_timing:
         out["timing_6000_samples"] = {src: timing(src) for src in sources}
+    # times mean little without the machine's load (1-minute averages at start and end)
+    out["load_average"] = {"start": [round(x, 2) for x in load0], "end": [round(x, 2) for x in os.getloadavg()],
+                           "cpus": os.cpu_count()}
     out["rows"] = rows
     json.dump(out, sys.stdout, indent=1, default=lambda o: o.item() if hasattr(o, "item") else str(o))
     sys.stdout.write("\n")

@@ -14,12 +14,15 @@ lag states start from the recorded command history filtered with the lag being t
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
 from gprace.errors import InputError
 from gprace.io.runs import Run
 from gprace.model import Effect, NominalModel
+from gprace.model.dynamics import dynamics
+from gprace.model.ops import NP
 
 CHANNELS = ("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s")
 DYNAMIC = (0, 1, 2)  # v_x, v_y, yaw_rate: the channels fitted and tested for structure
@@ -167,19 +170,65 @@ def initial_states(model: NominalModel, Y0: np.ndarray, Z0: np.ndarray) -> np.nd
 
 
 def predict(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, substeps: int = 2,
-            Y0: np.ndarray | None = None, Z: np.ndarray | None = None) -> np.ndarray:
-    """Measured predictions ``(m, H, 6)`` of windows starting at ``starts`` (batch over windows)."""
+            Y0: np.ndarray | None = None, Z: np.ndarray | None = None, Z0: np.ndarray | None = None) -> np.ndarray:
+    """Measured predictions ``(m, H, 6)`` of windows starting at ``starts`` (batch over windows).
+
+    ``Z`` (n, nz) are effect states at every sample, ``Z0`` (m, nz) at the window starts (for a
+    batch whose windows carry different effect parameters); by default from the command history.
+    """
     Y0 = data.Y[starts] if Y0 is None else Y0
-    if Z is None:
-        Z = lag_states(model, data) if model.nx > 6 else np.zeros((data.n, 0))
-    X = initial_states(model, Y0, Z[starts])
-    rec = data.rec[starts]
-    kfun = lambda s: data.kappa_at(s, rec)  # noqa: E731
+    if Z0 is None:
+        if Z is None:
+            Z = lag_states(model, data) if model.nx > 6 else np.zeros((data.n, 0))
+        Z0 = Z[starts]
+    X = initial_states(model, Y0, Z0).T.copy()  # (nx, m): rows contiguous for the hot loop
+    kfun = _kappa_lookup(data, data.rec[starts])
+    UT = data.U.T
+    sensor = any(type(e).measure is not Effect.measure for e in model.effects)
     out = np.empty((len(starts), H, 6))
     for j in range(H):
-        X = model.rk4(X, data.U[starts + j], kfun, data.dt, substeps)
-        out[:, j] = model.measure(X)
+        X = rk4_batch(model, X, UT[:, starts + j], kfun, data.dt, substeps)
+        out[:, j] = model.measure(X.T) if sensor else X[:6].T
     return out
+
+
+def _kappa_lookup(data: Dataset, rec: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """``kappa(s)`` for a batch of windows of recordings ``rec`` (the same values as
+    :meth:`Dataset.kappa_at`, with the per-window table offsets computed once)."""
+    L = data.L[rec]
+    off = rec * _OFFSET
+    fin = np.isfinite(L)
+    if fin.all():
+        return lambda s: np.interp(np.mod(s, L) + off, data.ks, data.kv)
+    Lr = np.where(fin, L, 1.0)
+    return lambda s: np.interp(np.where(fin, np.mod(s, Lr), s) + off, data.ks, data.kv)
+
+
+def _deriv(model: NominalModel, X: np.ndarray, U: np.ndarray, kappa: np.ndarray) -> np.ndarray:
+    """``dX/dt`` of states stored as rows ``(nx, m)``, inputs ``(2, m)``: the model's own
+    :func:`~gprace.model.dynamics.dynamics` without the per-call reshaping of
+    :meth:`NominalModel.f` (this is the innermost call of every fit: thousands per diagnosis)."""
+    out = dynamics(list(X), list(U), kappa, model.params, model.effects, NP)
+    D = np.empty_like(X)
+    for i, o in enumerate(out):
+        D[i] = o
+    return D
+
+
+def rk4_batch(model: NominalModel, X: np.ndarray, U: np.ndarray, kfun: Callable[[np.ndarray], np.ndarray],
+              dt: float, substeps: int) -> np.ndarray:
+    """:meth:`NominalModel.rk4` (same stages, same arithmetic) on states stored as rows ``(nx, m)``."""
+    h = dt / substeps
+    for _ in range(substeps):
+        k1 = _deriv(model, X, U, kfun(X[5]))
+        x2 = X + 0.5 * h * k1
+        k2 = _deriv(model, x2, U, kfun(x2[5]))
+        x3 = X + 0.5 * h * k2
+        k3 = _deriv(model, x3, U, kfun(x3[5]))
+        x4 = X + h * k3
+        k4 = _deriv(model, x4, U, kfun(x4[5]))
+        X = X + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    return X
 
 
 def errors(data: Dataset, starts: np.ndarray, pred: np.ndarray, target: np.ndarray | None = None) -> np.ndarray:
@@ -240,15 +289,14 @@ def make_twin(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, si
     steps = seg + H
     N = data.n
     Z = lag_states(model, data) if model.nx > 6 else np.zeros((N, 0))
-    X = initial_states(model, data.Y[anchors], Z[anchors])
-    arec = data.rec[anchors]
-    kfun = lambda s: data.kappa_at(s, arec)  # noqa: E731
+    X = initial_states(model, data.Y[anchors], Z[anchors]).T.copy()
+    kfun = _kappa_lookup(data, data.rec[anchors])
     traj = np.empty((len(anchors), steps + 1, 6))
-    traj[:, 0] = model.measure(X)
+    traj[:, 0] = model.measure(X.T)
     for j in range(steps):
         idx = np.minimum(anchors + j, N - 1)
-        X = model.rk4(X, data.U[idx], kfun, data.dt, fine)
-        traj[:, j + 1] = model.measure(X)
+        X = rk4_batch(model, X, data.U.T[:, idx], kfun, data.dt, fine)
+        traj[:, j + 1] = model.measure(X.T)
     pos = starts - anchors[inv]
     Y0s, Ts = [], []
     for _ in range(realisations):
