@@ -44,8 +44,11 @@ def register(app: typer.Typer) -> None:
         json_out: bool = JSON,
     ) -> None:
         """Build or extend a GP dataset: features of RUNs, diverse (or random) selection of M points."""
+        from gprace.errors import ConfigError
         from gprace.gp.stages import select_data
 
+        if not outlier_kappa >= 0:
+            raise ConfigError(f"--outlier-kappa must be >= 0 (standard deviations; 0 disables the gate), got {outlier_kappa}")
         res = select_data(inputs, output, gp, max_points, selection, vehicle, model, kernel, step,
                           outlier_kappa if outlier_kappa > 0 else None, seed, features)
         if json_out:

@@ -38,6 +38,20 @@ WORKERS = typer.Option(2, "--workers", help="Parallel trials.")
 SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address.")
 
 
+MIN_NODES, MAX_NODES = 20, 20_000
+
+
+def check_nodes(track, ds: float) -> None:
+    """``--ds`` must give a lap of MIN_NODES..MAX_NODES nodes (a coarser lap skips the corners, a
+    finer one makes an NLP too large to solve)."""
+    from gprace.errors import ConfigError
+
+    n = track.length / ds
+    if not MIN_NODES <= n <= MAX_NODES:
+        raise ConfigError(f"--ds {ds:g} gives {n:.3g} nodes on the {track.length:.0f} m track {track.name}; "
+                          f"use {track.length / MAX_NODES:.3g} to {track.length / MIN_NODES:.3g} m")
+
+
 def register(app: typer.Typer) -> None:
     @app.command("plan")
     def plan_cmd(
@@ -60,7 +74,10 @@ def register(app: typer.Typer) -> None:
 
         if ds <= 0:
             raise ConfigError(f"--ds must be positive, got {ds}")
+        if grip is not None and not 0.0 < grip <= 1.0:
+            raise ConfigError(f"--grip must be in (0, 1] (a share of the model's limits), got {grip}")
         tr = load_track(track)
+        check_nodes(tr, ds)
         m = NominalModel(load_vehicle(vehicle))
         if curvature:
             plan = curvature_plan(tr, m, ds=ds)
@@ -93,6 +110,7 @@ def register(app: typer.Typer) -> None:
         output: Path = typer.Option(..., "--output", "-o", help="Run file to write (.h5)."),
     ) -> None:
         """Drive a plan on a plant with the (GP-compensated, exploring) tracking MPC; record a run."""
+        from gprace.backends import solvers
         from gprace.config import load_plant, load_vehicle
         from gprace.console import console
         from gprace.errors import ConfigError
@@ -107,6 +125,8 @@ def register(app: typer.Typer) -> None:
             raise ConfigError(f"--alpha must be in [0, 1], got {alpha}")
         if laps <= 0:
             raise ConfigError(f"--laps must be positive, got {laps}")
+        mpc = MPCSettings(solver=solver, beta=beta, explore_radius=radius)  # checks radius and beta
+        solvers.get(solver)  # an unknown name lists the registered ones
         p0 = read_plan(plan)
         tr = load_track(track or p0.track)
         p0.check_track(tr, str(plan))
@@ -129,7 +149,7 @@ def register(app: typer.Typer) -> None:
                 from gprace.timetrial.iterate import make_grid
 
                 grid = make_grid(gp.gp, gp.gp.Z_ if hasattr(gp.gp, "Z_") else None, MPCSettings(), 7)
-        settings = DriveSettings(laps=laps, mpc=MPCSettings(solver=solver, beta=beta, explore_radius=radius))
+        settings = DriveSettings(laps=laps, mpc=mpc)
         run = drive(p0, load_plant(plant), tr, m, settings, gp=gp, grid=grid, alpha=alpha, seed=seed)
         write_run(run, output)
         mt = run.meta

@@ -101,6 +101,11 @@ class IterateSettings:
             raise ConfigError(f"first speed scale must be in (0, 1], got {self.first_speed_scale}")
         if not 0.0 <= self.widen < 0.5:
             raise ConfigError(f"widen must be in [0, 0.5), got {self.widen}")
+        from gprace.backends import solvers
+        from gprace.mpc.tracking import quantile_factor
+
+        solvers.get(self.solver)  # an unknown name lists the registered ones, before any planning
+        quantile_factor(self.beta)
 
 
 # ------------------------------------------------------------------------------------------------

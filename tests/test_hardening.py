@@ -1,0 +1,92 @@
+"""Issue 16: bad settings and bad data are refused where a command starts (exit 2, one line naming
+the culprit), before any file is written; no confident wrong answer."""
+
+from __future__ import annotations
+
+import pytest
+
+from gprace.cli import main
+from gprace.config import configs_dir
+
+
+@pytest.fixture(autouse=True)
+def _no_debug(monkeypatch):
+    monkeypatch.delenv("GPRACE_DEBUG", raising=False)
+
+
+def refused(capsys, argv, *needles) -> str:
+    """Run ``gprace argv``; assert exit 2 and one stderr line holding every needle."""
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2, err
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    for n in needles:
+        assert n in lines[0], (n, lines[0])
+    return lines[0]
+
+
+def nothing_written(tmp_path) -> None:
+    assert sorted(p.name for p in tmp_path.iterdir()) == [], list(tmp_path.iterdir())
+
+
+# ------------------------------------------------------------------------------------------------
+# item 4: every setting checked where the command starts
+
+SETTINGS = [
+    (["plan", "--ds", "5000", "-o", "{out}/p.h5"], ("--ds 5000", "nodes")),
+    (["plan", "--ds", "0.001", "-o", "{out}/p.h5"], ("--ds 0.001", "nodes")),
+    (["plan", "--grip", "-0.5", "-o", "{out}/p.h5"], ("--grip", "-0.5")),
+    (["plan", "--grip", "1.5", "-o", "{out}/p.h5"], ("--grip", "1.5")),
+    (["simulate", "--weave", "1.5", "-o", "{out}/r.h5"], ("simulate options", "weave_amplitude", "less than or equal to 1")),
+    (["run", "--plan", "{out}/none.h5", "--explore-radius", "-1", "-o", "{out}/r.h5"], ("--explore-radius", "-1")),
+    (["run", "--plan", "{out}/none.h5", "--solver", "gurobi", "-o", "{out}/r.h5"], ("gurobi", "clarabel")),
+    (["run", "--plan", "{out}/none.h5", "--beta", "1.5", "-o", "{out}/r.h5"], ("beta", "1.5")),
+    (["select-data", "{out}/none.h5", "--outlier-kappa", "-1", "-o", "{out}/d.h5"], ("--outlier-kappa", "-1")),
+    (["eval", "head2head", "--gp-backend", "foo", "--out", "{out}/h2h"], ("'foo'", "exact, sparse")),
+    (["eval", "head2head", "--width", "0", "--out", "{out}/h2h"], ("--width", "0")),
+    (["eval", "head2head", "--max-time", "-1", "--out", "{out}/h2h"], ("--max-time", "-1")),
+    (["h2h", "collect", "--width", "-1", "--out", "{out}/h2h"], ("--width", "-1")),
+    (["h2h", "collect", "--points-per-run", "0", "--out", "{out}/h2h"], ("--points-per-run", "0")),
+    (["iterate", "--solver", "gurobi", "--out", "{out}/it"], ("gurobi", "clarabel")),
+]
+
+
+@pytest.mark.parametrize("argv,needles", SETTINGS, ids=[" ".join(a[:3]) for a, _ in SETTINGS])
+def test_setting_refused_before_any_work(capsys, tmp_path, argv, needles):
+    refused(capsys, [a.format(out=tmp_path) for a in argv], *needles)
+    nothing_written(tmp_path)
+
+
+def _vehicle(tmp_path, old: str, new: str):
+    text = (configs_dir() / "vehicles" / "audi_tt_cup.toml").read_text()
+    assert old in text
+    f = tmp_path / "car.toml"
+    f.write_text(text.replace(old, new))
+    return f
+
+
+@pytest.mark.parametrize("old,new,needles", [
+    ("steering_max = 0.35", "steering_max = 20.05", ("limits.steering_max", "20.05 rad", "degrees")),
+    ("steering_rate_max = 1.0", "steering_rate_max = 57.3", ("limits.steering_rate_max", "57.3", "degrees per second")),
+    ("l_f = 1.0234", "l_f = 1023.4", ("l_f", "1023.4 m", "millimetres")),
+    ("l_r = 1.4826", "l_r = 1482.6", ("l_r", "1482.6 m", "millimetres")),
+])
+def test_vehicle_in_wrong_units_is_refused_when_loaded(capsys, tmp_path, old, new, needles):
+    car = _vehicle(tmp_path, old, new)
+    refused(capsys, ["plan", "--vehicle", car, "-o", tmp_path / "p.h5"], "car.toml", *needles)
+    assert not (tmp_path / "p.h5").exists()
+
+
+def test_plant_with_a_vehicle_in_millimetres_names_the_path(capsys, tmp_path):
+    _vehicle(tmp_path, "l_r = 1.4826", "l_r = 1482.6")
+    plant = tmp_path / "plant.toml"
+    plant.write_text('vehicle = "car.toml"\n')
+    refused(capsys, ["simulate", "--plant", plant, "-o", tmp_path / "r.h5"], "plant.toml", "vehicle.l_r", "millimetres")
+
+
+def test_shipped_vehicles_pass_the_range_checks():
+    from gprace.config import load_vehicle
+
+    for f in (configs_dir() / "vehicles").glob("*.toml"):
+        assert load_vehicle(f).limits.steering_max < 1.6
