@@ -188,6 +188,8 @@ def load_toml(path: str | Path, model: type[M], section: str | None = None) -> M
 def read_toml(path: Path) -> dict[str, Any]:
     if not path.exists():
         raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, not a TOML file")
     try:
         return tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:

@@ -90,3 +90,59 @@ def test_shipped_vehicles_pass_the_range_checks():
 
     for f in (configs_dir() / "vehicles").glob("*.toml"):
         assert load_vehicle(f).limits.steering_max < 1.6
+
+
+# ------------------------------------------------------------------------------------------------
+# item 5: nothing left behind by a refused command
+
+
+def test_iterate_on_a_three_point_track_leaves_no_folder(capsys, tmp_path):
+    tri = tmp_path / "tri.csv"
+    tri.write_text("# x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,5,5\n100,0,5,5\n50,80,5,5\n")
+    for cmd in (["iterate"], ["eval", "timetrial"]):
+        refused(capsys, [*cmd, "--track", tri, "--out", tmp_path / "out"], "tri.csv", "at least 4 points")
+        assert not (tmp_path / "out").exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# item 6: what used to be an internal error (exit 1) is a one-line exit 2
+
+OUT_IS_A_FILE = [["iterate"], ["eval", "timetrial"], ["eval", "head2head"], ["h2h", "collect"]]
+
+
+@pytest.mark.parametrize("cmd", OUT_IS_A_FILE, ids=" ".join)
+def test_out_that_is_a_file(capsys, tmp_path, cmd):
+    f = tmp_path / "taken.h5"
+    f.write_bytes(b"x")
+    refused(capsys, [*cmd, "--out", f], "--out", "taken.h5: is a file, not a folder")
+    refused(capsys, [*cmd, "--out", f / "sub"], "--out", "taken.h5 is a file, not a folder")
+    assert f.read_bytes() == b"x" and [p.name for p in tmp_path.iterdir()] == ["taken.h5"]
+
+
+def test_artifact_below_a_file(capsys, tmp_path):
+    f = tmp_path / "taken.h5"
+    f.write_bytes(b"x")
+    refused(capsys, ["simulate", "--laps", "0.01", "--track", "circle_100", "-o", f / "r.h5"], "r.h5", "a file is in the way")
+
+
+def test_report_png_that_is_a_file(capsys, tmp_path):
+    f = tmp_path / "taken.png"
+    f.write_bytes(b"x")
+    refused(capsys, ["report", tmp_path, "--png", f, "-o", tmp_path / "r.html"], "--png", "is a file, not a folder")
+    assert not (tmp_path / "r.html").exists()
+
+
+def test_vehicle_that_is_a_folder(capsys, tmp_path):
+    refused(capsys, ["diagnose", tmp_path / "run.h5", "--vehicle", tmp_path], "is a folder, not a TOML file")
+
+
+def test_h2h_train_without_its_dataset(capsys, tmp_path):
+    refused(capsys, ["h2h", "train", tmp_path / "none.h5", tmp_path / "m.h5"], "none.h5", "no such file")
+    nothing_written(tmp_path)
+
+
+@pytest.mark.parametrize("opt,needles", [("max_fit_points=abc", ("max_fit_points", "a number", "'abc'")),
+                                         ("optimize=3", ("optimize", "true or false"))])
+def test_retrain_option_of_the_wrong_type(capsys, tmp_path, opt, needles):
+    refused(capsys, ["retrain", tmp_path / "none.h5", "--opt", opt, "-o", tmp_path / "m.h5"], "'exact'", *needles)
+    nothing_written(tmp_path)

@@ -373,10 +373,29 @@ def make_gp(backend: str, **settings: Any) -> GPBackend:
     from gprace.backends import gps
 
     cls = gps.get(backend)
+    _check_types(backend, cls, settings)
     try:
         return cls(**settings)
     except TypeError as exc:
         raise ConfigError(f"GP backend {backend!r}: {exc}") from None
+
+
+def _check_types(backend: str, cls: type, settings: dict[str, Any]) -> None:
+    """A setting whose default is a number or a boolean must be one (``--opt max_fit_points=abc``)."""
+    import inspect
+
+    params = inspect.signature(cls.__init__).parameters
+    for key, value in settings.items():
+        default = params[key].default if key in params else None
+        if isinstance(default, bool):
+            ok = isinstance(value, bool)
+        elif isinstance(default, (int, float)):
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        else:
+            continue
+        if not ok:
+            what = "true or false" if isinstance(default, bool) else "a number"
+            raise ConfigError(f"GP backend {backend!r}: option {key} expects {what}, got {value!r}")
 
 
 def save_model(path: str | Path, gp: GPBackend, meta: dict[str, Any] | None = None,

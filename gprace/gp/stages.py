@@ -180,9 +180,9 @@ def retrain(data: str | Path, output: str | Path, backend: str = "exact", kernel
     from gprace.gp.base import make_gp, save_model
     from gprace.gp.dataset import read_dataset
 
-    ds = read_dataset(data)
     settings = {"kernel": kernel, "seed": seed, **(options or {})}
-    gp = make_gp(backend, **settings)
+    gp = make_gp(backend, **settings)  # settings checked before the data are read
+    ds = read_dataset(data)
     t0 = time.perf_counter()
     gp.fit(ds.Z, ds.Y)
     elapsed = time.perf_counter() - t0

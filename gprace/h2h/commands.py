@@ -55,8 +55,10 @@ def check_scheduler(executor: str, scheduler: str | None, timeout: float = 3.0) 
         raise InputError(f"cannot reach Dask scheduler {scheduler}: {exc}; nothing was run and finished artifacts are kept") from None
 
 
-def _settings(**kw):
+def _settings(out: Path, **kw):
+    """Checked settings of a command writing to ``out``: every check before any file is written."""
     from gprace.h2h.protocol import Settings
+    from gprace.io.artifacts import check_folder
 
     raced = kw.pop("predictors", None)
     if raced:
@@ -64,6 +66,7 @@ def _settings(**kw):
     st = Settings(**kw)
     check_scheduler(st.executor, st.scheduler)
     st.check()
+    check_folder(out)
     return st
 
 
@@ -118,7 +121,7 @@ def register(app: typer.Typer) -> None:
         """The paper's head-to-head comparison: collect, train, explore, race all predictors, tabulate."""
         from gprace.h2h.protocol import head2head as run
 
-        st = _settings(tracks=tracks, runs=runs, init_runs=init_runs, explore_minutes=explore_minutes,
+        st = _settings(out, tracks=tracks, runs=runs, init_runs=init_runs, explore_minutes=explore_minutes,
                        episode_seconds=episode_seconds, explore_width=explore_width, alpha=alpha, dict_size=dict_size,
                        points_per_run=points_per_run, width=width,
                        stretches=stretches, predictors=predictors, backend=backend, exact_max=exact_max,
@@ -139,7 +142,7 @@ def register(app: typer.Typer) -> None:
         """Race random tracks with the oracle predictor; write the (Z, Y) datasets."""
         from gprace.h2h.protocol import collect as run, read_dataset
 
-        st = _settings(runs=runs, init_runs=init_runs, points_per_run=points_per_run, width=width, stretches=stretches, max_time=max_time,
+        st = _settings(out, runs=runs, init_runs=init_runs, points_per_run=points_per_run, width=width, stretches=stretches, max_time=max_time,
                        workers=workers, executor=executor, scheduler=scheduler, resume=resume)
         paths = run(st, out)
         res = {k: {"path": str(v), "points": len(read_dataset(v)[0])} for k, v in paths.items()}
@@ -180,7 +183,7 @@ def register(app: typer.Typer) -> None:
         """Exploration episodes on the closed loop (Algorithm 1, stalemate breaking)."""
         from gprace.h2h.protocol import explore as run, read_dataset
 
-        st = _settings(explore_minutes=explore_minutes, episode_seconds=episode_seconds, explore_width=explore_width,
+        st = _settings(out, explore_minutes=explore_minutes, episode_seconds=episode_seconds, explore_width=explore_width,
                        alpha=alpha, workers=workers,
                        executor=executor, scheduler=scheduler, resume=resume)
         path = run(st, out, init_model, init_data)

@@ -335,6 +335,8 @@ def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyp
 def _hash_file(path: Path) -> str:
     import hashlib
 
+    if not Path(path).is_file():
+        raise InputError(f"{path}: no such file")
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 

@@ -209,12 +209,12 @@ def _prepare(settings: IterateSettings, out: Path, share: Path | None = None) ->
     import shutil
 
     from gprace.config import load_plant
+    from gprace.io.artifacts import check_folder
     from gprace.tracks import load_track
 
     settings.check()
     _check_start(settings)  # a bad track, plant or vehicle, or a car that cannot start: before anything is written
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder")
+    check_folder(out)
     mine = json.loads(json.dumps(asdict(settings)))
     sfile = out / "settings.json"
     if sfile.exists():
