@@ -3,6 +3,8 @@ the culprit), before any file is written; no confident wrong answer."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from gprace.cli import main
@@ -146,3 +148,61 @@ def test_h2h_train_without_its_dataset(capsys, tmp_path):
 def test_retrain_option_of_the_wrong_type(capsys, tmp_path, opt, needles):
     refused(capsys, ["retrain", tmp_path / "none.h5", "--opt", opt, "-o", tmp_path / "m.h5"], "'exact'", *needles)
     nothing_written(tmp_path)
+
+
+# ------------------------------------------------------------------------------------------------
+# item 7: strict JSON, a failed run exits 1, --json on simulate / plan / run
+
+
+def strict(text: str):
+    def no_constant(name):
+        raise AssertionError(f"bare {name} in JSON output")
+
+    return json.loads(text, parse_constant=no_constant)
+
+
+@pytest.fixture(scope="module")
+def spun(tmp_path_factory):
+    """A curvature plan of circle_100 driven by a car on ice: it leaves the track within a second."""
+    d = tmp_path_factory.mktemp("spun")
+    text = (configs_dir() / "vehicles" / "audi_tt_cup.toml").read_text()
+    assert "mu = 1.5" in text
+    (d / "ice.toml").write_text(text.replace("mu = 1.5", "mu = 0.4"))
+    (d / "plant.toml").write_text('kind = "frenet"\nvehicle = "ice.toml"\n')
+    assert main(["plan", "--curvature", "--track", "circle_100", "-o", str(d / "plan.h5")]) == 0
+    return d
+
+
+def test_run_that_leaves_the_track_exits_1_with_strict_json(capsys, spun):
+    out = spun / "run.h5"
+    capsys.readouterr()
+    code = main(["run", "--plan", str(spun / "plan.h5"), "--plant", str(spun / "plant.toml"), "--laps", "0.3",
+                 "-o", str(out), "--json"])
+    cap = capsys.readouterr()
+    lines = [ln for ln in cap.err.splitlines() if ln.strip()]
+    assert code == 1 and len(lines) == 1 and "left the track" in lines[0], cap.err
+    res = strict(cap.out)
+    assert res["completed"] is False and res["lap_time"] is None
+    assert out.exists()  # the failed run is kept for inspection
+    # show --json of that partial lap: null, not NaN
+    assert main(["show", str(out), "--json"]) == 0
+    info = strict(capsys.readouterr().out)
+    assert info["results"]["completed"] is False and info["results"]["lap_time"] is None
+
+
+def test_plan_and_simulate_print_json(capsys, tmp_path):
+    assert main(["plan", "--curvature", "--track", "circle_100", "-o", str(tmp_path / "p.h5"), "--json"]) == 0
+    res = strict(capsys.readouterr().out)
+    assert res["nodes"] > 20 and res["lap_time"] > 0
+    assert main(["simulate", "--track", "circle_100", "--laps", "0.02", "-o", str(tmp_path / "r.h5"), "--json"]) == 0
+    res = strict(capsys.readouterr().out)
+    assert res["samples"] > 2 and res["lap_times"] == []
+
+
+def test_console_json_writes_null_for_non_finite_numbers(capsys):
+    import numpy as np
+
+    from gprace.console import console
+
+    console.json({"a": float("nan"), "b": [np.float64(np.inf), 1.5], "c": np.array([np.nan, 2.0]), "d": np.bool_(True)})
+    assert strict(capsys.readouterr().out) == {"a": None, "b": [None, 1.5], "c": [None, 2.0], "d": True}

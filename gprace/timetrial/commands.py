@@ -63,6 +63,7 @@ def register(app: typer.Typer) -> None:
         ds: float = typer.Option(6.0, "--ds", help="Node spacing in metres."),
         grip: float | None = typer.Option(None, "--grip", help="Friction-ellipse margin: share of the model's limits (e.g. 0.9)."),
         output: Path = typer.Option(..., "--output", "-o", help="Plan file to write (.h5)."),
+        as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     ) -> None:
         """Plan a minimum-lap-time lap (CasADi/IPOPT), optionally compensated by a planning GP."""
         from gprace.config import load_vehicle
@@ -91,7 +92,10 @@ def register(app: typer.Typer) -> None:
                 mu = lambda X, U: gp.at(X, U)[0]  # noqa: E731
             plan = plan_min_time(tr, m, PlanSettings(ds=ds, grip=grip), warm=warm, mu_plan=mu)
         plan.write(output)
-        console.result(f"{output}: {plan.method} plan of {tr.name}, lap time {plan.lap_time:.3f} s, {plan.n} nodes")
+        if as_json:
+            console.json({"output": str(output), "method": plan.method, "track": tr.name, "lap_time": plan.lap_time, "nodes": plan.n})
+        else:
+            console.result(f"{output}: {plan.method} plan of {tr.name}, lap time {plan.lap_time:.3f} s, {plan.n} nodes")
 
     @app.command("run")
     def run_cmd(
@@ -108,12 +112,13 @@ def register(app: typer.Typer) -> None:
         radius: float = typer.Option(0.5, "--explore-radius", help="Exploration trust region (scaled feature distance)."),
         seed: int = typer.Option(0, "--seed", help="Seed of the plant's sensor noise."),
         output: Path = typer.Option(..., "--output", "-o", help="Run file to write (.h5)."),
+        as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     ) -> None:
         """Drive a plan on a plant with the (GP-compensated, exploring) tracking MPC; record a run."""
         from gprace.backends import solvers
         from gprace.config import load_plant, load_vehicle
         from gprace.console import console
-        from gprace.errors import ConfigError
+        from gprace.errors import ConfigError, RunFailedError
         from gprace.io.runs import write_run
         from gprace.model import NominalModel
         from gprace.mpc.tracking import MPCSettings
@@ -153,12 +158,19 @@ def register(app: typer.Typer) -> None:
         run = drive(p0, load_plant(plant), tr, m, settings, gp=gp, grid=grid, alpha=alpha, seed=seed)
         write_run(run, output)
         mt = run.meta
-        console.result(
-            f"{output}: lap {mt['lap_time']:.2f} s (planned {mt['planned_lap_time']:.2f} s), completed {mt['completed']}, "
-            f"border-hit steps {mt['border_hit_steps']}, fallbacks {mt['fallbacks']}, QP median {1e3 * mt['solve_time_median']:.2f} ms"
-        )
-        if not mt["completed"]:
-            console.warn(f"run: {mt['reason']}")
+        if as_json:
+            console.json({"output": str(output), **{k: mt[k] for k in ("lap_time", "planned_lap_time", "completed", "reason",
+                                                                      "border_hit_steps", "fallbacks")},
+                          "solve_time_median_ms": 1e3 * mt["solve_time_median"]})
+        else:
+            lap = (f"lap {mt['lap_time']:.2f} s" if math.isfinite(mt["lap_time"])
+                   else "no full lap" if mt["completed"] else "lap not completed")
+            console.result(
+                f"{output}: {lap} (planned {mt['planned_lap_time']:.2f} s), completed {mt['completed']}, "
+                f"border-hit steps {mt['border_hit_steps']}, fallbacks {mt['fallbacks']}, QP median {1e3 * mt['solve_time_median']:.2f} ms"
+            )
+        if not mt["completed"]:  # a failed run (the record is kept for inspection): exit 1
+            raise RunFailedError(f"run: {mt['reason']}; the partial run is in {output}")
 
     @app.command("iterate")
     def iterate_cmd(

@@ -47,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gprace.console import jsonable
 from gprace.errors import ConfigError, InputError, RunFailedError, SolverError
 
 FAIL_ENV = "GPRACE_ITERATE_FAIL_AFTER"  # test hook: raise after the named step's marker is written
@@ -127,19 +128,6 @@ class Steps:
         os.replace(tmp, p)
         if os.environ.get(FAIL_ENV) == name:
             raise RuntimeError(f"injected failure after step {name}")
-
-
-def jsonable(obj):
-    """``obj`` with every non-finite float as None (strict JSON: ``null``, never a bare NaN)."""
-    if isinstance(obj, dict):
-        return {k: jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj
 
 
 def read_record(path: Path) -> dict:
