@@ -206,3 +206,56 @@ def test_console_json_writes_null_for_non_finite_numbers(capsys):
 
     console.json({"a": float("nan"), "b": [np.float64(np.inf), 1.5], "c": np.array([np.nan, 2.0]), "d": np.bool_(True)})
     assert strict(capsys.readouterr().out) == {"a": None, "b": [None, 1.5], "c": [None, 2.0], "d": True}
+
+
+# ------------------------------------------------------------------------------------------------
+# item 2: samples outside the model's envelope are excluded and reported by select-data and evaluate gp
+
+
+@pytest.fixture(scope="module")
+def spin_run(tmp_path_factory):
+    """A weaving 0.6 lap of circle_100 with a spin in the middle (31 samples of v_y 15 m/s,
+    yaw_rate 3 rad/s), and the clean run it came from."""
+    import numpy as np
+
+    from gprace.io.runs import Run, read_run, write_run
+
+    d = tmp_path_factory.mktemp("spin")
+    clean = d / "clean.h5"
+    assert main(["simulate", "--track", "circle_100", "--laps", "0.6", "--weave", "0.3", "-o", str(clean)]) == 0
+    r = read_run(clean)
+    data = {k: np.array(v) for k, v in r.data.items()}
+    a = r.n // 2
+    data["v_y"][a:a + 31], data["yaw_rate"][a:a + 31] = 15.0, 3.0
+    write_run(Run(data, dict(r.meta), "spin"), d / "spin.h5")
+    return d
+
+
+def test_select_data_and_evaluate_gp_leave_out_a_spin(capsys, spin_run, tmp_path):
+    from gprace.gp.dataset import read_dataset
+
+    def select(name):
+        capsys.readouterr()
+        out = tmp_path / f"{name}_data.h5"
+        assert main(["select-data", str(spin_run / f"{name}.h5"), "--selection", "random", "-o", str(out), "--json"]) == 0
+        cap = capsys.readouterr()
+        return strict(cap.out), cap.err, read_dataset(out)
+
+    res, err, _ = select("clean")
+    assert res["envelope"][0]["samples_excluded"] == 0 and err == ""
+    n_clean = res["points"]
+    res, err, ds = select("spin")
+    env = res["envelope"][0]
+    assert env["samples_excluded"] >= 31 and env["excluded"][0]["reason"] == "spin"
+    assert res["points"] <= n_clean - 31
+    iv = list(ds.input_names).index("v_y")
+    assert ds.Z[:, iv].max() < 15.0  # not one spin sample used
+    assert err.count("\n") == 1 and "outside the model's envelope" in err and "spin:" in err and "s 1" in err
+    # evaluate gp scores only the samples inside the envelope, and says so
+    assert main(["retrain", str(tmp_path / "clean_data.h5"), "--opt", "optimize=false", "-o", str(tmp_path / "m.h5")]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", "gp", str(tmp_path / "m.h5"), str(spin_run / "spin.h5"), "--json"]) == 0
+    cap = capsys.readouterr()
+    res = strict(cap.out)
+    assert res["samples"] <= n_clean - 31 and res["envelope"]["samples_excluded"] == env["samples_excluded"]
+    assert "outside the model's envelope" in cap.err

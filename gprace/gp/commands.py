@@ -51,6 +51,8 @@ def register(app: typer.Typer) -> None:
             raise ConfigError(f"--outlier-kappa must be >= 0 (standard deviations; 0 disables the gate), got {outlier_kappa}")
         res = select_data(inputs, output, gp, max_points, selection, vehicle, model, kernel, step,
                           outlier_kappa if outlier_kappa > 0 else None, seed, features)
+        for note in res["notes"]:
+            console.warn(note)
         if json_out:
             console.json(res)
             return
@@ -100,6 +102,8 @@ def register(app: typer.Typer) -> None:
         from gprace.gp.stages import evaluate_gp
 
         res = evaluate_gp(model, run, vehicle)
+        for note in res["notes"]:
+            console.warn(note)
         if json_out:
             console.json(res)
             return
