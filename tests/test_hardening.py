@@ -259,3 +259,32 @@ def test_select_data_and_evaluate_gp_leave_out_a_spin(capsys, spin_run, tmp_path
     res = strict(cap.out)
     assert res["samples"] <= n_clean - 31 and res["envelope"]["samples_excluded"] == env["samples_excluded"]
     assert "outside the model's envelope" in cap.err
+
+
+# ------------------------------------------------------------------------------------------------
+# item 8: help texts
+
+
+def _commands(cmd, path=()):
+    sub = getattr(cmd, "commands", None)
+    if sub:
+        for name, c in sub.items():
+            yield from _commands(c, (*path, name))
+    else:
+        yield " ".join(path), cmd
+
+
+def test_every_option_has_help_and_eval_evaluate_are_told_apart():
+    import typer
+
+    from gprace.cli import app
+
+    root = typer.main.get_command(app)
+    missing = [f"{name} {p.opts[0]}" for name, cmd in _commands(root) for p in cmd.params
+               if p.param_type_name == "option" and not (p.help or "").strip()]
+    assert missing == []
+    groups = {n: root.commands[n].help for n in ("eval", "evaluate")}
+    assert "head2head" not in groups["evaluate"].split("`gprace eval`")[0] and "head2head" in groups["eval"]
+    explore = dict(_commands(root))["h2h explore"]
+    width_help = next(p.help for p in explore.params if p.opts[0] == "--explore-width")
+    assert "--width" not in width_help and not any(p.opts[0] == "--width" for p in explore.params)

@@ -15,7 +15,9 @@ def evaluate_group(app: typer.Typer) -> typer.Typer:
     """
     from gprace.h2h.commands import _group
 
-    return _group(app, "evaluate", "Evaluate results: iterate folders, GP models.")
+    from gprace.gp.commands import EVALUATE_HELP
+
+    return _group(app, "evaluate", EVALUATE_HELP)
 
 
 def _floats(text: str, what: str) -> tuple[float, ...]:
@@ -38,6 +40,7 @@ WORKERS = typer.Option(2, "--workers", help="Parallel trials.")
 SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address.")
 
 
+EVAL_HELP = "Run the paper's evaluation protocols (timetrial, head2head); `gprace evaluate` inspects finished results."
 MIN_NODES, MAX_NODES = 20, 20_000
 
 
@@ -204,7 +207,7 @@ def register(app: typer.Typer) -> None:
 
     from gprace.h2h.commands import _group
 
-    @_group(app, "eval", "Evaluation protocols of the paper.").command("timetrial")
+    @_group(app, "eval", EVAL_HELP).command("timetrial")
     def eval_timetrial(
         plant: str = PLANT,
         track: str = typer.Option("gprace_ring", "--track", help="Track: shipped name or a TUM CSV/TOML path."),
