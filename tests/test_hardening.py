@@ -288,3 +288,10 @@ def test_every_option_has_help_and_eval_evaluate_are_told_apart():
     explore = dict(_commands(root))["h2h explore"]
     width_help = next(p.help for p in explore.params if p.opts[0] == "--explore-width")
     assert "--width" not in width_help and not any(p.opts[0] == "--width" for p in explore.params)
+
+
+def test_flags_are_shown_without_a_value(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "160")
+    assert main(["h2h", "collect", "--help"]) == 0
+    rows = {ln.split()[1]: ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("│ --")}
+    assert "<bool>" not in rows["--json"] and "<bool>" not in rows["--resume"] and "<int>" in rows["--runs"]
