@@ -144,7 +144,7 @@ def test_h2h_train_without_its_dataset(capsys, tmp_path):
 
 
 @pytest.mark.parametrize("opt,needles", [("max_fit_points=abc", ("max_fit_points", "a number", "'abc'")),
-                                         ("optimize=3", ("optimize", "true or false"))])
+                                         ("optimize=yes", ("optimize", "true or false"))])
 def test_retrain_option_of_the_wrong_type(capsys, tmp_path, opt, needles):
     refused(capsys, ["retrain", tmp_path / "none.h5", "--opt", opt, "-o", tmp_path / "m.h5"], "'exact'", *needles)
     nothing_written(tmp_path)
@@ -295,3 +295,37 @@ def test_flags_are_shown_without_a_value(capsys, monkeypatch):
     assert main(["h2h", "collect", "--help"]) == 0
     rows = {ln.split()[1]: ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("│ --")}
     assert "<bool>" not in rows["--json"] and "<bool>" not in rows["--resume"] and "<int>" in rows["--runs"]
+
+
+def test_one_row_number_for_one_sample_in_every_csv_error(tmp_path):
+    """The same sample of a CSV run is 'row 2 (line 3)' whether its value is text or NaN."""
+    import numpy as np
+
+    from gprace.errors import InputError
+    from gprace.io.runs import RUN_COLUMNS, read_run
+
+    rows = np.tile(np.arange(1.0, 1.0 + len(RUN_COLUMNS)), (4, 1))
+    rows[:, 0] = np.arange(4) * 0.05
+
+    def write(cell: str):
+        lines = [",".join(RUN_COLUMNS)] + [",".join(f"{v:g}" for v in r) for r in rows]
+        cols = lines[2].split(",")
+        cols[RUN_COLUMNS.index("v_y")] = cell
+        lines[2] = ",".join(cols)
+        p = tmp_path / "r.csv"
+        p.write_text("\n".join(lines) + "\n")
+        return p
+
+    for cell in ("abc", "nan"):
+        with pytest.raises(InputError, match=r"'v_y'.* row 2\b") as exc:
+            read_run(write(cell))
+        assert "row 3" not in str(exc.value)
+
+
+def test_gp_settings_check_leaves_arrays_and_numbers_alone():
+    import numpy as np
+
+    from gprace.gp.base import make_gp
+
+    gp = make_gp("exact", length_scale=np.ones((2, 3)), noise=np.full(2, 1e-2), max_fit_points=50, optimize=False)
+    assert gp.max_fit_points == 50
