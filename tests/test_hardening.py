@@ -329,3 +329,26 @@ def test_gp_settings_check_leaves_arrays_and_numbers_alone():
 
     gp = make_gp("exact", length_scale=np.ones((2, 3)), noise=np.full(2, 1e-2), max_fit_points=50, optimize=False)
     assert gp.max_fit_points == 50
+
+
+# ------------------------------------------------------------------------------------------------
+# item 9: failures are not hidden in the lap-time summary figure
+
+
+def test_lap_time_figure_counts_failed_laps_per_iteration():
+    import numpy as np
+
+    from gprace.report import figures as F
+
+    nan = float("nan")
+    it = np.array([0, 0, 0, 1, 1, 1, 2, 2, 2])
+    planned = np.full(9, 30.0)
+    driven = np.array([31.0, 32.0, 33.0, nan, nan, nan, 30.0, nan, nan])  # iteration 1: 0 of 3; 2: 1 of 3
+    fig = F.fig_lap_times({"exploration": {"iteration": it, "planned": planned, "driven": driven}})
+    for ax in fig.axes[1:]:
+        texts = sorted(t.get_text() for t in ax.texts)
+        assert texts == ["2/3 failed", "3/3 failed"], texts
+        assert any("failed laps (5 of 9)" in t.get_text() for t in ax.get_legend().get_texts())
+    np.testing.assert_allclose(fig.axes[1].get_lines()[0].get_xdata(), [0, 2])  # no mean where none finished
+    clean = F.fig_lap_times({"exploration": {"iteration": it[:3], "planned": planned[:3], "driven": driven[:3]}})
+    assert not clean.axes[1].texts
