@@ -51,6 +51,9 @@ SETTINGS = [
     (["h2h", "collect", "--width", "-1", "--out", "{out}/h2h"], ("--width", "-1")),
     (["h2h", "collect", "--points-per-run", "0", "--out", "{out}/h2h"], ("--points-per-run", "0")),
     (["iterate", "--solver", "gurobi", "--out", "{out}/it"], ("gurobi", "clarabel")),
+    (["iterate", "--executor", "foo", "--out", "{out}/it"], ("executor 'foo'", "local, dask")),
+    (["iterate", "--workers", "0", "--out", "{out}/it"], ("--workers", "0")),
+    (["eval", "timetrial", "--executor", "dask", "--out", "{out}/tt"], ("--scheduler",)),
 ]
 
 
