@@ -355,3 +355,21 @@ def test_lap_time_figure_counts_failed_laps_per_iteration():
     np.testing.assert_allclose(fig.axes[1].get_lines()[0].get_xdata(), [0, 2])  # no mean where none finished
     clean = F.fig_lap_times({"exploration": {"iteration": it[:3], "planned": planned[:3], "driven": driven[:3]}})
     assert not clean.axes[1].texts
+
+
+def test_long_gp_stages_say_they_started(capsys, tmp_path):
+    """Off a terminal there is no progress bar: the quick fit and the GP fit each print a start line
+    (and -q silences them)."""
+    data, run = tmp_path / "d.h5", tmp_path / "r.h5"
+    assert main(["simulate", "--track", "circle_100", "--laps", "0.15", "--weave", "0.3", "-o", str(run)]) == 0
+    assert main(["select-data", str(run), "--max-points", "30", "-o", str(data)]) == 0
+    assert "select-data: quick GP fit on" in capsys.readouterr().err
+    assert main(["retrain", str(data), "--opt", "optimize=false", "-o", str(tmp_path / "m.h5")]) == 0
+    assert "retrain: fitting the exact GP on 30 points" in capsys.readouterr().err
+    try:
+        assert main(["-q", "retrain", str(data), "--opt", "optimize=false", "-o", str(tmp_path / "m.h5")]) == 0
+        assert capsys.readouterr().err == ""
+    finally:
+        from gprace.console import console
+
+        console.quiet = False

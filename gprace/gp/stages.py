@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from gprace.console import console
 from gprace.errors import ConfigError, InputError
 
 SELECTIONS = ("diverse", "random")
@@ -164,6 +165,7 @@ def _selection_hyper(model, previous, gp: str, kernel: str, Z: np.ndarray, Y: np
     pool_Y = Y if previous is None else np.concatenate([previous.Y, Y])
     n = len(pool_Z)
     idx = np.sort(np.random.default_rng(seed).choice(n, min(n, QUICK_FIT_POINTS), replace=False))
+    console.info(f"select-data: quick GP fit on {len(idx)} points for the selection's hyperparameters")
     quick = make_gp("exact", kernel=kernel, seed=seed, max_fit_points=QUICK_FIT_POINTS).fit(pool_Z[idx], pool_Y[idx])
     return quick.hyper_, f"quick fit on {len(idx)} points"
 
@@ -193,6 +195,7 @@ def retrain(data: str | Path, output: str | Path, backend: str = "exact", kernel
     settings = {"kernel": kernel, "seed": seed, **(options or {})}
     gp = make_gp(backend, **settings)  # settings checked before the data are read
     ds = read_dataset(data)
+    console.info(f"retrain: fitting the {backend} GP on {len(ds.Z)} points")  # the long stage: say it started
     t0 = time.perf_counter()
     gp.fit(ds.Z, ds.Y)
     elapsed = time.perf_counter() - t0
