@@ -71,11 +71,22 @@ def _click_exceptions() -> tuple[type, ...]:
     return tuple(out)
 
 
+def _flags_without_type(cmd) -> None:
+    """A flag takes no value: no ``<bool>`` beside ``--json`` or ``--resume`` in the help."""
+    for p in getattr(cmd, "params", ()):
+        if getattr(p, "is_flag", False) and p.metavar is None:
+            p.metavar = " "
+    for sub in getattr(cmd, "commands", {}).values():
+        _flags_without_type(sub)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (also used by tests)."""
     debug = os.environ.get("GPRACE_DEBUG") == "1"
     try:
-        app(args=argv, standalone_mode=False)
+        cmd = typer.main.get_command(app)
+        _flags_without_type(cmd)
+        cmd(args=argv, standalone_mode=False)
     except GpraceError as exc:
         if debug:
             raise

@@ -10,11 +10,12 @@ from __future__ import annotations
 import difflib
 import hashlib
 import json
+import math
 import tomllib
 from pathlib import Path
 from typing import Any, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from gprace.errors import ConfigError, InputError
 
@@ -22,6 +23,17 @@ G = 9.81
 """Gravitational acceleration [m/s^2]."""
 
 M = TypeVar("M", bound="Frozen")
+
+MAX_LENGTH = 30.0
+"""Longest physically possible vehicle dimension [m] (axle distances, width, length, CoG height)."""
+
+
+def physical(value: float, limit: float, unit: str, probable: str) -> float:
+    """``value`` if at most ``limit``; else a ValueError naming the value and the probable unit slip
+    (pydantic adds the field's TOML path, :func:`validate` the file)."""
+    if value > limit:
+        raise ValueError(f"{value:g} {unit} is physically impossible (at most {limit:.4g}); {probable}?")
+    return value
 
 
 class Frozen(BaseModel):
@@ -52,6 +64,16 @@ class LimitsConfig(Frozen):
     accel_min: float = Field(lt=0, description="strongest braking a_x [m/s^2]")
     accel_max: float = Field(gt=0, description="strongest drive a_x [m/s^2]")
     speed_max: float = Field(gt=0, description="top speed [m/s]")
+
+    @field_validator("steering_max")
+    @classmethod
+    def _steering_in_radians(cls, v: float) -> float:
+        return physical(v, 0.5 * math.pi, "rad", "degrees instead of radians")
+
+    @field_validator("steering_rate_max")
+    @classmethod
+    def _steering_rate_in_radians(cls, v: float) -> float:
+        return physical(v, 20.0, "rad/s", "degrees per second instead of rad/s")
 
 
 class EffectConfig(Frozen):
@@ -96,6 +118,11 @@ class VehicleConfig(Frozen):
     limits: LimitsConfig
     effects: tuple[EffectConfig, ...] = Field(default=(), description="extra physics on the nominal model")
 
+    @field_validator("l_f", "l_r", "width", "length", "cog_height")
+    @classmethod
+    def _length_in_metres(cls, v: float) -> float:
+        return physical(v, MAX_LENGTH, "m", "millimetres or centimetres instead of metres")
+
     @property
     def wheelbase(self) -> float:
         return self.l_f + self.l_r
@@ -133,7 +160,7 @@ class SimulateConfig(Frozen):
     dt: float = Field(0.05, gt=0, le=1.0, description="control and recording period [s]")
     laps: float = Field(1.0, gt=0, description="laps to drive")
     speed_scale: float = Field(0.8, gt=0, le=1.2, description="fraction of the friction-limited speed")
-    weave_amplitude: float = Field(0.0, ge=0, description="lateral weaving amplitude, share of half width [-]")
+    weave_amplitude: float = Field(0.0, ge=0, le=1.0, description="lateral weaving amplitude, share of half width [-]")
     weave_wavelength: float = Field(100.0, gt=0, description="weaving wavelength along s [m]")
     seed: int = 0
 
@@ -161,6 +188,8 @@ def load_toml(path: str | Path, model: type[M], section: str | None = None) -> M
 def read_toml(path: Path) -> dict[str, Any]:
     if not path.exists():
         raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, not a TOML file")
     try:
         return tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:

@@ -29,7 +29,8 @@ class Console:
         self.out.print(text, markup=False)
 
     def json(self, obj: Any) -> None:
-        sys.stdout.write(json.dumps(obj, indent=2, default=_json_default) + "\n")
+        """Strict JSON: a non-finite number is ``null``, never a bare ``NaN`` that parsers reject."""
+        sys.stdout.write(json.dumps(jsonable(obj), indent=2, default=_json_default, allow_nan=False) + "\n")
         sys.stdout.flush()
 
     def table(self, title: str, columns: list[str], rows: Iterable[Iterable[Any]]) -> None:
@@ -80,6 +81,28 @@ def _fmt(v: Any) -> str:
     if isinstance(v, float):
         return f"{v:.4g}"
     return str(v)
+
+
+def jsonable(obj: Any) -> Any:
+    """``obj`` with every non-finite float as None (strict JSON: ``null``, never a bare NaN);
+    numpy scalars and arrays become Python numbers and lists."""
+    import math
+
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {k: jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
 
 
 def _json_default(o: Any) -> Any:

@@ -137,7 +137,7 @@ class GPBackendContract:
     def test_nan_is_rejected(self):
         Z, Y = smooth_data()
         Z[4, 1] = np.nan
-        with pytest.raises(InputError, match="row 4"):
+        with pytest.raises(InputError, match="row 5, column 2"):  # rows and columns count from 1
             self.make().fit(Z, Y)
         Z, Y = smooth_data()
         Y[2, 0] = np.inf

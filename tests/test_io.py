@@ -138,10 +138,10 @@ def test_csv_empty_header_only_truncated_and_garbage(tmp_path):
     with pytest.raises(InputError, match="0 sample"):
         read_run(p)
     q = _csv(tmp_path, run, lambda s: s[: len(s) - 25].rstrip("\n"), name="trunc.csv")
-    with pytest.raises(InputError, match=r"trunc.csv: row 51 has \d+ fields, header has 12 \(truncated file\?\)"):
+    with pytest.raises(InputError, match=r"trunc.csv: row 50 \(line 51\) has \d+ fields, header has 12 \(truncated file\?\)"):
         read_run(q)
     q = _csv(tmp_path, run, lambda s: s.replace("\n0.05,", "\n0.05x,", 1), name="garbage.csv")
-    with pytest.raises(InputError, match=r"column 't' row 3: '0.05x' is not a number"):
+    with pytest.raises(InputError, match=r"column 't' row 2 \(line 3\): '0.05x' is not a number"):
         read_run(q)
     b = tmp_path / "bin.csv"
     b.write_bytes(b"\xff\xfe\x00\x01")

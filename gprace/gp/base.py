@@ -72,7 +72,7 @@ def _check_finite(A: np.ndarray, what: str) -> None:
     bad = ~np.isfinite(A)
     if bad.any():
         i, j = np.argwhere(bad)[0]
-        raise InputError(f"{what} has a non-finite value ({A[i, j]}) at row {i}, column {j}")
+        raise InputError(f"{what} has a non-finite value ({A[i, j]}) at row {i + 1}, column {j + 1}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -373,10 +373,24 @@ def make_gp(backend: str, **settings: Any) -> GPBackend:
     from gprace.backends import gps
 
     cls = gps.get(backend)
+    _check_types(backend, cls, settings)
     try:
         return cls(**settings)
     except TypeError as exc:
         raise ConfigError(f"GP backend {backend!r}: {exc}") from None
+
+
+def _check_types(backend: str, cls: type, settings: dict[str, Any]) -> None:
+    """Text where the default is a number or a boolean (``--opt max_fit_points=abc``) is an error
+    naming the option; arrays and numbers pass (``length_scale`` may be per input)."""
+    import inspect
+
+    params = inspect.signature(cls.__init__).parameters
+    for key, value in settings.items():
+        default = params[key].default if key in params else None
+        if isinstance(default, (bool, int, float)) and isinstance(value, str):
+            what = "true or false" if isinstance(default, bool) else "a number"
+            raise ConfigError(f"GP backend {backend!r}: option {key} expects {what}, got {value!r}")
 
 
 def save_model(path: str | Path, gp: GPBackend, meta: dict[str, Any] | None = None,

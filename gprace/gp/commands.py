@@ -14,6 +14,8 @@ import typer
 from gprace.console import console
 
 JSON = typer.Option(False, "--json", help="Print the result as JSON.")
+EVALUATE_HELP = ("Inspect finished results: an iterate folder (evaluate iterate), a GP model on a recording "
+                 "(evaluate gp). The paper's protocols that run experiments are under `gprace eval`.")
 
 
 def _evaluate_group(app: typer.Typer) -> typer.Typer:
@@ -21,7 +23,7 @@ def _evaluate_group(app: typer.Typer) -> typer.Typer:
     for info in app.registered_groups:
         if info.name == "evaluate" and info.typer_instance is not None:
             return info.typer_instance
-    sub = typer.Typer(help="Evaluate results: iterate folders, GP models, head-to-head.", no_args_is_help=True)
+    sub = typer.Typer(help=EVALUATE_HELP, no_args_is_help=True)
     app.add_typer(sub, name="evaluate")
     return sub
 
@@ -31,7 +33,7 @@ def register(app: typer.Typer) -> None:
     def select_data_cmd(
         inputs: list[Path] = typer.Argument(..., help="Runs (HDF5 or CSV) and optionally one dataset (data.h5) to continue."),
         output: Path = typer.Option(..., "--output", "-o", help="Dataset to write (HDF5, kind 'dataset')."),
-        gp: str = typer.Option("tracking", "--gp", help="Feature map: tracking | planning."),
+        gp: str = typer.Option("tracking", "--gp", help="Feature map: tracking | planning (opponent data come from `gprace h2h collect`)."),
         max_points: int = typer.Option(2000, "--max-points", help="Dictionary size M."),
         selection: str = typer.Option("diverse", "--selection", help="diverse (paper) | random (baseline)."),
         vehicle: Optional[str] = typer.Option(None, "--vehicle", help="Nominal vehicle (name or TOML) for runs that carry none."),
@@ -44,10 +46,15 @@ def register(app: typer.Typer) -> None:
         json_out: bool = JSON,
     ) -> None:
         """Build or extend a GP dataset: features of RUNs, diverse (or random) selection of M points."""
+        from gprace.errors import ConfigError
         from gprace.gp.stages import select_data
 
+        if not outlier_kappa >= 0:
+            raise ConfigError(f"--outlier-kappa must be >= 0 (standard deviations; 0 disables the gate), got {outlier_kappa}")
         res = select_data(inputs, output, gp, max_points, selection, vehicle, model, kernel, step,
                           outlier_kappa if outlier_kappa > 0 else None, seed, features)
+        for note in res["notes"]:
+            console.warn(note)
         if json_out:
             console.json(res)
             return
@@ -97,6 +104,8 @@ def register(app: typer.Typer) -> None:
         from gprace.gp.stages import evaluate_gp
 
         res = evaluate_gp(model, run, vehicle)
+        for note in res["notes"]:
+            console.warn(note)
         if json_out:
             console.json(res)
             return

@@ -125,12 +125,13 @@ def nominal_step(model, X6: np.ndarray, U: np.ndarray, kappa: np.ndarray, dt: fl
 
 
 def dynamics_features(run, model, kind: str = "tracking", step: str = "euler",
-                      features: str = "paper") -> tuple[np.ndarray, np.ndarray]:
+                      features: str = "paper", keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``Z (n, d)``, ``Y (n, 2)`` of one run for the ``tracking`` or ``planning`` map.
 
     ``run`` is a :class:`gprace.io.runs.Run`; ``model`` a :class:`gprace.model.NominalModel`
     (or anything with ``euler``/``rk4``/``initial_state``). Curvature is the run's ``kappa``
-    column, the period ``run.dt``.
+    column, the period ``run.dt``. ``keep`` (n,) bool: only pairs of two kept samples are used
+    (the envelope mask of :func:`gprace.io.envelope.envelope`).
     """
     if kind not in ("tracking", "planning"):
         raise InputError(f"feature map {kind!r} is not a single-car map; use tracking or planning")
@@ -138,6 +139,8 @@ def dynamics_features(run, model, kind: str = "tracking", step: str = "euler",
     X, U = run.states(), run.inputs()
     dt = run.dt
     ok = _regular_pairs(run["t"], dt)
+    if keep is not None:
+        ok &= keep[:-1] & keep[1:]
     if not ok.any():
         return np.zeros((0, len(names))), np.zeros((0, 2))
     x0, u0, x1, kap = X[:-1][ok], U[:-1][ok], X[1:][ok], run["kappa"][:-1][ok]
@@ -212,12 +215,14 @@ def opponent_features(ego: Any, opp: Any, kappa: Callable[[np.ndarray], np.ndarr
     return Z[good], Y[good]
 
 
-def run_features(run, kind: str, vehicle=None, step: str = "euler", features: str = "paper") -> tuple[np.ndarray, np.ndarray]:
+def run_features(run, kind: str, vehicle=None, step: str = "euler", features: str = "paper",
+                 keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Features of one recording for ``tracking`` or ``planning``; the nominal vehicle comes
-    from ``vehicle`` (a VehicleConfig) or the run itself (InputError if neither)."""
+    from ``vehicle`` (a VehicleConfig) or the run itself (InputError if neither); ``keep`` as in
+    :func:`dynamics_features`."""
     from gprace.model import NominalModel
 
     veh = vehicle if vehicle is not None else run.vehicle()
     if veh is None:
         raise InputError(f"{run.source}: the recording carries no nominal vehicle; pass --vehicle VEHICLE.toml")
-    return dynamics_features(run, NominalModel(veh), kind, step, features)
+    return dynamics_features(run, NominalModel(veh), kind, step, features, keep)

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from gprace.console import console
 from gprace.errors import ConfigError, InputError
 
 SELECTIONS = ("diverse", "random")
@@ -50,6 +51,7 @@ def select_data(
     from gprace.gp.dataset import GPDataset, is_dataset, read_dataset, write_dataset
     from gprace.gp.features import dyn_feature_set, feature_map, run_features
     from gprace.gp.kernels import check_kernel
+    from gprace.io.envelope import envelope
     from gprace.io.runs import read_run
 
     fmap = feature_map(gp)
@@ -66,7 +68,7 @@ def select_data(
     veh = _load_vehicle(vehicle)
 
     previous: GPDataset | None = None
-    Zs, Ys, sources, dts = [], [], [], []
+    Zs, Ys, sources, dts, envelopes = [], [], [], [], []
     for path in inputs:
         path = Path(path)
         if is_dataset(path):
@@ -81,9 +83,12 @@ def select_data(
                 raise InputError(f"{path}: dataset built with the {previous.attrs.get('step')} step, but --step {step}")
             continue
         run = read_run(path)
-        Z, Y = run_features(run, gp, veh, step, features)
+        keep, env = envelope(run.data, str(path))
+        Z, Y = run_features(run, gp, veh, step, features, keep)
         if len(Z) == 0:
-            raise InputError(f"{path}: no usable sample pairs (need consecutive samples at the run's period)")
+            raise InputError(f"{path}: no usable sample pairs (need consecutive samples at the run's period "
+                             f"inside the model's envelope; {env.samples_excluded} of {env.samples} samples outside)")
+        envelopes.append(env)
         Zs.append(Z)
         Ys.append(Y)
         sources.append(str(path))
@@ -129,13 +134,19 @@ def select_data(
         "sources": (list(previous.attrs.get("sources", [])) if previous is not None else []) + sources,
         "outlier_kappa": outlier_kappa if outlier_kappa is not None else 0.0,
         "stats": stats,
+        "excluded_samples": int(sum(e.samples_excluded for e in envelopes)),
     }
     write_dataset(output, GPDataset(Z, Y, gp, input_names, list(fmap.output_names), attrs, hyper),
                   seed=seed)
     return {"output": str(output), "feature_map": gp, "selection": selection, "points": int(len(Z)),
             "max_points": int(max_points), "new_samples": int(len(Znew)), "n_seen": int(n_seen),
             "continued_from": previous.source if previous is not None else None, "seconds": elapsed,
-            "stats": stats}
+            "stats": stats, "envelope": [e.to_dict() for e in envelopes], "notes": _notes(envelopes)}
+
+
+def _notes(envelopes) -> list[str]:
+    """One line per recording with samples outside the model's envelope (how many, where, why)."""
+    return [e.note() for e in envelopes if e.excluded]
 
 
 def _selection_hyper(model, previous, gp: str, kernel: str, Z: np.ndarray, Y: np.ndarray, seed: int):
@@ -154,6 +165,7 @@ def _selection_hyper(model, previous, gp: str, kernel: str, Z: np.ndarray, Y: np
     pool_Y = Y if previous is None else np.concatenate([previous.Y, Y])
     n = len(pool_Z)
     idx = np.sort(np.random.default_rng(seed).choice(n, min(n, QUICK_FIT_POINTS), replace=False))
+    console.info(f"select-data: quick GP fit on {len(idx)} points for the selection's hyperparameters")
     quick = make_gp("exact", kernel=kernel, seed=seed, max_fit_points=QUICK_FIT_POINTS).fit(pool_Z[idx], pool_Y[idx])
     return quick.hyper_, f"quick fit on {len(idx)} points"
 
@@ -180,9 +192,10 @@ def retrain(data: str | Path, output: str | Path, backend: str = "exact", kernel
     from gprace.gp.base import make_gp, save_model
     from gprace.gp.dataset import read_dataset
 
-    ds = read_dataset(data)
     settings = {"kernel": kernel, "seed": seed, **(options or {})}
-    gp = make_gp(backend, **settings)
+    gp = make_gp(backend, **settings)  # settings checked before the data are read
+    ds = read_dataset(data)
+    console.info(f"retrain: fitting the {backend} GP on {len(ds.Z)} points")  # the long stage: say it started
     t0 = time.perf_counter()
     gp.fit(ds.Z, ds.Y)
     elapsed = time.perf_counter() - t0
@@ -207,6 +220,7 @@ def evaluate_gp(model: str | Path, run: str | Path, vehicle: str | None = None) 
     from gprace.gp.base import load_model
     from gprace.gp.evaluate import gp_metrics
     from gprace.gp.features import dyn_set_of, run_features
+    from gprace.io.envelope import envelope
     from gprace.io.runs import read_run
 
     saved = load_model(model)
@@ -215,11 +229,13 @@ def evaluate_gp(model: str | Path, run: str | Path, vehicle: str | None = None) 
         raise InputError(f"{model}: GP of feature map {fm or 'unknown'!r}; evaluate gp handles tracking and planning GPs")
     rec = read_run(run)
     step = str(saved.attrs.get("step", "euler"))
-    Z, Y = run_features(rec, fm, _load_vehicle(vehicle), step, dyn_set_of(saved.input_names))
+    keep, env = envelope(rec.data, str(run))
+    Z, Y = run_features(rec, fm, _load_vehicle(vehicle), step, dyn_set_of(saved.input_names), keep)
     if len(Z) == 0:
-        raise InputError(f"{run}: no usable sample pairs")
+        raise InputError(f"{run}: no usable sample pairs inside the model's envelope "
+                         f"({env.samples_excluded} of {env.samples} samples outside)")
     model_dt = float(saved.attrs.get("dt", 0.0) or 0.0)
     if model_dt and fm == "tracking" and abs(model_dt - rec.dt) > 1e-6 * model_dt:
         raise InputError(f"{run}: period {rec.dt} s, but the tracking GP learned {model_dt} s steps")
     return {"model": str(model), "run": str(run), "feature_map": fm, "samples": int(len(Z)),
-            "outputs": gp_metrics(saved.gp, Z, Y, saved.output_names)}
+            "outputs": gp_metrics(saved.gp, Z, Y, saved.output_names), "envelope": env.to_dict(), "notes": _notes([env])}

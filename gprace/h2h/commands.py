@@ -21,6 +21,15 @@ RESUME = typer.Option(False, "--resume", help="Keep finished runs; rerun only mi
 JSON = typer.Option(False, "--json", help="Print the result as JSON.")
 EXPLORE_WIDTH = typer.Option(
     None, "--explore-width", help="Width of the exploration loop in metres (default: --width, the racing width; the loop's own is 1.5 m).")
+RUNS = typer.Option(500, "--runs", help="Baseline collection runs (oracle predictor), one random track each.")
+INIT_RUNS = typer.Option(20, "--init-runs", help="First collection runs behind the exploration's initial GP.")
+POINTS_PER_RUN = typer.Option(10, "--points-per-run", help="Evenly spaced steps kept per collection run.")
+WIDTH = typer.Option(0.75, "--width", help="Width of the random tracks in metres (more than the car's 0.26 m footprint).")
+STRETCHES = typer.Option(5, "--stretches", help="Stretches (curve, chicane, straight) per random track.")
+MAX_TIME = typer.Option(60.0, "--max-time", help="Longest race in seconds (safety stop).")
+GP_BACKEND = typer.Option("auto", "--gp-backend", help="exact | sparse | auto (sparse above --exact-max points).")
+EXACT_MAX = typer.Option(1500, "--exact-max", help="Most points the exact GP takes with --gp-backend auto.")
+INDUCING = typer.Option(200, "--inducing", help="Inducing points of the sparse GP.")
 
 
 def _group(app: typer.Typer, name: str, help: str) -> typer.Typer:
@@ -55,8 +64,10 @@ def check_scheduler(executor: str, scheduler: str | None, timeout: float = 3.0) 
         raise InputError(f"cannot reach Dask scheduler {scheduler}: {exc}; nothing was run and finished artifacts are kept") from None
 
 
-def _settings(**kw):
+def _settings(out: Path, **kw):
+    """Checked settings of a command writing to ``out``: every check before any file is written."""
     from gprace.h2h.protocol import Settings
+    from gprace.io.artifacts import check_folder
 
     raced = kw.pop("predictors", None)
     if raced:
@@ -64,6 +75,7 @@ def _settings(**kw):
     st = Settings(**kw)
     check_scheduler(st.executor, st.scheduler)
     st.check()
+    check_folder(out)
     return st
 
 
@@ -89,36 +101,38 @@ def print_table(tab: dict, as_json: bool) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    ev = _group(app, "eval", "Evaluation protocols of the paper.")
+    from gprace.timetrial.commands import EVAL_HELP
+
+    ev = _group(app, "eval", EVAL_HELP)
     h2h = _group(app, "h2h", "Head-to-head racing steps: collect, train, explore.")
 
     @ev.command("head2head")
     def head2head(
         tracks: int = typer.Option(100, "--tracks", help="Random evaluation scenarios."),
         out: Path = OUT,
-        runs: int = typer.Option(500, "--runs", help="Baseline collection runs (oracle predictor)."),
-        init_runs: int = typer.Option(20, "--init-runs", help="Runs behind the exploration's initial GP."),
+        runs: int = RUNS,
+        init_runs: int = INIT_RUNS,
         explore_minutes: float = typer.Option(10.0, "--explore-minutes", help="Simulated exploration time."),
         episode_seconds: float = typer.Option(60.0, "--episode-seconds", help="Length of one exploration episode."),
         explore_width: Optional[float] = EXPLORE_WIDTH,
         alpha: float = typer.Option(0.9, "--alpha", help="Exploration weight during exploration."),
         dict_size: int = typer.Option(600, "--dict-size", help="Dictionary size of the exploration GP."),
-        points_per_run: int = typer.Option(10, "--points-per-run", help="Evenly spaced steps kept per collection run."),
-        width: float = typer.Option(0.75, "--width", help="Width of the random tracks in metres."),
-        stretches: int = typer.Option(5, "--stretches", help="Stretches per random track."),
+        points_per_run: int = POINTS_PER_RUN,
+        width: float = WIDTH,
+        stretches: int = STRETCHES,
         predictors: str = typer.Option("baseline,explore", "--predictors", help="Predictors raced (baseline, explore, select, init, cv, oracle)."),
-        backend: str = typer.Option("auto", "--gp-backend", help="exact | sparse | auto (sparse above --exact-max points)."),
-        exact_max: int = typer.Option(1500, "--exact-max"),
-        inducing: int = typer.Option(200, "--inducing", help="Inducing points of the sparse GP."),
+        backend: str = GP_BACKEND,
+        exact_max: int = EXACT_MAX,
+        inducing: int = INDUCING,
         samples: int = typer.Option(50, "--samples", help="GP rollout samples."),
-        max_time: float = typer.Option(60.0, "--max-time", help="Longest race in seconds."),
+        max_time: float = MAX_TIME,
         workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
         resume: bool = RESUME, as_json: bool = JSON,
     ) -> None:
         """The paper's head-to-head comparison: collect, train, explore, race all predictors, tabulate."""
         from gprace.h2h.protocol import head2head as run
 
-        st = _settings(tracks=tracks, runs=runs, init_runs=init_runs, explore_minutes=explore_minutes,
+        st = _settings(out, tracks=tracks, runs=runs, init_runs=init_runs, explore_minutes=explore_minutes,
                        episode_seconds=episode_seconds, explore_width=explore_width, alpha=alpha, dict_size=dict_size,
                        points_per_run=points_per_run, width=width,
                        stretches=stretches, predictors=predictors, backend=backend, exact_max=exact_max,
@@ -129,17 +143,15 @@ def register(app: typer.Typer) -> None:
     @h2h.command("collect")
     def collect(
         out: Path = OUT,
-        runs: int = typer.Option(500, "--runs"), init_runs: int = typer.Option(20, "--init-runs"),
-        points_per_run: int = typer.Option(10, "--points-per-run"),
-        width: float = typer.Option(0.75, "--width"), stretches: int = typer.Option(5, "--stretches"),
-        max_time: float = typer.Option(60.0, "--max-time"),
+        runs: int = RUNS, init_runs: int = INIT_RUNS, points_per_run: int = POINTS_PER_RUN,
+        width: float = WIDTH, stretches: int = STRETCHES, max_time: float = MAX_TIME,
         workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
         resume: bool = RESUME, as_json: bool = JSON,
     ) -> None:
         """Race random tracks with the oracle predictor; write the (Z, Y) datasets."""
         from gprace.h2h.protocol import collect as run, read_dataset
 
-        st = _settings(runs=runs, init_runs=init_runs, points_per_run=points_per_run, width=width, stretches=stretches, max_time=max_time,
+        st = _settings(out, runs=runs, init_runs=init_runs, points_per_run=points_per_run, width=width, stretches=stretches, max_time=max_time,
                        workers=workers, executor=executor, scheduler=scheduler, resume=resume)
         paths = run(st, out)
         res = {k: {"path": str(v), "points": len(read_dataset(v)[0])} for k, v in paths.items()}
@@ -152,8 +164,7 @@ def register(app: typer.Typer) -> None:
         size: Optional[int] = typer.Option(None, "--select", help="Diverse selection of this many points first."),
         hyper_model: Optional[Path] = typer.Option(None, "--hyper-model", help="GP whose hyperparameters drive the selection."),
         initial: Optional[Path] = typer.Option(None, "--initial", help="Dataset that starts the dictionary."),
-        backend: str = typer.Option("auto", "--gp-backend"), exact_max: int = typer.Option(1500, "--exact-max"),
-        inducing: int = typer.Option(200, "--inducing"), as_json: bool = JSON,
+        backend: str = GP_BACKEND, exact_max: int = EXACT_MAX, inducing: int = INDUCING, as_json: bool = JSON,
     ) -> None:
         """Fit the opponent GP (Matern 1.5) on a dataset."""
         from gprace.h2h.predictors import read_opponent_gp
@@ -170,17 +181,19 @@ def register(app: typer.Typer) -> None:
         out: Path = OUT,
         init_model: Path = typer.Option(..., "--init-model", help="The initial GP model."),
         init_data: Path = typer.Option(..., "--init-data", help="Its dataset (candidate grid, first dictionary)."),
-        explore_minutes: float = typer.Option(10.0, "--explore-minutes"),
-        episode_seconds: float = typer.Option(60.0, "--episode-seconds"),
-        explore_width: Optional[float] = EXPLORE_WIDTH,
-        alpha: float = typer.Option(0.9, "--alpha"),
+        explore_minutes: float = typer.Option(10.0, "--explore-minutes", help="Simulated exploration time."),
+        episode_seconds: float = typer.Option(60.0, "--episode-seconds", help="Length of one exploration episode."),
+        explore_width: Optional[float] = typer.Option(
+            None, "--explore-width", help="Width of the exploration loop in metres (default 0.75 m, the racing width of "
+            "eval head2head; the loop's own is 1.5 m)."),
+        alpha: float = typer.Option(0.9, "--alpha", help="Exploration weight in [0, 1]."),
         workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
         resume: bool = RESUME, as_json: bool = JSON,
     ) -> None:
         """Exploration episodes on the closed loop (Algorithm 1, stalemate breaking)."""
         from gprace.h2h.protocol import explore as run, read_dataset
 
-        st = _settings(explore_minutes=explore_minutes, episode_seconds=episode_seconds, explore_width=explore_width,
+        st = _settings(out, explore_minutes=explore_minutes, episode_seconds=episode_seconds, explore_width=explore_width,
                        alpha=alpha, workers=workers,
                        executor=executor, scheduler=scheduler, resume=resume)
         path = run(st, out, init_model, init_data)

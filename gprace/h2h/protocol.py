@@ -104,6 +104,22 @@ class Settings:
                 raise InputError(f"--explore-width: {exc}") from None
         if self.dict_size < 2:
             raise InputError(f"--dict-size must be >= 2, got {self.dict_size}")
+        from gprace.h2h.config import H2HConfig
+
+        car = 2.0 * H2HConfig().ego.border_margin
+        if not self.width > car:
+            raise InputError(f"--width must exceed {car:g} m (the car's footprint kept inside the borders), got {self.width}")
+        for name, v in (("--points-per-run", self.points_per_run), ("--stretches", self.stretches),
+                        ("--exact-max", self.exact_max), ("--inducing", self.inducing), ("--samples", self.samples),
+                        ("--workers", self.workers)):
+            if v < 1:
+                raise InputError(f"{name} must be >= 1, got {v}")
+        if not self.max_time > 0:
+            raise InputError(f"--max-time must be positive, got {self.max_time}")
+        if self.backend != "auto":
+            from gprace.backends import gps
+
+            gps.get(self.backend)  # an unknown name lists the registered ones
         known = set(OFFLINE) | {"init", "oracle"}
         for p in (*self.raced, *self.offline):
             if p not in known:
@@ -319,6 +335,8 @@ def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyp
 def _hash_file(path: Path) -> str:
     import hashlib
 
+    if not Path(path).is_file():
+        raise InputError(f"{path}: no such file")
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 

@@ -165,11 +165,13 @@ def _csv_numbers(path: Path, header: list[str]) -> np.ndarray:
             return df.to_numpy(dtype=float)
         except (ValueError, pd.errors.ParserError):
             pass  # fall through to the slow path, which names the bad cell
-    rows = [ln.split(",") for ln in path.read_text().splitlines()[1:] if ln.strip()]
+    lines = [(n, ln) for n, ln in enumerate(path.read_text().splitlines(), start=1) if ln.strip()][1:]
+    rows = [ln.split(",") for _, ln in lines]
     out = np.full((len(rows), len(header)), np.nan)
     for i, r in enumerate(rows):
+        where = f"row {i + 1} (line {lines[i][0]})"  # rows count samples from 1, as in gprace.io.runs
         if len(r) != len(header):
-            raise InputError(f"{path}: row {i + 2} has {len(r)} fields, header has {len(header)} (truncated file?)")
+            raise InputError(f"{path}: {where} has {len(r)} fields, header has {len(header)} (truncated file?)")
         for j, c in enumerate(r):
             c = c.strip()
             if not c:
@@ -177,7 +179,7 @@ def _csv_numbers(path: Path, header: list[str]) -> np.ndarray:
             try:
                 out[i, j] = float(c)
             except ValueError:
-                raise InputError(f"{path}: column {header[j]!r} row {i + 2}: {c!r} is not a number") from None
+                raise InputError(f"{path}: column {header[j]!r} {where}: {c!r} is not a number") from None
     return out
 
 

@@ -38,9 +38,24 @@ class Artifact:
     gprace_version: str = __version__
 
 
+def check_folder(path: str | Path, option: str = "--out") -> Path:
+    """``path`` as a folder that can be used or created: an InputError if it, or a folder above
+    it, is a file (checked before any work, so nothing is left behind)."""
+    path = Path(path)
+    for p in (path, *path.parents):
+        if p.exists():
+            if not p.is_dir():
+                raise InputError(f"{option} {path}: {'' if p == path else f'{p} '}is a file, not a folder")
+            break
+    return path
+
+
 def write_artifact(path: str | Path, art: Artifact) -> Path:
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise InputError(f"{path}: cannot create its folder {path.parent}: a file is in the way") from None
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     try:

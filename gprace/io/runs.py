@@ -86,6 +86,8 @@ class Run:
 
 
 def check_columns(data: dict[str, np.ndarray], source: str) -> None:
+    """Columns, lengths, finiteness, time order and units; rows count samples from 1 (the header
+    of a CSV not counted, so the CSV line is the row + 1)."""
     missing = [c for c in RUN_COLUMNS if c not in data]
     if missing:
         raise InputError(f"{source}: missing column{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
@@ -148,19 +150,21 @@ def _read_csv(path: Path) -> Run:
         text = path.read_text()
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text CSV file") from None
-    rows = list(csv.reader(line for line in text.splitlines() if line.strip()))
+    lines = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
+    rows = list(csv.reader(line for _, line in lines))
     if not rows:
         raise InputError(f"{path}: empty file")
     header = [h.strip() for h in rows[0]]
     body = rows[1:]
     data: dict[str, list[float]] = {h: [] for h in header}
-    for i, row in enumerate(body, start=2):
+    for i, row in enumerate(body, start=1):  # rows count samples from 1, as in check_columns
+        where = f"row {i} (line {lines[i][0]})"
         if len(row) != len(header):
-            raise InputError(f"{path}: row {i} has {len(row)} fields, header has {len(header)} (truncated file?)")
+            raise InputError(f"{path}: {where} has {len(row)} fields, header has {len(header)} (truncated file?)")
         for h, v in zip(header, row):
             try:
                 data[h].append(float(v))
             except ValueError:
-                raise InputError(f"{path}: column {h!r} row {i}: {v!r} is not a number") from None
+                raise InputError(f"{path}: column {h!r} {where}: {v!r} is not a number") from None
     arrays = {h: np.asarray(v, dtype=float) for h, v in data.items()}
     return Run(arrays, {}, str(path))

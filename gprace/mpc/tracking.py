@@ -73,6 +73,9 @@ class MPCSettings:
     def __post_init__(self) -> None:
         if not 0.0 < self.grip_share <= 2.0:
             raise ConfigError(f"grip_share must be in (0, 2], got {self.grip_share}")
+        if not self.explore_radius > 0.0:
+            raise ConfigError(f"--explore-radius must be positive (a scaled feature distance), got {self.explore_radius}")
+        quantile_factor(self.beta)
 
 
 def covariances(A: np.ndarray, var: np.ndarray) -> np.ndarray:

@@ -303,6 +303,8 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
         E = gperr.setdefault(name, {"iteration": []})
         for r in v["rows"]:
             it, pl, dr = _get(r, "iteration"), _get(r, "planned"), _get(r, "driven")
+            if dr is None and r.get("completed") is False:
+                dr = float("nan")  # a failed lap stays in the figure's counts (null in summary.json)
             if isinstance(it, (int, float)) and isinstance(pl, (int, float)) and isinstance(dr, (int, float)):
                 L["iteration"].append(float(it))
                 L["planned"].append(float(pl))

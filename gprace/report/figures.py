@@ -243,7 +243,9 @@ def fig_lap_times(variants: Mapping[str, Mapping[str, np.ndarray]], title: str =
     """Planned, driven and driven - planned lap time per iteration, mean and +-1 std over trials.
 
     ``variants``: name (``exploration``, ``baseline``) -> ``{"iteration", "planned", "driven"}``,
-    one entry per (iteration, trial).
+    one entry per (iteration, trial); a lap that was not completed has ``driven`` NaN. The means
+    are over the completed laps only, so every iteration with failed laps is marked on the driven
+    panels (a cross at the bottom) and labelled "k/n failed": no mean hides its failures.
     """
     fig, axes = _figure(1, 3, size=(12.0, 3.8))
     for k, (name, d) in enumerate(variants.items()):
@@ -253,6 +255,8 @@ def fig_lap_times(variants: Mapping[str, Mapping[str, np.ndarray]], title: str =
         _band(axes[0, 0], it, pl, c, name)
         _band(axes[0, 1], it, dr, c, name)
         _band(axes[0, 2], it, dr - pl, c, name)
+        for ax in axes[0, 1:]:
+            _mark_failed(ax, it, np.isfinite(dr), c, name)
     for ax, what in zip(axes[0], ("planned", "driven", "driven - planned")):
         ax.set_xlabel("iteration [-]")
         ax.set_ylabel(f"{what} lap time [s]")
@@ -262,6 +266,23 @@ def fig_lap_times(variants: Mapping[str, Mapping[str, np.ndarray]], title: str =
     axes[0, 0].legend(fontsize="small")
     fig.suptitle(title)
     return fig
+
+
+def _mark_failed(ax, it: np.ndarray, ok: np.ndarray, color, name: str) -> None:
+    """A cross at the bottom of ``ax`` and "k/n failed" at every iteration with failed laps."""
+    u = np.unique(it[np.isfinite(it)])
+    n = np.array([np.sum(it == x) for x in u])
+    bad = np.array([np.sum((it == x) & ~ok) for x in u])
+    if not bad.any():
+        return
+    m = bad > 0
+    tr = ax.get_xaxis_transform()  # x in data, y in axes fraction
+    ax.plot(u[m], np.full(m.sum(), 0.04), "x", color=color, ms=8, mew=2, transform=tr, clip_on=False,
+            label=f"{name}: failed laps ({int(bad.sum())} of {int(n.sum())})")
+    for x, b, t in zip(u[m], bad[m], n[m]):
+        ax.annotate(f"{b}/{t} failed", (x, 0.04), xycoords=tr, xytext=(0, 6), textcoords="offset points",
+                    ha="center", fontsize="x-small", color=color)
+    ax.legend(fontsize="x-small", loc="upper right")
 
 
 def fig_exploration_data(run: Mapping[str, np.ndarray], plan: Mapping[str, np.ndarray],

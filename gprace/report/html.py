@@ -17,6 +17,7 @@ from typing import Any
 
 from gprace import __version__
 from gprace.errors import InputError
+from gprace.io.artifacts import check_folder
 from gprace.report import collect
 from gprace.report.collect import Section, _table
 from gprace.report.figures import png_bytes
@@ -65,6 +66,8 @@ def build_report(folder: str | Path, out: str | Path, png_dir: str | Path | None
         raise InputError(f"{folder}: is a file; `gprace show {folder}` summarises one file")
     if out.parent and not out.parent.exists():
         raise InputError(f"{out}: folder {out.parent} does not exist")
+    if png_dir is not None:
+        check_folder(png_dir, "--png")
     with console.progress("report: collecting results", total=4) as prog:
         sections, found = _collect_with_progress(folder, track, features, prog)
     rep = Report(out, sections)

@@ -20,6 +20,7 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0, "--seed", help="Seed of the sensor noise (added to the plant's)."),
         output: Path = typer.Option(..., "--output", "-o", help="Run file to write (.h5, or .csv)."),
         csv: Path | None = typer.Option(None, "--csv", help="Also export the run as CSV."),
+        as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     ) -> None:
         """Drive PLANT around TRACK with a speed-profile + lateral-feedback controller; record a run."""
         import time
@@ -49,6 +50,11 @@ def register(app: typer.Typer) -> None:
         laps_t = ", ".join(f"{x:.2f}" for x in lap_times(run)) or "-"
         hits = int(np.sum(run.data["border_hit"] > 0))
         console.info(f"simulated {run.n} steps in {elapsed:.1f} s")
+        if as_json:
+            console.json({"output": str(output), "samples": run.n, "duration_s": float(run.data["t"][-1]),
+                          "plant": plant_cfg.kind, "track": trk.name, "lap_times": list(lap_times(run)),
+                          "border_hit_samples": hits})
+            return
         console.result(
             f"wrote {output}: {run.n} samples, {run.data['t'][-1]:.1f} s, plant {plant_cfg.kind}, "
             f"track {trk.name}, lap times [s]: {laps_t}, border-hit samples: {hits}"

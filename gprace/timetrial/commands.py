@@ -15,7 +15,9 @@ def evaluate_group(app: typer.Typer) -> typer.Typer:
     """
     from gprace.h2h.commands import _group
 
-    return _group(app, "evaluate", "Evaluate results: iterate folders, GP models.")
+    from gprace.gp.commands import EVALUATE_HELP
+
+    return _group(app, "evaluate", EVALUATE_HELP)
 
 
 def _floats(text: str, what: str) -> tuple[float, ...]:
@@ -38,6 +40,31 @@ WORKERS = typer.Option(2, "--workers", help="Parallel trials.")
 SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address.")
 
 
+EVAL_HELP = "Run the paper's evaluation protocols (timetrial, head2head); `gprace evaluate` inspects finished results."
+MIN_NODES, MAX_NODES = 20, 20_000
+
+
+def check_execution(executor: str, workers: int, scheduler: str | None) -> None:
+    """--executor, --workers and --scheduler, checked before anything is planned or written."""
+    from gprace.errors import ConfigError
+    from gprace.h2h.commands import check_scheduler
+
+    check_scheduler(executor, scheduler)
+    if workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {workers}")
+
+
+def check_nodes(track, ds: float) -> None:
+    """``--ds`` must give a lap of MIN_NODES..MAX_NODES nodes (a coarser lap skips the corners, a
+    finer one makes an NLP too large to solve)."""
+    from gprace.errors import ConfigError
+
+    n = track.length / ds
+    if not MIN_NODES <= n <= MAX_NODES:
+        raise ConfigError(f"--ds {ds:g} gives {n:.3g} nodes on the {track.length:.0f} m track {track.name}; "
+                          f"use {track.length / MAX_NODES:.3g} to {track.length / MIN_NODES:.3g} m")
+
+
 def register(app: typer.Typer) -> None:
     @app.command("plan")
     def plan_cmd(
@@ -49,6 +76,7 @@ def register(app: typer.Typer) -> None:
         ds: float = typer.Option(6.0, "--ds", help="Node spacing in metres."),
         grip: float | None = typer.Option(None, "--grip", help="Friction-ellipse margin: share of the model's limits (e.g. 0.9)."),
         output: Path = typer.Option(..., "--output", "-o", help="Plan file to write (.h5)."),
+        as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     ) -> None:
         """Plan a minimum-lap-time lap (CasADi/IPOPT), optionally compensated by a planning GP."""
         from gprace.config import load_vehicle
@@ -60,7 +88,10 @@ def register(app: typer.Typer) -> None:
 
         if ds <= 0:
             raise ConfigError(f"--ds must be positive, got {ds}")
+        if grip is not None and not 0.0 < grip <= 1.0:
+            raise ConfigError(f"--grip must be in (0, 1] (a share of the model's limits), got {grip}")
         tr = load_track(track)
+        check_nodes(tr, ds)
         m = NominalModel(load_vehicle(vehicle))
         if curvature:
             plan = curvature_plan(tr, m, ds=ds)
@@ -74,7 +105,10 @@ def register(app: typer.Typer) -> None:
                 mu = lambda X, U: gp.at(X, U)[0]  # noqa: E731
             plan = plan_min_time(tr, m, PlanSettings(ds=ds, grip=grip), warm=warm, mu_plan=mu)
         plan.write(output)
-        console.result(f"{output}: {plan.method} plan of {tr.name}, lap time {plan.lap_time:.3f} s, {plan.n} nodes")
+        if as_json:
+            console.json({"output": str(output), "method": plan.method, "track": tr.name, "lap_time": plan.lap_time, "nodes": plan.n})
+        else:
+            console.result(f"{output}: {plan.method} plan of {tr.name}, lap time {plan.lap_time:.3f} s, {plan.n} nodes")
 
     @app.command("run")
     def run_cmd(
@@ -91,11 +125,13 @@ def register(app: typer.Typer) -> None:
         radius: float = typer.Option(0.5, "--explore-radius", help="Exploration trust region (scaled feature distance)."),
         seed: int = typer.Option(0, "--seed", help="Seed of the plant's sensor noise."),
         output: Path = typer.Option(..., "--output", "-o", help="Run file to write (.h5)."),
+        as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     ) -> None:
         """Drive a plan on a plant with the (GP-compensated, exploring) tracking MPC; record a run."""
+        from gprace.backends import solvers
         from gprace.config import load_plant, load_vehicle
         from gprace.console import console
-        from gprace.errors import ConfigError
+        from gprace.errors import ConfigError, RunFailedError
         from gprace.io.runs import write_run
         from gprace.model import NominalModel
         from gprace.mpc.tracking import MPCSettings
@@ -107,6 +143,8 @@ def register(app: typer.Typer) -> None:
             raise ConfigError(f"--alpha must be in [0, 1], got {alpha}")
         if laps <= 0:
             raise ConfigError(f"--laps must be positive, got {laps}")
+        mpc = MPCSettings(solver=solver, beta=beta, explore_radius=radius)  # checks radius and beta
+        solvers.get(solver)  # an unknown name lists the registered ones
         p0 = read_plan(plan)
         tr = load_track(track or p0.track)
         p0.check_track(tr, str(plan))
@@ -129,16 +167,23 @@ def register(app: typer.Typer) -> None:
                 from gprace.timetrial.iterate import make_grid
 
                 grid = make_grid(gp.gp, gp.gp.Z_ if hasattr(gp.gp, "Z_") else None, MPCSettings(), 7)
-        settings = DriveSettings(laps=laps, mpc=MPCSettings(solver=solver, beta=beta, explore_radius=radius))
+        settings = DriveSettings(laps=laps, mpc=mpc)
         run = drive(p0, load_plant(plant), tr, m, settings, gp=gp, grid=grid, alpha=alpha, seed=seed)
         write_run(run, output)
         mt = run.meta
-        console.result(
-            f"{output}: lap {mt['lap_time']:.2f} s (planned {mt['planned_lap_time']:.2f} s), completed {mt['completed']}, "
-            f"border-hit steps {mt['border_hit_steps']}, fallbacks {mt['fallbacks']}, QP median {1e3 * mt['solve_time_median']:.2f} ms"
-        )
-        if not mt["completed"]:
-            console.warn(f"run: {mt['reason']}")
+        if as_json:
+            console.json({"output": str(output), **{k: mt[k] for k in ("lap_time", "planned_lap_time", "completed", "reason",
+                                                                      "border_hit_steps", "fallbacks")},
+                          "solve_time_median_ms": 1e3 * mt["solve_time_median"]})
+        else:
+            lap = (f"lap {mt['lap_time']:.2f} s" if math.isfinite(mt["lap_time"])
+                   else "no full lap" if mt["completed"] else "lap not completed")
+            console.result(
+                f"{output}: {lap} (planned {mt['planned_lap_time']:.2f} s), completed {mt['completed']}, "
+                f"border-hit steps {mt['border_hit_steps']}, fallbacks {mt['fallbacks']}, QP median {1e3 * mt['solve_time_median']:.2f} ms"
+            )
+        if not mt["completed"]:  # a failed run (the record is kept for inspection): exit 1
+            raise RunFailedError(f"run: {mt['reason']}; the partial run is in {output}")
 
     @app.command("iterate")
     def iterate_cmd(
@@ -167,12 +212,13 @@ def register(app: typer.Typer) -> None:
                              plant=plant, track=track, vehicle=vehicle, dictionary_size=dictionary, solver=solver, seed=seed,
                              features=features, grip=grip)
         st.check()
+        check_execution(executor, workers, scheduler)
         summary = iterate(st, out, executor=executor, workers=workers, scheduler=scheduler)
         _print_summary(summary, as_json)
 
     from gprace.h2h.commands import _group
 
-    @_group(app, "eval", "Evaluation protocols of the paper.").command("timetrial")
+    @_group(app, "eval", EVAL_HELP).command("timetrial")
     def eval_timetrial(
         plant: str = PLANT,
         track: str = typer.Option("gprace_ring", "--track", help="Track: shipped name or a TUM CSV/TOML path."),
@@ -197,6 +243,7 @@ def register(app: typer.Typer) -> None:
         st = IterateSettings(iterations=iterations, trials=trials, plant=plant, track=track, vehicle=vehicle,
                              dictionary_size=dictionary, seed=seed, features=features)
         st.check()
+        check_execution(executor, workers, scheduler)
         res = compare(st, out, executor=executor, workers=workers, scheduler=scheduler)
         if as_json:
             console.json(res)

@@ -30,11 +30,9 @@ def compare(base, out: str | Path, executor: str = "local", workers: int = 1, sc
     from gprace.errors import RunFailedError
     from gprace.timetrial.iterate import build_summary, iterate_many
 
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        from gprace.errors import InputError
+    from gprace.io.artifacts import check_folder
 
-        raise InputError(f"--out {out}: exists and is not a folder")
+    out = check_folder(out)
     experiments = [(replace(base, **kw), out / name) for name, kw in VARIANTS.items()]
     for st, _ in experiments:
         st.check()

@@ -47,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gprace.console import jsonable
 from gprace.errors import ConfigError, InputError, RunFailedError, SolverError
 
 FAIL_ENV = "GPRACE_ITERATE_FAIL_AFTER"  # test hook: raise after the named step's marker is written
@@ -101,6 +102,11 @@ class IterateSettings:
             raise ConfigError(f"first speed scale must be in (0, 1], got {self.first_speed_scale}")
         if not 0.0 <= self.widen < 0.5:
             raise ConfigError(f"widen must be in [0, 0.5), got {self.widen}")
+        from gprace.backends import solvers
+        from gprace.mpc.tracking import quantile_factor
+
+        solvers.get(self.solver)  # an unknown name lists the registered ones, before any planning
+        quantile_factor(self.beta)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -122,19 +128,6 @@ class Steps:
         os.replace(tmp, p)
         if os.environ.get(FAIL_ENV) == name:
             raise RuntimeError(f"injected failure after step {name}")
-
-
-def jsonable(obj):
-    """``obj`` with every non-finite float as None (strict JSON: ``null``, never a bare NaN)."""
-    if isinstance(obj, dict):
-        return {k: jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj
 
 
 def read_record(path: Path) -> dict:
@@ -204,12 +197,12 @@ def _prepare(settings: IterateSettings, out: Path, share: Path | None = None) ->
     import shutil
 
     from gprace.config import load_plant
+    from gprace.io.artifacts import check_folder
     from gprace.tracks import load_track
 
     settings.check()
     _check_start(settings)  # a bad track, plant or vehicle, or a car that cannot start: before anything is written
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder")
+    check_folder(out)
     mine = json.loads(json.dumps(asdict(settings)))
     sfile = out / "settings.json"
     if sfile.exists():
