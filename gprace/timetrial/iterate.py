@@ -444,7 +444,12 @@ def _run_chain(task: dict) -> list[dict]:
             except SolverError as exc:
                 # a failed re-plan must not end the experiment: drive the last plan that completed a
                 # lap again (never a plan that failed), or a slower curvature plan if none did
-                plan = warm or curvature_plan(track, model, ds=st.plan_ds, speed_scale=st.first_speed_scale * (1 - 2 * st.widen))
+                scale = st.first_speed_scale * (1 - 2 * st.widen)
+                plan = warm or curvature_plan(track, model, ds=st.plan_ds, speed_scale=scale)
+                # the limits of the plan actually driven, not the ones tried: the next widening
+                # starts from what was driven (measured: two widenings at once after a failed
+                # re-plan, then a spin at s = 2266 m)
+                limits = plan.meta.get("limits", G.nominal_cap(model, 1.0) * [scale, 1.0, scale])
                 plan.meta = {**plan.meta, "replan_failed": str(exc)}
             plan.meta["limits"] = [float(v) for v in limits]
             plan.write(di / "plan.h5")
