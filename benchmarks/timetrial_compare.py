@@ -22,6 +22,12 @@ import numpy as np
 PLANTS = {"audi_hidden": "audi_tt_cup", "bmw_commonroad": "bmw_320i"}  # plant -> nominal vehicle
 
 
+def _nanmin(values) -> float:
+    """Smallest finite value, NaN when there is none (no oracle: commonroad)."""
+    v = np.asarray([np.nan if x is None else x for x in values], float)
+    return float(np.nanmin(v)) if np.isfinite(v).any() else float("nan")
+
+
 def checks(res: dict) -> dict:
     """Acceptance figures per variant: failed GP laps, and the alpha-0 laps against the targets."""
     out = {}
@@ -34,7 +40,7 @@ def checks(res: dict) -> dict:
         out[name] = {
             "failed_gp_laps": int(failed), "gp_laps": int(sum(r["laps"] for r in gp_rows)),
             "gap_closed_last_iteration_worst_trial": float(racing[-1]["gap_closed_min"]) if racing else float("nan"),
-            "gap_closed_best_alpha0_lap_worst_trial": float(np.nanmin([t["gap_closed_best"] for t in trials])),
+            "gap_closed_best_alpha0_lap_worst_trial": _nanmin([t["gap_closed_best"] for t in trials]),
             "trials_faster_than_iteration0": int(sum(t["best_alpha0"] < t["iteration0"] for t in trials)),
             "trials": len(trials),
             "best_driven_alpha0": float(np.nanmin([r["driven_mean"] for r in racing])) if racing else float("nan"),
