@@ -39,7 +39,7 @@ def checks(res: dict) -> dict:
         trials = res["per_trial"][name]
         out[name] = {
             "failed_gp_laps": int(failed), "gp_laps": int(sum(r["laps"] for r in gp_rows)),
-            "gap_closed_last_iteration_worst_trial": float(racing[-1]["gap_closed_min"]) if racing else float("nan"),
+            "gap_closed_last_iteration_worst_trial": _nanmin([racing[-1]["gap_closed_min"]]) if racing else float("nan"),
             "gap_closed_best_alpha0_lap_worst_trial": _nanmin([t["gap_closed_best"] for t in trials]),
             "trials_faster_than_iteration0": int(sum(t["best_alpha0"] < t["iteration0"] for t in trials)),
             "trials": len(trials),
