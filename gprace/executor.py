@@ -57,6 +57,29 @@ def _call(fn: Callable[[Any], Any], index: int, task: Any) -> TaskResult:
         return TaskResult(index, False, None, f"{type(exc).__name__}: {exc}\n{tb}")
 
 
+def check_execution(executor: str, workers: int = 1, scheduler: str | None = None, timeout: float = 3.0) -> None:
+    """``--executor``, ``--workers`` and ``--scheduler``, checked before any work: a Dask scheduler
+    that cannot be reached fails fast, with nothing run and finished artifacts kept."""
+    if executor not in ("local", "dask"):
+        raise ConfigError(f"unknown executor {executor!r}; available: local, dask")
+    if workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {workers}")
+    if executor != "dask":
+        return
+    if not scheduler:
+        raise ConfigError("--executor dask needs --scheduler tcp://HOST:PORT")
+    import socket
+    from urllib.parse import urlparse
+
+    u = urlparse(scheduler if "://" in scheduler else f"tcp://{scheduler}")
+    if not u.hostname or not u.port:
+        raise InputError(f"--scheduler {scheduler!r}: expected tcp://HOST:PORT")
+    try:
+        socket.create_connection((u.hostname, u.port), timeout=timeout).close()
+    except OSError as exc:
+        raise InputError(f"cannot reach Dask scheduler {scheduler}: {exc}; nothing was run and finished artifacts are kept") from None
+
+
 def run_batch(
     fn: Callable[[Any], Any],
     tasks: Sequence[Any],
@@ -72,10 +95,8 @@ def run_batch(
     """
     from gprace.console import console
 
-    if executor not in ("local", "dask"):
-        raise ConfigError(f"unknown executor {executor!r}; available: local, dask")
-    if workers < 1:
-        raise ConfigError(f"--workers must be >= 1, got {workers}")
+    if executor not in ("local", "dask") or workers < 1:
+        check_execution(executor, workers)  # raises
     results: list[TaskResult | None] = [None] * len(tasks)
 
     with console.progress(label, total=len(tasks)) as bar:

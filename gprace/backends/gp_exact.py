@@ -142,6 +142,7 @@ class ExactGP(GPBackend):
         self._alpha_z = [np.hstack([self.alpha_[:, g]] + [self.alpha_[:, [q]] * self.Z_ for q in g])
                          for g in self._group_list]
         self._spectra: dict[int, np.ndarray | None] = {}
+        self._azw: dict[int, np.ndarray] = {}
 
     def _block(self, gi: int, Zn: np.ndarray) -> np.ndarray:
         """Kernel block ``K* (m, M)`` of factor group ``gi`` between normalised queries and the data."""
@@ -243,11 +244,10 @@ class ExactGP(GPBackend):
         return self._spectra[gi]
 
     def _alpha_zw(self, gi: int) -> np.ndarray:
-        """``[alpha_q, alpha_q * Z, W]`` of group ``gi`` in one array (cached with the spectrum)."""
-        key = ("azw", gi)
-        if key not in self._spectra:
-            self._spectra[key] = np.ascontiguousarray(np.hstack([self._alpha_z[gi], self._spectral(gi)]))
-        return self._spectra[key]
+        """``[alpha_q, alpha_q * Z, W]`` of group ``gi`` in one array (one product per query)."""
+        if gi not in self._azw:
+            self._azw[gi] = np.ascontiguousarray(np.hstack([self._alpha_z[gi], self._spectral(gi)]))
+        return self._azw[gi]
 
     # -- state -----------------------------------------------------------------------------------
     def _state_arrays(self):

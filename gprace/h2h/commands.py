@@ -42,30 +42,9 @@ def _group(app: typer.Typer, name: str, help: str) -> typer.Typer:
     return sub
 
 
-def check_scheduler(executor: str, scheduler: str | None, timeout: float = 3.0) -> None:
-    """Fail fast (before any work) when the Dask scheduler cannot be reached."""
-    from gprace.errors import ConfigError, InputError
-
-    if executor not in ("local", "dask"):
-        raise ConfigError(f"unknown executor {executor!r}; available: local, dask")
-    if executor != "dask":
-        return
-    if not scheduler:
-        raise ConfigError("--executor dask needs --scheduler tcp://HOST:PORT")
-    import socket
-    from urllib.parse import urlparse
-
-    u = urlparse(scheduler if "://" in scheduler else f"tcp://{scheduler}")
-    if not u.hostname or not u.port:
-        raise InputError(f"--scheduler {scheduler!r}: expected tcp://HOST:PORT")
-    try:
-        socket.create_connection((u.hostname, u.port), timeout=timeout).close()
-    except OSError as exc:
-        raise InputError(f"cannot reach Dask scheduler {scheduler}: {exc}; nothing was run and finished artifacts are kept") from None
-
-
 def _settings(out: Path, **kw):
     """Checked settings of a command writing to ``out``: every check before any file is written."""
+    from gprace.executor import check_execution
     from gprace.h2h.protocol import Settings
     from gprace.io.artifacts import check_folder
 
@@ -73,7 +52,7 @@ def _settings(out: Path, **kw):
     if raced:
         kw["raced"] = tuple(p.strip() for p in raced.split(",") if p.strip())
     st = Settings(**kw)
-    check_scheduler(st.executor, st.scheduler)
+    check_execution(st.executor, st.workers, st.scheduler)
     st.check()
     check_folder(out)
     return st

@@ -44,16 +44,6 @@ EVAL_HELP = "Run the paper's evaluation protocols (timetrial, head2head); `gprac
 MIN_NODES, MAX_NODES = 20, 20_000
 
 
-def check_execution(executor: str, workers: int, scheduler: str | None) -> None:
-    """--executor, --workers and --scheduler, checked before anything is planned or written."""
-    from gprace.errors import ConfigError
-    from gprace.h2h.commands import check_scheduler
-
-    check_scheduler(executor, scheduler)
-    if workers < 1:
-        raise ConfigError(f"--workers must be >= 1, got {workers}")
-
-
 def check_nodes(track, ds: float) -> None:
     """``--ds`` must give a lap of MIN_NODES..MAX_NODES nodes (a coarser lap skips the corners, a
     finer one makes an NLP too large to solve)."""
@@ -212,6 +202,8 @@ def register(app: typer.Typer) -> None:
                              plant=plant, track=track, vehicle=vehicle, dictionary_size=dictionary, solver=solver, seed=seed,
                              features=features, grip=grip)
         st.check()
+        from gprace.executor import check_execution
+
         check_execution(executor, workers, scheduler)
         summary = iterate(st, out, executor=executor, workers=workers, scheduler=scheduler)
         _print_summary(summary, as_json)
@@ -243,6 +235,8 @@ def register(app: typer.Typer) -> None:
         st = IterateSettings(iterations=iterations, trials=trials, plant=plant, track=track, vehicle=vehicle,
                              dictionary_size=dictionary, seed=seed, features=features)
         st.check()
+        from gprace.executor import check_execution
+
         check_execution(executor, workers, scheduler)
         res = compare(st, out, executor=executor, workers=workers, scheduler=scheduler)
         if as_json:

@@ -76,9 +76,8 @@ def features(run, model, track, kind: str, feature_set: str = "full", step: str 
     else:
         ok = np.abs(np.diff(t) - dt) < 1e-6 * max(dt, 1.0)
         x0, u0, x1 = X[:-1][ok], U[:-1][ok], X[1:][ok]
-        kap = track.kappa(x0[:, 5])
         # the MPC's step: RK4 with the curvature following s through the step (mpc.tracking)
-        pred = model.rk4(x0, u0, track.kappa, dt) if step == "rk4" else model.euler(x0, u0, kap, dt)
+        pred = model.rk4(x0, u0, track.kappa, dt) if step == "rk4" else model.euler(x0, u0, track.kappa(x0[:, 5]), dt)
         Y = (x1 - pred)[:, 1:3]
         t0 = t[:-1][ok]
     Z = dyn_inputs(x0, u0, names)
