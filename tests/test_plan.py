@@ -76,3 +76,14 @@ def test_open_track_rejected(setup):
     tr = Track(x, 0 * x, np.full(61, 5.0), np.full(61, 5.0), closed=False, name="straight")
     with pytest.raises(ConfigError, match="open"):
         plan_min_time(tr, m)
+
+
+def test_top_speed_bounds_the_speed_over_ground():
+    """A side force (as a GP compensation held on the warm start) must not buy progress by a slide:
+    with only ``v_x`` capped the plan below reached |v| = 30.05 m/s at a cap of 30 (measured)."""
+    tr = load_track("circle_100")
+    v = load_vehicle("audi_tt_cup")
+    m = NominalModel(v.model_copy(update={"limits": v.limits.model_copy(update={"speed_max": 30.0})}))
+    side = plan_min_time(tr, m, PlanSettings(ds=6.0), mu_plan=lambda X, U: np.column_stack([np.full(len(X), -3.0), np.zeros(len(X))]))
+    assert np.hypot(side.v_x, side.v_y).max() <= 30.0 * (1 + 1e-6)
+    assert side.lap_time >= 2 * np.pi * (100 - tr.width_left(0.0)) / 30.0  # no faster than the cap on the inner edge

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -59,12 +60,20 @@ class Plan:
         return np.column_stack([self.delta, self.a_x])
 
     # lookups -----------------------------------------------------------------------------------
+    @cached_property
+    def _lookup(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(s, t, table)`` closed by the first node again at ``(L, lap_time)``, built once per plan
+        (the MPC looks the plan up every period; a plan's arrays are not changed after creation).
+        ``table`` holds all eight columns of :meth:`at_time` for one lookup."""
+        table = np.column_stack([self.v_x, self.v_y, self.yaw_rate, self.e_psi, self.e_y, self.s, self.delta, self.a_x])
+        end = table[:1].copy()
+        end[0, 5] = self.track_length
+        return np.append(self.s, self.track_length), np.append(self.t, self.lap_time), np.vstack([table, end])
+
     def time_at(self, s: np.ndarray | float) -> np.ndarray:
         """Plan time at arc length ``s`` (wrapped into the lap), linear between nodes."""
-        L = self.track_length
-        sp = np.append(self.s, L)
-        tp = np.append(self.t, self.lap_time)
-        return np.interp(np.mod(s, L), sp, tp)
+        sp, tp, _ = self._lookup
+        return np.interp(np.mod(s, self.track_length), sp, tp)
 
     def at_time(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """States (m, 6) and inputs (m, 2) at plan times ``t`` (periodic in the lap time).
@@ -75,12 +84,7 @@ class Plan:
         T, L = self.lap_time, self.track_length
         laps = np.floor(t / T)
         tw = t - laps * T
-        # one lookup for all eight columns (periodic closure: the first node again at t = T)
-        table = np.column_stack([self.v_x, self.v_y, self.yaw_rate, self.e_psi, self.e_y, self.s, self.delta, self.a_x])
-        end = table[:1].copy()
-        end[0, 5] = L
-        table = np.vstack([table, end])
-        tp = np.append(self.t, T)
+        _, tp, table = self._lookup
         i = np.clip(np.searchsorted(tp, tw, side="right") - 1, 0, len(tp) - 2)
         w = np.clip((tw - tp[i]) / np.maximum(tp[i + 1] - tp[i], 1e-12), 0.0, 1.0)[:, None]
         out = (1.0 - w) * table[i] + w * table[i + 1]

@@ -202,19 +202,27 @@ class Track:
         d1 = self._d1(self._clip(s))
         return np.arctan2(d1[..., 1], d1[..., 0])
 
-    def _interp_width(self, s, w):
-        sc = self._clip(s)
-        if self.closed:
-            return np.interp(sc, self._ws, w, period=self.length)
-        return np.interp(sc, self._ws, w)
+    @cached_property
+    def _width_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """Width nodes ``s (m,)`` and ``[w_left, w_right] (2, m)``; closed tracks wrap once around
+        (``np.interp``'s ``period`` sorts the nodes on every call, and the MPC asks every period)."""
+        w = np.vstack([self._wl, self._wr])
+        if not self.closed:
+            return self._ws, w
+        s = np.concatenate([self._ws[-1:] - self.length, self._ws, self._ws[:1] + self.length])
+        return s, np.hstack([w[:, -1:], w, w[:, :1]])
+
+    def _interp_width(self, s, side: int):
+        ws, w = self._width_table
+        return np.interp(self._clip(s), ws, w[side])
 
     def width_left(self, s):
         """Distance from the centre line to the left border [m] at ``s``."""
-        return self._interp_width(s, self._wl)
+        return self._interp_width(s, 0)
 
     def width_right(self, s):
         """Distance from the centre line to the right border [m] at ``s``."""
-        return self._interp_width(s, self._wr)
+        return self._interp_width(s, 1)
 
     # ------------------------------------------------------------------------------------------
     # Frenet <-> global
