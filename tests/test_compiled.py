@@ -48,3 +48,24 @@ def test_failed_build_falls_back_to_the_interpreted_solver(tmp_path, monkeypatch
     solver = compiled.compiled_nlpsol("rb_fallback", "ipopt", rosenbrock(), OPTS)
     np.testing.assert_allclose(solve(solver, 1.0), np.ones(4), atol=1e-6)
     assert not list(tmp_path.glob("*.so"))
+
+
+@pytest.mark.skipif(compiled.compiler() is None, reason="no C compiler")
+def test_compiled_function_is_bit_identical_and_falls_back(tmp_path, monkeypatch):
+    """The MPC's linearisation (an RK4 step and its Jacobians, mapped over a horizon) compiled to C
+    returns exactly what the interpreted function does; without a compiler it is that function."""
+    monkeypatch.setenv("GPRACE_CACHE", str(tmp_path))
+    x, u = ca.SX.sym("x", 2), ca.SX.sym("u")
+    f_c = lambda z: ca.vertcat(z[1], -ca.sin(z[0]) + u)  # noqa: E731
+    k1 = f_c(x)
+    k2 = f_c(x + 0.05 * k1)
+    xn = x + 0.05 * (k1 + k2) / 2
+    f = ca.Function("pend_lin", [x, u], [xn, ca.jacobian(xn, x)]).map(7)
+    X, U = np.random.default_rng(0).normal(size=(2, 7)), np.linspace(-1, 1, 7)[None, :]
+    fast = compiled.compiled_function(f)
+    assert fast is not f and len(list(tmp_path.glob("*.so"))) == 1
+    for a, b in zip(f(X, U), fast(X, U)):
+        assert np.array_equal(np.asarray(a), np.asarray(b))
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-compiler"))
+    monkeypatch.setenv("GPRACE_CACHE", str(tmp_path / "other"))
+    assert compiled.compiled_function(f) is f

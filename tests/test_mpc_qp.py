@@ -37,7 +37,13 @@ def _problem(N=20, seed=0, tight=True):
 
 @pytest.fixture(scope="module")
 def qps():
-    return {name: solvers.create(name, 20, Weights()) for name in BACKENDS}
+    """The backends at tight tolerance: the agreement checks test the formulations, not the
+    real-time default tolerance of clarabel (1e-8)."""
+    from gprace.backends.qp_clarabel import ClarabelQP
+
+    out = {name: solvers.create(name, 20, Weights()) for name in BACKENDS}
+    out["clarabel"] = ClarabelQP(20, Weights(), tol=1e-10)
+    return out
 
 
 def test_backends_registered():
@@ -84,7 +90,7 @@ def test_repeated_updates_match_fresh_solver(qps):
     """In-place data updates (clarabel) give the same answer as a solver built for that problem."""
     for seed in (3, 4):
         pb = _problem(seed=seed)
-        fresh = solvers.create("clarabel", 20, Weights()).solve(pb)
+        fresh = type(qps["clarabel"])(20, Weights(), tol=1e-10).solve(pb)
         upd = qps["clarabel"].solve(pb)
         assert np.allclose(fresh.u, upd.u, atol=1e-7)
 

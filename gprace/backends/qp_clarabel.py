@@ -28,7 +28,7 @@ _STATUS = {
 class ClarabelQP:
     name = "clarabel"
 
-    def __init__(self, N: int, weights: Weights = Weights(), tol: float = 1e-10, max_iter: int = 100) -> None:
+    def __init__(self, N: int, weights: Weights = Weights(), tol: float = 1e-8, max_iter: int = 100) -> None:
         import clarabel
 
         self._cl = clarabel
@@ -41,6 +41,8 @@ class ClarabelQP:
         st.max_iter = max_iter
         st.tol_gap_abs = st.tol_gap_rel = tol
         st.tol_feas = tol
+        # 1e-8 (was 1e-10): measured on 400 MPC problems, 10.4 instead of 11.6 iterations, the
+        # first input within 2e-6 rad and 2e-3 m/s^2
         # measured on 150 MPC problems of gprace_ring: iterative refinement of every KKT solve
         # costs a third of the solve time (2.8 -> 1.9 ms median) and moves the first input by
         # less than 1e-4; the interior-point iterations converge to the same tolerance without it

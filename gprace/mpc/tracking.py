@@ -163,6 +163,8 @@ class TrackingMPC:
     def _build_linearisation(self):
         import casadi as ca
 
+        from gprace.backends.compiled import compiled_function
+
         if self.model.nx != 6:
             raise ConfigError("tracking MPC: the controller's vehicle has effect states; use the stateless nominal vehicle")
         x = ca.SX.sym("x", 6)
@@ -180,8 +182,8 @@ class TrackingMPC:
             xn = self.model.rk4_expression(x, u, kappa_of_s, self.dt)
         else:
             raise ConfigError(f"unknown integrator {self.s.integrator!r}; available: euler, rk4")
-        f = ca.Function("lin", [x, u, k], [xn, ca.jacobian(xn, x), ca.jacobian(xn, u)])
-        return f.map(self.N)
+        f = ca.Function("mpc_lin", [x, u, k], [xn, ca.jacobian(xn, x), ca.jacobian(xn, u)])
+        return compiled_function(f.map(self.N))
 
     def reset(self, delta_prev: float = 0.0, a_prev: float = 0.0) -> None:
         self.prev_x = self.prev_u = None
