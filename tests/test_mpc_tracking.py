@@ -173,3 +173,30 @@ def test_failed_solve_falls_back_to_shifted_solution(circle):
     u, info = mpc.step(x0)
     assert info["fallback"] and mpc.fallbacks == 1
     assert np.array_equal(u, np.clip(expected, mpc.u_lo, mpc.u_hi))
+
+
+def test_linearisation_matches_the_step_and_its_finite_differences(circle):
+    """The buffered, compiled linearisation returns per step ``x_next`` = the model's RK4 step
+    with the affine curvature, and ``A_k``, ``B_k`` = its central differences (layout check)."""
+    tr, m, plan = circle
+    mpc = TrackingMPC(m, tr, plan, MPCSettings())
+    rng = np.random.default_rng(1)
+    N = mpc.N
+    X = np.column_stack([rng.uniform(20, 40, N), rng.normal(0, 0.3, N), rng.normal(0, 0.2, N),
+                         rng.normal(0, 0.05, N), rng.normal(0, 1, N), np.linspace(10, 60, N)])
+    U = np.column_stack([rng.normal(0, 0.03, N), rng.normal(0, 3, N)])
+    K = np.column_stack([rng.normal(0.01, 0.005, N), rng.normal(0, 1e-4, N), X[:, 5]])
+    xn, A, B = mpc._lin(X, U, K)
+
+    def step(k, x, u):
+        return m.rk4(x, u, lambda s: K[k, 0] + K[k, 1] * (s - K[k, 2]), mpc.dt)
+
+    h = 1e-6
+    for k in (0, 7, N - 1):
+        assert np.allclose(xn[k], step(k, X[k], U[k]), atol=1e-10)
+        for j in range(6):
+            e = np.eye(6)[j] * h
+            assert np.allclose(A[k][:, j], (step(k, X[k] + e, U[k]) - step(k, X[k] - e, U[k])) / (2 * h), atol=1e-5)
+        for j in range(2):
+            e = np.eye(2)[j] * h
+            assert np.allclose(B[k][:, j], (step(k, X[k], U[k] + e) - step(k, X[k], U[k] - e)) / (2 * h), atol=1e-5)

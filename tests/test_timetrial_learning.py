@@ -180,7 +180,7 @@ def test_mpc_step_follows_the_curvature_through_a_kink():
     X, U = np.tile(x, (mpc.N, 1)), np.tile(u, (mpc.N, 1))
     s = X[:, 5]
     slope = (tr.kappa(s + KAPPA_DS) - tr.kappa(s - KAPPA_DS)) / (2 * KAPPA_DS)
-    xn = np.asarray(mpc._lin(X.T, U.T, np.vstack([tr.kappa(s), slope, s]))[0]).T[0]
+    xn = mpc._lin(X, U, np.column_stack([tr.kappa(s), slope, s]))[0][0]
     fine = m.rk4(x, u, tr.kappa, mpc.dt, substeps=50)
     held = m.rk4(x, u, float(tr.kappa(x[5])), mpc.dt)
     assert abs(xn[3] - fine[3]) < 1e-3 and abs(xn[4] - fine[4]) < 1e-3

@@ -129,6 +129,29 @@ def peak_slip(b: float, c: float) -> float:
     return float(np.tan(np.pi / (2.0 * c)) / b) if c > 1.0 else float(np.pi / 2)
 
 
+class Linearisation:
+    """The step function mapped over the horizon, ``(X (N, 6), U (N, 2), K (N, 3)) -> (x_next
+    (N, 6), A (N, 6, 6), B (N, 6, 2))``, evaluated into preallocated arrays with CasADi's buffer
+    interface: the function writes its column-major outputs straight into C-ordered NumPy arrays
+    (no DM objects; measured 3.1 -> 0.33 ms per call with the conversions and transposes, machine
+    under load). One instance per controller (the buffers are its own)."""
+
+    def __init__(self, f, N: int) -> None:
+        self._buf, self._eval = f.buffer()
+        self._args = [np.empty((N, 6)), np.empty((N, 2)), np.empty((N, 3))]
+        self._res = [np.empty((N, 6)), np.empty((N, 6, 6)), np.empty((N, 6, 2))]
+        for i, a in enumerate(self._args):
+            self._buf.set_arg(i, memoryview(a))
+        for i, a in enumerate(self._res):
+            self._buf.set_res(i, memoryview(a))
+
+    def __call__(self, X: np.ndarray, U: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        for a, v in zip(self._args, (X, U, K)):
+            a[...] = v
+        self._eval()
+        return tuple(r.copy() for r in self._res)
+
+
 class TrackingMPC:
     """Tracking MPC on one plan. ``gp`` predicts ``Z (m, 3) -> (mean (m, 2), var (m, 2))``."""
 
@@ -182,8 +205,9 @@ class TrackingMPC:
             xn = self.model.rk4_expression(x, u, kappa_of_s, self.dt)
         else:
             raise ConfigError(f"unknown integrator {self.s.integrator!r}; available: euler, rk4")
-        f = ca.Function("mpc_lin", [x, u, k], [xn, ca.jacobian(xn, x), ca.jacobian(xn, u)])
-        return compiled_function(f.map(self.N))
+        # Jacobians transposed and dense: column-major A_k^T is A_k in C order (see Linearisation)
+        f = ca.Function("mpc_lin", [x, u, k], [xn, ca.densify(ca.jacobian(xn, x).T), ca.densify(ca.jacobian(xn, u).T)])
+        return Linearisation(compiled_function(f.map(self.N)), self.N)
 
     def reset(self, delta_prev: float = 0.0, a_prev: float = 0.0) -> None:
         self.prev_x = self.prev_u = None
@@ -243,10 +267,7 @@ class TrackingMPC:
         sb = Xb[:, 5]
         kap, k_up, k_dn = self.track.kappa(np.concatenate([sb, sb + KAPPA_DS, sb - KAPPA_DS])).reshape(3, -1)
         slope = (k_up - k_dn) / (2 * KAPPA_DS)
-        xn, A, B = self._lin(Xb.T, Ub.T, np.vstack([kap, slope, sb]))
-        xn, A, B = np.asarray(xn).T, np.asarray(A), np.asarray(B)
-        A = A.reshape(6, N, 6).transpose(1, 0, 2)
-        B = B.reshape(6, N, 2).transpose(1, 0, 2)
+        xn, A, B = self._lin(Xb, Ub, np.column_stack([kap, slope, sb]))
         Xr = Xb.copy()
         Xr[:, 5] -= s0
         xn[:, 5] -= s0
