@@ -212,7 +212,7 @@ def test_console_json_writes_null_for_non_finite_numbers(capsys):
 
 
 # ------------------------------------------------------------------------------------------------
-# item 2: samples outside the model's envelope are excluded and reported by select-data and evaluate gp
+# item 2: samples outside the model's envelope are excluded and reported by select-data and eval gp
 
 
 @pytest.fixture(scope="module")
@@ -234,7 +234,7 @@ def spin_run(tmp_path_factory):
     return d
 
 
-def test_select_data_and_evaluate_gp_leave_out_a_spin(capsys, spin_run, tmp_path):
+def test_select_data_and_eval_gp_leave_out_a_spin(capsys, spin_run, tmp_path):
     from gprace.gp.dataset import read_dataset
 
     def select(name):
@@ -254,10 +254,10 @@ def test_select_data_and_evaluate_gp_leave_out_a_spin(capsys, spin_run, tmp_path
     iv = list(ds.input_names).index("v_y")
     assert ds.Z[:, iv].max() < 15.0  # not one spin sample used
     assert err.count("\n") == 1 and "outside the model's envelope" in err and "spin:" in err and "s 1" in err
-    # evaluate gp scores only the samples inside the envelope, and says so
+    # eval gp scores only the samples inside the envelope, and says so
     assert main(["retrain", str(tmp_path / "clean_data.h5"), "--opt", "optimize=false", "-o", str(tmp_path / "m.h5")]) == 0
     capsys.readouterr()
-    assert main(["evaluate", "gp", str(tmp_path / "m.h5"), str(spin_run / "spin.h5"), "--json"]) == 0
+    assert main(["eval", "gp", str(tmp_path / "m.h5"), str(spin_run / "spin.h5"), "--json"]) == 0
     cap = capsys.readouterr()
     res = strict(cap.out)
     assert res["samples"] <= n_clean - 31 and res["envelope"]["samples_excluded"] == env["samples_excluded"]
@@ -277,7 +277,7 @@ def _commands(cmd, path=()):
         yield " ".join(path), cmd
 
 
-def test_every_option_has_help_and_eval_evaluate_are_told_apart():
+def test_every_option_has_help():
     import typer
 
     from gprace.cli import app
@@ -286,18 +286,49 @@ def test_every_option_has_help_and_eval_evaluate_are_told_apart():
     missing = [f"{name} {p.opts[0]}" for name, cmd in _commands(root) for p in cmd.params
                if p.param_type_name == "option" and not (p.help or "").strip()]
     assert missing == []
-    groups = {n: root.commands[n].help for n in ("eval", "evaluate")}
-    assert "head2head" not in groups["evaluate"].split("`gprace eval`")[0] and "head2head" in groups["eval"]
     explore = dict(_commands(root))["h2h explore"]
     width_help = next(p.help for p in explore.params if p.opts[0] == "--explore-width")
     assert "--width" not in width_help and not any(p.opts[0] == "--width" for p in explore.params)
+    gp_help = next(p.help for p in dict(_commands(root))["select-data"].params if p.opts[0] == "--gp")
+    assert "opponent" in gp_help and "h2h collect" in gp_help
+
+
+def test_eval_is_one_group_and_evaluate_its_hidden_old_name(capsys, tmp_path):
+    import typer
+
+    from gprace.cli import app
+
+    root = typer.main.get_command(app)
+    ev, old = root.commands["eval"], root.commands["evaluate"]
+    assert sorted(ev.commands) == ["gp", "head2head", "iterate", "timetrial"]
+    assert old.hidden and not ev.hidden and sorted(old.commands) == sorted(ev.commands)
+    panels = {n: c.rich_help_panel for n, c in ev.commands.items()}
+    assert panels["head2head"] == panels["timetrial"] != panels["gp"] == panels["iterate"]
+    assert main(["--help"]) == 0
+    listed = capsys.readouterr().out
+    assert "│ eval " in listed and "evaluate" not in listed.split("│ eval ")[0]
+    # every command line of the old name still runs the same command, with one warning more
+    for group, lines in (("eval", 1), ("evaluate", 2)):
+        code = main([group, "iterate", str(tmp_path / "none")])
+        err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+        assert code == 2 and len(err) == lines and err[-1].startswith("error: ") and "none" in err[-1], err
+    assert "`gprace evaluate` is now `gprace eval`" in err[0]
 
 
 def test_flags_are_shown_without_a_value(capsys, monkeypatch):
+    """No `<bool>` beside a flag (--json, --resume, --help ...) in the help of any command."""
+    import typer
+
+    from gprace.cli import app
+
     monkeypatch.setenv("COLUMNS", "160")
     assert main(["h2h", "collect", "--help"]) == 0
     rows = {ln.split()[1]: ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("│ --")}
     assert "<bool>" not in rows["--json"] and "<bool>" not in rows["--resume"] and "<int>" in rows["--runs"]
+    assert "<bool>" not in rows["--help"]
+    for name, _ in [("", None), *_commands(typer.main.get_command(app))]:
+        assert main([*name.split(), "--help"]) == 0
+        assert "<bool>" not in capsys.readouterr().out, name
 
 
 def test_one_row_number_for_one_sample_in_every_csv_error(tmp_path):

@@ -80,12 +80,12 @@ def print_table(tab: dict, as_json: bool) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    from gprace.timetrial.commands import EVAL_HELP
+    from gprace.timetrial.commands import RUN_PANEL, eval_group
 
-    ev = _group(app, "eval", EVAL_HELP)
+    ev = eval_group(app)
     h2h = _group(app, "h2h", "Head-to-head racing steps: collect, train, explore.")
 
-    @ev.command("head2head")
+    @ev.command("head2head", rich_help_panel=RUN_PANEL)
     def head2head(
         tracks: int = typer.Option(100, "--tracks", help="Random evaluation scenarios."),
         out: Path = OUT,

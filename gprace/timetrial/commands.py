@@ -1,4 +1,5 @@
-"""Time-trial commands: ``gprace plan``, ``gprace run``, ``gprace iterate``, ``gprace evaluate iterate``."""
+"""Time-trial commands: ``gprace plan``, ``gprace run``, ``gprace iterate``, ``gprace eval timetrial``,
+``gprace eval iterate``."""
 
 from __future__ import annotations
 
@@ -8,16 +9,14 @@ from pathlib import Path
 import typer
 
 
-def evaluate_group(app: typer.Typer) -> typer.Typer:
-    """The shared ``evaluate`` sub-app: reuse it if another stage registered it, else create it.
-
-    Other stages add their subcommands with ``evaluate_group(app).command("name")``.
-    """
+def eval_group(app: typer.Typer) -> typer.Typer:
+    """The ``eval`` sub-app shared by the stages (created by whichever registers first): they add
+    their subcommands with ``eval_group(app).command(name, rich_help_panel=RUN_PANEL or SCORE_PANEL)``.
+    ``gprace evaluate``, its old name for scoring finished results, is an alias made in
+    :mod:`gprace.cli`."""
     from gprace.h2h.commands import _group
 
-    from gprace.gp.commands import EVALUATE_HELP
-
-    return _group(app, "evaluate", EVALUATE_HELP)
+    return _group(app, "eval", EVAL_HELP)
 
 
 def _floats(text: str, what: str) -> tuple[float, ...]:
@@ -40,7 +39,9 @@ WORKERS = typer.Option(2, "--workers", help="Parallel trials.")
 SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address.")
 
 
-EVAL_HELP = "Run the paper's evaluation protocols (timetrial, head2head); `gprace evaluate` inspects finished results."
+EVAL_HELP = ("Evaluate: run the paper's protocols (timetrial, head2head) or score finished results (iterate: "
+             "the table of an iterate folder; gp: a GP model on a recording).")
+RUN_PANEL, SCORE_PANEL = "Run a protocol", "Score finished results"
 MIN_NODES, MAX_NODES = 20, 20_000
 
 
@@ -208,9 +209,9 @@ def register(app: typer.Typer) -> None:
         summary = iterate(st, out, executor=executor, workers=workers, scheduler=scheduler)
         _print_summary(summary, as_json)
 
-    from gprace.h2h.commands import _group
+    ev = eval_group(app)
 
-    @_group(app, "eval", EVAL_HELP).command("timetrial")
+    @ev.command("timetrial", rich_help_panel=RUN_PANEL)
     def eval_timetrial(
         plant: str = PLANT,
         track: str = typer.Option("gprace_ring", "--track", help="Track: shipped name or a TUM CSV/TOML path."),
@@ -246,9 +247,7 @@ def register(app: typer.Typer) -> None:
         if res["error"]:
             raise RunFailedError(res["error"])
 
-    ev = evaluate_group(app)
-
-    @ev.command("iterate")
+    @ev.command("iterate", rich_help_panel=SCORE_PANEL)
     def evaluate_iterate(
         folder: Path = typer.Argument(..., help="An iterate --out folder."),
         as_json: bool = typer.Option(False, "--json", help="Print as JSON."),
