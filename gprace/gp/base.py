@@ -30,7 +30,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from gprace.errors import ConfigError, InputError
+from gprace.errors import ConfigError, InputError, at_row
 from gprace.gp.kernels import check_kernel, kernel
 
 ARTIFACT_KIND = "gp_model"
@@ -72,7 +72,7 @@ def _check_finite(A: np.ndarray, what: str) -> None:
     bad = ~np.isfinite(A)
     if bad.any():
         i, j = np.argwhere(bad)[0]
-        raise InputError(f"{what} has a non-finite value ({A[i, j]}) at row {i + 1}, column {j + 1}")
+        raise InputError(f"{what} has a non-finite value ({A[i, j]}) at {at_row(i + 1)}, column {j + 1}")
 
 
 # --------------------------------------------------------------------------------------------
