@@ -183,7 +183,8 @@ def test_run_that_leaves_the_track_exits_1_with_strict_json(capsys, spun):
                  "-o", str(out), "--json"])
     cap = capsys.readouterr()
     lines = [ln for ln in cap.err.splitlines() if ln.strip()]
-    assert code == 1 and len(lines) == 1 and "left the track" in lines[0], cap.err
+    # a start line, then the one error line
+    assert code == 1 and len(lines) == 2 and lines[0].startswith("run: driving ") and "left the track" in lines[1], cap.err
     res = strict(cap.out)
     assert res["completed"] is False and res["lap_time"] is None
     assert out.exists()  # the failed run is kept for inspection
@@ -420,4 +421,26 @@ def test_long_gp_stages_say_they_started(capsys, tmp_path):
     finally:
         from gprace.console import console
 
+        console.quiet = False
+
+
+def test_a_long_stage_prints_one_start_line_off_a_terminal_and_json_stays_pure(capsys, tmp_path):
+    """Off a terminal: a start line per stage on stderr (also what a progress bar becomes), stdout
+    pure JSON with --json; -q silences the start lines."""
+    from gprace.console import Console, console
+
+    c = Console()
+    with c.progress("report: rendering 3 figures", total=3) as bar:
+        bar.advance()
+    assert capsys.readouterr().err == "report: rendering 3 figures\n"
+    argv = ["plan", "--curvature", "--track", "circle_100", "-o", str(tmp_path / "p.h5"), "--json"]
+    assert main(argv) == 0
+    cap = capsys.readouterr()
+    assert strict(cap.out)["nodes"] > 20
+    assert cap.err == "plan: minimum-curvature path on 105 nodes of circle_100\n"
+    try:
+        assert main(["-q", *argv]) == 0
+        cap = capsys.readouterr()
+        assert cap.err == "" and strict(cap.out)["nodes"] > 20
+    finally:
         console.quiet = False

@@ -35,6 +35,9 @@ def register(app: typer.Typer) -> None:
         from gprace.errors import ConfigError
         from gprace.gp.stages import select_data
 
+        from gprace.io.artifacts import check_output
+
+        check_output(output)
         if not outlier_kappa >= 0:
             raise ConfigError(f"--outlier-kappa must be >= 0 (standard deviations; 0 disables the gate), got {outlier_kappa}")
         res = select_data(inputs, output, gp, max_points, selection, vehicle, model, kernel, step,
@@ -64,7 +67,9 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Fit GP hyperparameters and posterior on a dataset; write the model."""
         from gprace.gp.stages import parse_opts, retrain
+        from gprace.io.artifacts import check_output
 
+        check_output(output)
         res = retrain(data, output, backend, kernel, seed, parse_opts(opt))
         if json_out:
             console.json(res)

@@ -201,8 +201,6 @@ def run_tasks(tasks: list[dict], run_dir: Path, st: Settings, what: str,
             records[i] = rec
         else:
             todo.append(i)
-    if todo:
-        console.info(f"{what}: {len(todo)} runs to do ({len(tasks) - len(todo)} reused) in {run_dir}")
 
     def done(r) -> None:
         i = todo[r.index]
@@ -211,7 +209,7 @@ def run_tasks(tasks: list[dict], run_dir: Path, st: Settings, what: str,
             console.warn(f"{what}: run {i} failed and is skipped: {r.error.splitlines()[0]}")
 
     run_batch(fn, [tasks[i] for i in todo], executor=st.executor, workers=st.workers,
-              scheduler=st.scheduler, on_done=done, label=f"{what} runs")
+              scheduler=st.scheduler, on_done=done, label=f"{what}: {len(todo)} runs to do ({len(tasks) - len(todo)} reused)")
     return [r for r in records if r is not None]
 
 
@@ -324,6 +322,9 @@ def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyp
         settings["n_inducing"] = min(st.inducing, len(Z))
     import time
 
+    from gprace.console import console
+
+    console.info(f"h2h train: fitting the {backend} opponent GP on {len(Z)} points ({model.name})")
     t0 = time.perf_counter()
     gp = make_gp(backend, **settings).fit(Z, Y)
     meta = {"fit_s": time.perf_counter() - t0, "feature_map": FEATURE_MAP, "input_names": list(FEATURES), "output_names": list(OUTPUTS),

@@ -75,8 +75,10 @@ def register(app: typer.Typer) -> None:
         from gprace.errors import ConfigError
         from gprace.model import NominalModel
         from gprace.plan import PlanSettings, curvature_plan, plan_min_time, read_plan
+        from gprace.io.artifacts import check_output
         from gprace.tracks import load_track
 
+        check_output(output)
         if ds <= 0:
             raise ConfigError(f"--ds must be positive, got {ds}")
         if grip is not None and not 0.0 < grip <= 1.0:
@@ -84,7 +86,9 @@ def register(app: typer.Typer) -> None:
         tr = load_track(track)
         check_nodes(tr, ds)
         m = NominalModel(load_vehicle(vehicle))
+        nodes = f"{tr.length / ds:.0f} nodes of {tr.name}"
         if curvature:
+            console.info(f"plan: minimum-curvature path on {nodes}")
             plan = curvature_plan(tr, m, ds=ds)
         else:
             warm = read_plan(warm_start, tr) if warm_start else None
@@ -94,6 +98,7 @@ def register(app: typer.Typer) -> None:
 
                 gp = load_predictor(model, "planning")
                 mu = lambda X, U: gp.at(X, U)[0]  # noqa: E731
+            console.info(f"plan: minimum-time NLP (IPOPT) on {nodes}" + (" with the planning GP" if mu else ""))
             plan = plan_min_time(tr, m, PlanSettings(ds=ds, grip=grip), warm=warm, mu_plan=mu)
         plan.write(output)
         if as_json:
@@ -128,8 +133,10 @@ def register(app: typer.Typer) -> None:
         from gprace.mpc.tracking import MPCSettings
         from gprace.plan import read_plan
         from gprace.timetrial.drive import DriveSettings, drive
+        from gprace.io.artifacts import check_output
         from gprace.tracks import load_track
 
+        check_output(output)
         if not 0.0 <= alpha <= 1.0:
             raise ConfigError(f"--alpha must be in [0, 1], got {alpha}")
         if laps <= 0:
@@ -159,7 +166,10 @@ def register(app: typer.Typer) -> None:
 
                 grid = make_grid(gp.gp, gp.gp.Z_ if hasattr(gp.gp, "Z_") else None, MPCSettings(), 7)
         settings = DriveSettings(laps=laps, mpc=mpc)
-        run = drive(p0, load_plant(plant), tr, m, settings, gp=gp, grid=grid, alpha=alpha, seed=seed)
+        plant_cfg = load_plant(plant)
+        console.info(f"run: driving {plan} on {plant} for {laps:g} lap(s) with the tracking MPC"
+                     + (" and the tracking GP" if gp is not None else "") + (f", exploring (alpha {alpha:g})" if alpha > 0 else ""))
+        run = drive(p0, plant_cfg, tr, m, settings, gp=gp, grid=grid, alpha=alpha, seed=seed)
         write_run(run, output)
         mt = run.meta
         if as_json:

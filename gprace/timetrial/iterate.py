@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gprace.console import jsonable
+from gprace.console import console, jsonable
 from gprace.errors import ConfigError, InputError, RunFailedError, SolverError
 
 FAIL_ENV = "GPRACE_ITERATE_FAIL_AFTER"  # test hook: raise after the named step's marker is written
@@ -170,7 +170,8 @@ def iterate_many(experiments, executor: str = "local", workers: int = 1, schedul
         prepared.append((settings, out, share))
     # the oracle lap runs beside the trials (it is one more task of the batch), once per shared set
     tasks.sort(key=lambda t: "oracle" in t)
-    results = run_batch(run_chain, tasks, executor=executor, workers=workers, scheduler=scheduler, label="trials")
+    label = f"iterate: {sum('oracle' not in t for t in tasks)} trial(s)" + (" and the oracle lap" if tasks[-1:] and "oracle" in tasks[-1] else "")
+    results = run_batch(run_chain, tasks, executor=executor, workers=workers, scheduler=scheduler, label=label)
     for _, out, share in prepared:
         if share is not None and (share / "oracle.json").exists() and not Steps(out).done("oracle"):
             shutil.copy2(share / "oracle.json", out / "oracle.json")
@@ -378,6 +379,8 @@ def _run_chain(task: dict) -> list[dict]:
 
     # iteration 0 ------------------------------------------------------------------------------
     d0 = tdir / "iter_00"
+    if not steps.done(tag(0, "drive")):
+        console.info(f"iterate: {out.name} trial {j} iteration 0 (nominal model): curvature plan, drive")
     if not steps.done(tag(0, "plan")):
         p0 = curvature_plan(track, model, ds=st.plan_ds, speed_scale=st.first_speed_scale)
         # what the curvature plan used: its lateral and braking limits scaled, the drive limit full
@@ -394,6 +397,8 @@ def _run_chain(task: dict) -> list[dict]:
     for i in range(1, st.iterations + 1):
         alpha = st.alpha(i)
         di, dp = tdir / f"iter_{i:02d}", tdir / f"iter_{i - 1:02d}"
+        if not steps.done(tag(i, "drive")):
+            console.info(f"iterate: {out.name} trial {j} iteration {i} (alpha {alpha:g}): select, retrain, plan, drive")
         # (1) data selection ---------------------------------------------------------------------
         if not steps.done(tag(i, "select")):
             prev_run = read_run(dp / "run.h5")
