@@ -444,3 +444,67 @@ def test_a_long_stage_prints_one_start_line_off_a_terminal_and_json_stays_pure(c
         assert cap.err == "" and strict(cap.out)["nodes"] > 20
     finally:
         console.quiet = False
+
+
+# ------------------------------------------------------------------------------------------------
+# item 9: every table that summarises laps or races says how many failed and where
+
+SPIN = "the car spun at s = 427.6 m (e_psi = 0.36 rad, v_y = -18.5 m/s)"
+
+
+def _laps():
+    """Two trials, iterations 0 and 1; iteration 1 trial 0 spun."""
+    rows = [{"iteration": i, "trial": j, "alpha": 0.0, "planned": 50.0, "driven": 52.0 if (i, j) != (1, 0) else None,
+             "completed": (i, j) != (1, 0), "reason": SPIN if (i, j) == (1, 0) else ""}
+            for i in (0, 1) for j in (0, 1)]
+    by_it = [{"iteration": i, "alpha": 0.0, "trials": 2, "completed": 2 - i,
+              "failed": [{"trial": 0, "reason": SPIN}] if i else []} for i in (0, 1)]
+    return rows, by_it
+
+
+def test_lap_tables_count_and_place_failed_laps(capsys, tmp_path):
+    from gprace.report import collect
+    from gprace.timetrial.commands import _print_summary
+    from gprace.timetrial.compare import COLUMNS, format_table
+    from gprace.timetrial.iterate import failed_laps_text
+
+    rows, by_it = _laps()
+    want = f"iteration 1: 1 of 2 laps failed: trial 0: {SPIN}"
+    assert failed_laps_text(by_it) == [want]
+    # eval iterate: the per-iteration table is followed by the failed laps
+    _print_summary({"rows": rows, "by_iteration": by_it, "oracle": None, "per_trial": []}, False)
+    assert want in capsys.readouterr().out
+    # eval timetrial
+    vrows = [{**{k: 1.0 for _, k in COLUMNS}, **a, "laps": a["trials"]} for a in by_it]
+    text = format_table({"plant": "p", "track": "t", "trials": 2, "iterations": 1, "features": "full", "oracle": None,
+                         "variants": {"exploration": vrows}})
+    assert f"  {want}" in text
+    # show summary.json
+    d = tmp_path / "exploration"
+    d.mkdir()
+    (d / "summary.json").write_text(json.dumps({"rows": rows, "by_iteration": by_it}))
+    assert main(["show", str(d / "summary.json"), "--json"]) == 0
+    res = strict(capsys.readouterr().out)["results"]
+    assert res["laps completed per iteration"] == "0: 2/2, 1: 1/2" and res["failed laps"] == [want]
+    # the report's lap table: a count per iteration in its title, and where in the failed row
+    sec = collect.timetrial_section(collect.scan(tmp_path))
+    item = next(it for it in sec.items if it.caption.startswith("Lap times per iteration and trial"))
+    assert "failed laps per iteration: exploration iteration 1: 1/2" in item.caption
+    assert f"failed: {SPIN}" in item.html and item.html.count("completed") == 3
+
+
+def test_race_tables_count_and_place_failed_races(capsys, tmp_path):
+    from gprace.h2h.commands import print_table
+    from gprace.h2h.protocol import failed_races_text
+
+    row = {"runs": 3, "failed": 1, "failed_where": [{"scenario": 2, "reason": "SolverError: NMPC infeasible"}],
+           "border_hits": 0, "collisions": 0, "overtakes": 1, "overtake_time_mean": 3.0, "overtake_time_std": 0.1,
+           "overtake_scenarios": 1, "fallbacks_ego": 0, "ego_solve_ms_median": 2.0}
+    assert failed_races_text(row) == "1 of 3: scenario 2: SolverError: NMPC infeasible"
+    tab = {"common_inside": 2, "racing": {"explore": row}, "ey_error": {}}
+    print_table(tab, False)
+    assert "explore: failed races 1 of 3: scenario 2: SolverError: NMPC infeasible" in capsys.readouterr().out
+    (tmp_path / "table.json").write_text(json.dumps(tab))
+    assert main(["show", str(tmp_path / "table.json"), "--json"]) == 0
+    res = strict(capsys.readouterr().out)["results"]
+    assert res["explore: failed races"] == failed_races_text(row)

@@ -498,6 +498,8 @@ def table(st: Settings, raced: dict[str, list[dict]], errors: dict[str, np.ndarr
         ms = np.concatenate([np.asarray(r["arrays"].get("ego_solve_ms", [])) for r in ok]) if ok else np.zeros(0)
         rows[p] = {
             "runs": len(recs), "failed": len(recs) - len(ok),
+            "failed_where": [{"scenario": i, "reason": (r["attrs"].get("error") or "failed").strip().splitlines()[0]}
+                             for i, r in enumerate(recs) if not r["attrs"].get("ok")],
             "border_hits": int(sum(bool(r["attrs"].get("border_hit")) for r in ok)),
             "collisions": int(sum(bool(r["attrs"].get("collision")) for r in ok)),
             "overtakes": int(np.isfinite(ot).sum()),
@@ -513,6 +515,16 @@ def table(st: Settings, raced: dict[str, list[dict]], errors: dict[str, np.ndarr
                   "points": int(E.shape[1])}
     return {"settings": {k: v for k, v in asdict(st).items() if k not in ("workers", "executor", "scheduler", "resume")},
             "common_inside": int(inside.sum()), "racing": rows, "ey_error": err}
+
+
+def failed_races_text(row: dict, most: int = 5) -> str:
+    """'k of n' failed races of one predictor's row of the table, and where (scenario and reason)."""
+    where = row.get("failed_where") or []
+    text = f"{row.get('failed', len(where))} of {row.get('runs', '?')}"
+    if where:
+        text += ": " + "; ".join(f"scenario {f['scenario']}: {f['reason']}" for f in where[:most])
+        text += f"; ... ({len(where) - most} more)" if len(where) > most else ""
+    return text
 
 
 def head2head(st: Settings, out: Path) -> dict:

@@ -294,6 +294,9 @@ def _print_summary(summary: dict, as_json: bool) -> None:
     for a in summary["by_iteration"]:
         a = {**a, "done": f"{a['completed']}/{a['trials']}"}
         lines.append(" ".join(_cell(a.get(k)) for k in keys2))
+    from gprace.timetrial.iterate import failed_laps_text
+
+    lines += failed_laps_text(summary["by_iteration"])
     o = summary.get("oracle")
     if o is not None:
         lines.append("")

@@ -573,6 +573,8 @@ def build_summary(out: str | Path) -> dict:
             "cov_planning": float(np.nanmin([r.get("cov_planning", np.nan) for r in rs])) if i else float("nan"),
             "gap_closed_min": float(np.nanmin([r["gap_closed"] for r in rs])) if i and o_lap is not None else float("nan"),
             "completed": int(sum(r["completed"] for r in rs)),
+            "failed": [{"trial": r["trial"], "reason": r.get("reason") or "lap not completed"}
+                       for r in rs if not r["completed"]],
         })
     # per trial: its iteration-0 lap, its best driven alpha-0 lap (the racing laps after the
     # exploration) and the share of the gap to the oracle that lap closed
@@ -585,6 +587,14 @@ def build_summary(out: str | Path) -> dict:
                           "gap_closed_best": best["gap_closed"] if best else float("nan")})
     return {"settings": json.loads((out / "settings.json").read_text()), "oracle": oracle, "rows": rows, "by_iteration": agg,
             "per_trial": per_trial}
+
+
+def failed_laps_text(by_iteration: list[dict]) -> list[str]:
+    """One line per iteration with failed laps: how many of how many, and where each failed
+    (the tables of ``eval iterate``, ``eval timetrial`` and ``show summary.json`` use it)."""
+    return [f"iteration {a['iteration']}: {len(a['failed'])} of {a['trials']} laps failed: "
+            + "; ".join(f"trial {f['trial']}: {f['reason']}" for f in a["failed"])
+            for a in by_iteration if a.get("failed")]
 
 
 SUMMARY_COLUMNS = ["iteration", "trial", "alpha", "planned", "driven", "gap", "err_tracking", "err_planning",
