@@ -115,8 +115,9 @@ def main(argv: list[str] | None = None) -> int:
         console.error("interrupted; finished artifacts are kept, rerun the same command to resume")
         return 130
     except Exception as exc:  # click usage errors and anything unexpected
-        if isinstance(exc, _click_exceptions()):
-            exc.show()
+        if isinstance(exc, _click_exceptions()):  # usage: one line too, with where to look
+            ctx = getattr(exc, "ctx", None)
+            console.error(exc.format_message() + (f" (see `{ctx.command_path} --help`)" if ctx is not None else ""))
             return 2
         if debug:
             raise

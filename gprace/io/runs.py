@@ -121,6 +121,8 @@ def read_run(path: str | Path) -> Run:
 
     if is_raw_recording(path):
         return read_recording(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, not a recording file (CSV or HDF5 run, or a raw recording)")
     if path.suffix.lower() == ".csv":
         return _read_csv(path)
     art = read_artifact(path, "run")
