@@ -383,3 +383,44 @@ def number_cases() -> list[Case]:
 
 def all_cases() -> list[Case]:
     return recording_cases() + config_cases() + number_cases()
+
+
+def variant_cases(rng: np.random.Generator, per_class: int = 3) -> list[Case]:
+    """More cases of the recording classes and of the numbers, drawn with ``rng`` (other rows,
+    columns, cut points, blobs, spins and values than the defaults; the probe's second pass)."""
+    cols = ["t", "s", "e_y", "e_psi", "v_x", "v_y", "yaw_rate", "delta", "a_x", "kappa"]
+    readers = {"show": lambda f, r: ["show", r],
+               "select-data": lambda f, r: ["select-data", r, "--vehicle", "audi_tt_cup", "-o", _out(f) / "d.h5"],
+               "diagnose": lambda f, r: ["diagnose", r, "--vehicle", "audi_tt_cup", "-o", _out(f) / "car.toml"]}
+    units = [(("v_x",), 3.6, "km/h"), (("v_x", "v_y"), 3.6, "km/h"), (("yaw_rate",), 57.3, "deg"),
+             (("e_psi",), 57.3, "deg"), (("delta",), 57.3, "deg")]
+    out = []
+    for cmd, argv in readers.items():
+        for _ in range(per_class):
+            row, col = int(rng.integers(0, 120)), str(rng.choice(cols))
+            fields, blob = int(rng.integers(1, len(cols) + 2)), rng.bytes(int(rng.integers(1, 64)))
+            cols_u, factor, unit = units[int(rng.integers(len(units)))]
+            out += [
+                Case(cmd, "NaN", lambda f, b, row=row, col=col, argv=argv: argv(f, _cell(b, f, row, col, "nan")),
+                     Refused((f"column {col!r}", f"row {row + 1}"))),
+                Case(cmd, "text", lambda f, b, row=row, col=col, argv=argv: argv(f, _cell(b, f, row, col, "x1")),
+                     Refused((f"column {col!r}", f"row {row + 1} (line {row + 2})"))),
+                Case(cmd, "truncated", lambda f, b, n=fields, argv=argv: argv(f, _truncated(b, f, n)), Refused(("truncated",))),
+                Case(cmd, "duplicated time", lambda f, b, row=row, argv=argv: argv(f, _time(b, f, "duplicated", row)),
+                     Refused(("'t'", f"row {row + 2}"))),
+                Case(cmd, "garbage", lambda f, b, blob=blob, argv=argv: argv(f, _bytes(f, blob)), Refused(("bad.csv",))),
+            ]
+            if cmd != "show":
+                out.append(Case(cmd, f"units x{factor:g}", lambda f, b, c=cols_u, k=factor, argv=argv: argv(f, _scaled(b, f, c, k)),
+                                Refused((unit,))))
+    for _ in range(per_class):
+        start, length = int(rng.integers(0, 90)), int(rng.integers(12, 36))
+        out.append(Case("select-data", "spin", lambda f, b, s=start, n=length: [
+            "select-data", _spin(b, f, s, n), "--vehicle", "audi_tt_cup", "--selection", "random", "-o", _out(f) / "d.h5"],
+            Excluded(("spin:",))))
+    for words, option, valid, _ in NUMBERS:
+        values = [v for v in rng.normal(0.0, 50.0, 40) if not valid(v)][:per_class]
+        out += [Case(" ".join(w for w in words if not w.startswith(("{", "--"))), f"{option} {v:.3g}",
+                     lambda f, b, words=words, option=option, v=v: number_argv(words, option, v, f, b),
+                     Refused((SETTING_NAMES.get(option, option),))) for v in values]
+    return out
