@@ -57,6 +57,15 @@ for _mod in COMMAND_MODULES:
     importlib.import_module(_mod).register(app)
 
 
+def _evaluate_renamed() -> None:
+    console.warn("`gprace evaluate` is now `gprace eval` (same subcommands); the old name will be removed")
+
+
+# the old name of `eval`'s scoring commands (`evaluate iterate`, `evaluate gp`) keeps working, hidden
+app.add_typer(next(g.typer_instance for g in app.registered_groups if g.name == "eval"), name="evaluate",
+              hidden=True, callback=_evaluate_renamed, help="Old name of `gprace eval` (deprecated).")
+
+
 def _click_exceptions() -> tuple[type, ...]:
     """Usage errors: click's, and those of the click copy that typer >= 0.20 vendors."""
     import click
@@ -72,10 +81,15 @@ def _click_exceptions() -> tuple[type, ...]:
 
 
 def _flags_without_type(cmd) -> None:
-    """A flag takes no value: no ``<bool>`` beside ``--json`` or ``--resume`` in the help."""
-    for p in getattr(cmd, "params", ()):
+    """A flag takes no value: no ``<bool>`` beside ``--json``, ``--resume`` or ``--help`` in the help.
+
+    Typer renders an option's value type from its metavar; an empty one leaves the column blank.
+    The help option is made on first use, so it is made here (and cached by the command) too.
+    """
+    help_opt = cmd.get_help_option(cmd.context_class(cmd, **cmd.context_settings))
+    for p in [*getattr(cmd, "params", ()), *([help_opt] if help_opt is not None else [])]:
         if getattr(p, "is_flag", False) and p.metavar is None:
-            p.metavar = " "
+            p.metavar = ""
     for sub in getattr(cmd, "commands", {}).values():
         _flags_without_type(sub)
 
@@ -101,8 +115,9 @@ def main(argv: list[str] | None = None) -> int:
         console.error("interrupted; finished artifacts are kept, rerun the same command to resume")
         return 130
     except Exception as exc:  # click usage errors and anything unexpected
-        if isinstance(exc, _click_exceptions()):
-            exc.show()
+        if isinstance(exc, _click_exceptions()):  # usage: one line too, with where to look
+            ctx = getattr(exc, "ctx", None)
+            console.error(exc.format_message() + (f" (see `{ctx.command_path} --help`)" if ctx is not None else ""))
             return 2
         if debug:
             raise

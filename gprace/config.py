@@ -282,7 +282,11 @@ def load_vehicle(name_or_path: str | Path) -> VehicleConfig:
 
 def load_plant(name_or_path: str | Path) -> PlantConfig:
     p = builtin_config("plants", str(name_or_path))
-    return load_toml(p, PlantConfig)
+    cfg = load_toml(p, PlantConfig)
+    from gprace.backends import plants
+
+    plants.get(cfg.kind)  # an unknown kind is refused when the config loads, before any work
+    return cfg
 
 
 # --------------------------------------------------------------------------------------------

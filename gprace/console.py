@@ -1,7 +1,9 @@
 """One console wrapper: results to stdout, progress and diagnostics to stderr.
 
 Progress bars appear only when stderr is a terminal and ``quiet`` is off, so scripts and tests
-see deterministic output.
+see deterministic output. Off a terminal a long stage is not silent: it prints one start line on
+stderr (:meth:`Console.info`, which is also what a progress bar becomes there); ``quiet``
+silences both. Stdout holds results only, so ``--json`` output stays pure JSON.
 """
 
 from __future__ import annotations
@@ -57,8 +59,10 @@ class Console:
 
     @contextlib.contextmanager
     def progress(self, description: str, total: int | None = None) -> Iterator["_Progress"]:
-        """Context manager yielding an object with ``advance(n=1)``; silent off-terminal."""
+        """Context manager yielding an object with ``advance(n=1)``: a bar on a terminal, one
+        start line (``description``) off it."""
         if self.quiet or not sys.stderr.isatty():
+            self.info(description)
             yield _Progress(None, None)
             return
         from rich.progress import Progress

@@ -43,3 +43,12 @@ class RunFailedError(GpraceError, RuntimeError):
     """A command ran but its result is a failure the user asked to be told about."""
 
     exit_code = 1
+
+
+def at_row(row: int, line: int | None = None) -> str:
+    """Where a sample sits in a data file, said the same way by every reader.
+
+    Rows count samples from 1 (the first data row after a header is row 1; the header and blank
+    or comment lines are not rows); a reader that knows the file line adds it: ``row 2 (line 3)``.
+    """
+    return f"row {row}" if line is None else f"row {row} (line {line})"

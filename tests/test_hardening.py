@@ -183,7 +183,8 @@ def test_run_that_leaves_the_track_exits_1_with_strict_json(capsys, spun):
                  "-o", str(out), "--json"])
     cap = capsys.readouterr()
     lines = [ln for ln in cap.err.splitlines() if ln.strip()]
-    assert code == 1 and len(lines) == 1 and "left the track" in lines[0], cap.err
+    # a start line, then the one error line
+    assert code == 1 and len(lines) == 2 and lines[0].startswith("run: driving ") and "left the track" in lines[1], cap.err
     res = strict(cap.out)
     assert res["completed"] is False and res["lap_time"] is None
     assert out.exists()  # the failed run is kept for inspection
@@ -212,7 +213,7 @@ def test_console_json_writes_null_for_non_finite_numbers(capsys):
 
 
 # ------------------------------------------------------------------------------------------------
-# item 2: samples outside the model's envelope are excluded and reported by select-data and evaluate gp
+# item 2: samples outside the model's envelope are excluded and reported by select-data and eval gp
 
 
 @pytest.fixture(scope="module")
@@ -234,7 +235,7 @@ def spin_run(tmp_path_factory):
     return d
 
 
-def test_select_data_and_evaluate_gp_leave_out_a_spin(capsys, spin_run, tmp_path):
+def test_select_data_and_eval_gp_leave_out_a_spin(capsys, spin_run, tmp_path):
     from gprace.gp.dataset import read_dataset
 
     def select(name):
@@ -254,10 +255,10 @@ def test_select_data_and_evaluate_gp_leave_out_a_spin(capsys, spin_run, tmp_path
     iv = list(ds.input_names).index("v_y")
     assert ds.Z[:, iv].max() < 15.0  # not one spin sample used
     assert err.count("\n") == 1 and "outside the model's envelope" in err and "spin:" in err and "s 1" in err
-    # evaluate gp scores only the samples inside the envelope, and says so
+    # eval gp scores only the samples inside the envelope, and says so
     assert main(["retrain", str(tmp_path / "clean_data.h5"), "--opt", "optimize=false", "-o", str(tmp_path / "m.h5")]) == 0
     capsys.readouterr()
-    assert main(["evaluate", "gp", str(tmp_path / "m.h5"), str(spin_run / "spin.h5"), "--json"]) == 0
+    assert main(["eval", "gp", str(tmp_path / "m.h5"), str(spin_run / "spin.h5"), "--json"]) == 0
     cap = capsys.readouterr()
     res = strict(cap.out)
     assert res["samples"] <= n_clean - 31 and res["envelope"]["samples_excluded"] == env["samples_excluded"]
@@ -277,7 +278,7 @@ def _commands(cmd, path=()):
         yield " ".join(path), cmd
 
 
-def test_every_option_has_help_and_eval_evaluate_are_told_apart():
+def test_every_option_has_help():
     import typer
 
     from gprace.cli import app
@@ -286,18 +287,49 @@ def test_every_option_has_help_and_eval_evaluate_are_told_apart():
     missing = [f"{name} {p.opts[0]}" for name, cmd in _commands(root) for p in cmd.params
                if p.param_type_name == "option" and not (p.help or "").strip()]
     assert missing == []
-    groups = {n: root.commands[n].help for n in ("eval", "evaluate")}
-    assert "head2head" not in groups["evaluate"].split("`gprace eval`")[0] and "head2head" in groups["eval"]
     explore = dict(_commands(root))["h2h explore"]
     width_help = next(p.help for p in explore.params if p.opts[0] == "--explore-width")
     assert "--width" not in width_help and not any(p.opts[0] == "--width" for p in explore.params)
+    gp_help = next(p.help for p in dict(_commands(root))["select-data"].params if p.opts[0] == "--gp")
+    assert "opponent" in gp_help and "h2h collect" in gp_help
+
+
+def test_eval_is_one_group_and_evaluate_its_hidden_old_name(capsys, tmp_path):
+    import typer
+
+    from gprace.cli import app
+
+    root = typer.main.get_command(app)
+    ev, old = root.commands["eval"], root.commands["evaluate"]
+    assert sorted(ev.commands) == ["gp", "head2head", "iterate", "timetrial"]
+    assert old.hidden and not ev.hidden and sorted(old.commands) == sorted(ev.commands)
+    panels = {n: c.rich_help_panel for n, c in ev.commands.items()}
+    assert panels["head2head"] == panels["timetrial"] != panels["gp"] == panels["iterate"]
+    assert main(["--help"]) == 0
+    listed = capsys.readouterr().out
+    assert "│ eval " in listed and "evaluate" not in listed.split("│ eval ")[0]
+    # every command line of the old name still runs the same command, with one warning more
+    for group, lines in (("eval", 1), ("evaluate", 2)):
+        code = main([group, "iterate", str(tmp_path / "none")])
+        err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+        assert code == 2 and len(err) == lines and err[-1].startswith("error: ") and "none" in err[-1], err
+    assert "`gprace evaluate` is now `gprace eval`" in err[0]
 
 
 def test_flags_are_shown_without_a_value(capsys, monkeypatch):
+    """No `<bool>` beside a flag (--json, --resume, --help ...) in the help of any command."""
+    import typer
+
+    from gprace.cli import app
+
     monkeypatch.setenv("COLUMNS", "160")
     assert main(["h2h", "collect", "--help"]) == 0
     rows = {ln.split()[1]: ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("│ --")}
     assert "<bool>" not in rows["--json"] and "<bool>" not in rows["--resume"] and "<int>" in rows["--runs"]
+    assert "<bool>" not in rows["--help"]
+    for name, _ in [("", None), *_commands(typer.main.get_command(app))]:
+        assert main([*name.split(), "--help"]) == 0
+        assert "<bool>" not in capsys.readouterr().out, name
 
 
 def test_one_row_number_for_one_sample_in_every_csv_error(tmp_path):
@@ -323,6 +355,23 @@ def test_one_row_number_for_one_sample_in_every_csv_error(tmp_path):
         with pytest.raises(InputError, match=r"'v_y'.* row 2\b") as exc:
             read_run(write(cell))
         assert "row 3" not in str(exc.value)
+
+
+def test_track_and_raw_csv_readers_count_rows_as_the_run_reader(tmp_path):
+    """A track CSV (comment header) and a raw global-frame CSV name their second sample
+    'row 2 (line 3)', as the run reader does."""
+    from gprace.errors import InputError
+    from gprace.ingest.readers import _csv_numbers
+    from gprace.tracks import load_track
+
+    track = tmp_path / "t.csv"
+    track.write_text("# x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,5,5\n100,abc,5,5\n100,80,5,5\n0,80,5,5\n")
+    with pytest.raises(InputError, match=r"row 2 \(line 3\), column y_m: not a number: 'abc'"):
+        load_track(track)
+    raw = tmp_path / "log.csv"
+    raw.write_text("time,x,y\n0,0,0\n0.1,abc,0\n0.2,2,0\n")
+    with pytest.raises(InputError, match=r"column 'x' row 2 \(line 3\): 'abc' is not a number"):
+        _csv_numbers(raw, ["time", "x", "y"])
 
 
 def test_gp_settings_check_leaves_arrays_and_numbers_alone():
@@ -373,3 +422,89 @@ def test_long_gp_stages_say_they_started(capsys, tmp_path):
         from gprace.console import console
 
         console.quiet = False
+
+
+def test_a_long_stage_prints_one_start_line_off_a_terminal_and_json_stays_pure(capsys, tmp_path):
+    """Off a terminal: a start line per stage on stderr (also what a progress bar becomes), stdout
+    pure JSON with --json; -q silences the start lines."""
+    from gprace.console import Console, console
+
+    c = Console()
+    with c.progress("report: rendering 3 figures", total=3) as bar:
+        bar.advance()
+    assert capsys.readouterr().err == "report: rendering 3 figures\n"
+    argv = ["plan", "--curvature", "--track", "circle_100", "-o", str(tmp_path / "p.h5"), "--json"]
+    assert main(argv) == 0
+    cap = capsys.readouterr()
+    assert strict(cap.out)["nodes"] > 20
+    assert cap.err == "plan: minimum-curvature path on 105 nodes of circle_100\n"
+    try:
+        assert main(["-q", *argv]) == 0
+        cap = capsys.readouterr()
+        assert cap.err == "" and strict(cap.out)["nodes"] > 20
+    finally:
+        console.quiet = False
+
+
+# ------------------------------------------------------------------------------------------------
+# item 9: every table that summarises laps or races says how many failed and where
+
+SPIN = "the car spun at s = 427.6 m (e_psi = 0.36 rad, v_y = -18.5 m/s)"
+
+
+def _laps():
+    """Two trials, iterations 0 and 1; iteration 1 trial 0 spun."""
+    rows = [{"iteration": i, "trial": j, "alpha": 0.0, "planned": 50.0, "driven": 52.0 if (i, j) != (1, 0) else None,
+             "completed": (i, j) != (1, 0), "reason": SPIN if (i, j) == (1, 0) else ""}
+            for i in (0, 1) for j in (0, 1)]
+    by_it = [{"iteration": i, "alpha": 0.0, "trials": 2, "completed": 2 - i,
+              "failed": [{"trial": 0, "reason": SPIN}] if i else []} for i in (0, 1)]
+    return rows, by_it
+
+
+def test_lap_tables_count_and_place_failed_laps(capsys, tmp_path):
+    from gprace.report import collect
+    from gprace.timetrial.commands import _print_summary
+    from gprace.timetrial.compare import COLUMNS, format_table
+    from gprace.timetrial.iterate import failed_laps_text
+
+    rows, by_it = _laps()
+    want = f"iteration 1: 1 of 2 laps failed: trial 0: {SPIN}"
+    assert failed_laps_text(by_it) == [want]
+    # eval iterate: the per-iteration table is followed by the failed laps
+    _print_summary({"rows": rows, "by_iteration": by_it, "oracle": None, "per_trial": []}, False)
+    assert want in capsys.readouterr().out
+    # eval timetrial
+    vrows = [{**{k: 1.0 for _, k in COLUMNS}, **a, "laps": a["trials"]} for a in by_it]
+    text = format_table({"plant": "p", "track": "t", "trials": 2, "iterations": 1, "features": "full", "oracle": None,
+                         "variants": {"exploration": vrows}})
+    assert f"  {want}" in text
+    # show summary.json
+    d = tmp_path / "exploration"
+    d.mkdir()
+    (d / "summary.json").write_text(json.dumps({"rows": rows, "by_iteration": by_it}))
+    assert main(["show", str(d / "summary.json"), "--json"]) == 0
+    res = strict(capsys.readouterr().out)["results"]
+    assert res["laps completed per iteration"] == "0: 2/2, 1: 1/2" and res["failed laps"] == [want]
+    # the report's lap table: a count per iteration in its title, and where in the failed row
+    sec = collect.timetrial_section(collect.scan(tmp_path))
+    item = next(it for it in sec.items if it.caption.startswith("Lap times per iteration and trial"))
+    assert "failed laps per iteration: exploration iteration 1: 1/2" in item.caption
+    assert f"failed: {SPIN}" in item.html and item.html.count("completed") == 3
+
+
+def test_race_tables_count_and_place_failed_races(capsys, tmp_path):
+    from gprace.h2h.commands import print_table
+    from gprace.h2h.protocol import failed_races_text
+
+    row = {"runs": 3, "failed": 1, "failed_where": [{"scenario": 2, "reason": "SolverError: NMPC infeasible"}],
+           "border_hits": 0, "collisions": 0, "overtakes": 1, "overtake_time_mean": 3.0, "overtake_time_std": 0.1,
+           "overtake_scenarios": 1, "fallbacks_ego": 0, "ego_solve_ms_median": 2.0}
+    assert failed_races_text(row) == "1 of 3: scenario 2: SolverError: NMPC infeasible"
+    tab = {"common_inside": 2, "racing": {"explore": row}, "ey_error": {}}
+    print_table(tab, False)
+    assert "explore: failed races 1 of 3: scenario 2: SolverError: NMPC infeasible" in capsys.readouterr().out
+    (tmp_path / "table.json").write_text(json.dumps(tab))
+    assert main(["show", str(tmp_path / "table.json"), "--json"]) == 0
+    res = strict(capsys.readouterr().out)["results"]
+    assert res["explore: failed races"] == failed_races_text(row)

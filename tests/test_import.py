@@ -585,7 +585,7 @@ def test_time_going_backwards(sim, tmp_path):
     t[400], t[401] = t[401], t[400]
     rec = write_global_csv(sim, tmp_path / "log.csv", t=t)
     out = tmp_path / "o.h5"
-    _bad(_cli("import", rec, "--track", NORIS, "-o", out), out, "time stamps go backwards", "sample 402")
+    _bad(_cli("import", rec, "--track", NORIS, "-o", out), out, "time stamps go backwards", "at row 402 ")
 
 
 def test_recording_never_on_the_track(sim, tmp_path):

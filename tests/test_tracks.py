@@ -76,7 +76,7 @@ def test_track_show_bad_file_is_one_line_exit_2(tmp_path, capsys, rebind_console
     bad = _write(tmp_path, "bad.csv", "# x_m,y_m,w_tr_right_m,w_tr_left_m\n1,2,3,4\n1,2,nan,4\n")
     assert main(["track", "show", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "bad.csv" in err and "line 3" in err and "w_tr_right_m" in err
+    assert "\n" not in err and "bad.csv" in err and "row 2 (line 3)" in err and "w_tr_right_m" in err
     assert main(["track", "show", "no_such_track"]) == 2
     assert "gprace_ring" in capsys.readouterr().err  # the message lists the shipped tracks
 
@@ -349,15 +349,15 @@ ROWS = "".join(f"{10 * np.cos(a):.6f},{10 * np.sin(a):.6f},2.0,2.5\n" for a in n
         (ROWS, "line 1: missing header"),
         ("# x_m,y_m,w_tr_right_m\n1,2,3\n", "missing column.*w_tr_left_m"),
         ("# x_m,y_m,w_right,w_left\n1,2,3,4\n", "wrong columns"),
-        (HEADER + ROWS + "3.0,4.0\n", r"line 14: expected 4 values, got 2"),
-        (HEADER + ROWS + "3.0,4.0,1.0,", r"line 14, column w_tr_left_m: not a number: ''"),
-        (HEADER + ROWS.replace("2.0,2.5", "nan,2.5", 1), "line 2, column w_tr_right_m: value is not finite"),
-        (HEADER + ROWS.replace("2.0,2.5", "2.0,inf", 1), "line 2, column w_tr_left_m: value is not finite"),
-        (HEADER + ROWS.replace("10.000000,", "-Infinity,", 1), "line 2, column x_m: value is not finite"),
-        (HEADER + ROWS.replace("10.000000,", "abc,", 1), "line 2, column x_m: not a number: 'abc'"),
-        (HEADER + ROWS.replace("2.0,2.5", "0.0,2.5", 1), "line 2, column w_tr_right_m: width must be positive"),
+        (HEADER + ROWS + "3.0,4.0\n", r"row 13 \(line 14\): expected 4 values, got 2"),
+        (HEADER + ROWS + "3.0,4.0,1.0,", r"row 13 \(line 14\), column w_tr_left_m: not a number: ''"),
+        (HEADER + ROWS.replace("2.0,2.5", "nan,2.5", 1), r"row 1 \(line 2\), column w_tr_right_m: value is not finite"),
+        (HEADER + ROWS.replace("2.0,2.5", "2.0,inf", 1), r"row 1 \(line 2\), column w_tr_left_m: value is not finite"),
+        (HEADER + ROWS.replace("10.000000,", "-Infinity,", 1), r"row 1 \(line 2\), column x_m: value is not finite"),
+        (HEADER + ROWS.replace("10.000000,", "abc,", 1), r"row 1 \(line 2\), column x_m: not a number: 'abc'"),
+        (HEADER + ROWS.replace("2.0,2.5", "0.0,2.5", 1), r"row 1 \(line 2\), column w_tr_right_m: width must be positive"),
         (HEADER + "0,0,1,1\n1,0,1,1\n1,1,1,1\n", "only 3 data rows"),
-        (HEADER + ROWS.splitlines(True)[0] + ROWS, "lines 2 and 3: the same point twice"),
+        (HEADER + ROWS.splitlines(True)[0] + ROWS, r"row 1 \(line 2\) and row 2 \(line 3\): the same point twice"),
     ],
 )
 def test_csv_bad_input(tmp_path, text, match):

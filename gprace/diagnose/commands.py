@@ -27,6 +27,10 @@ def register(app: typer.Typer) -> None:
         from gprace.diagnose.report import plot_residuals, summary_lines, write_augmented
         from gprace.io.runs import read_run
 
+        from gprace.io.artifacts import check_output
+
+        check_output(output)
+        check_output(plot, "--plot")
         veh = load_vehicle(vehicle)
         runs = [read_run(p) for p in recordings]
         res = diagnose(runs, veh, horizon=horizon, seed=seed, augmented_name=str(output) if output else None,

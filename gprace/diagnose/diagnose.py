@@ -287,6 +287,7 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, log: Callable[[str], 
         l0 = l0_ch.mean(axis=1)
         names = [n for n in EFFECTS if n not in {f.name for f in fits} and n not in s.not_identifiable
                  and {CHANNELS.index(ch) for ch in EFFECTS[n].channels} & dyn_struct]
+        log(f"diagnose: round {rnd + 1}: screening {len(names)} candidate effects")
         cands = []
         for n in names:  # a few iterations from every starting point, on the screening windows
             inits = nm.starts_for(n, loc.windows)
@@ -350,6 +351,8 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
     evaluation; an effect whose channels stay structured is withdrawn."""
     effects = list(named.effects)
     notes: list[str] = []
+    if effects:
+        log(f"diagnose: verifying {', '.join(e.name for e in effects)} on held-out windows (parsimony)")
     # parsimony: each effect must still improve held-out fit given all the others
     for i in range(len(effects) - 1, -1, -1):
         if len(effects) < 2:

@@ -30,7 +30,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from gprace.errors import ConfigError, InputError
+from gprace.errors import ConfigError, InputError, at_row
 from gprace.gp.kernels import check_kernel, kernel
 
 ARTIFACT_KIND = "gp_model"
@@ -72,7 +72,7 @@ def _check_finite(A: np.ndarray, what: str) -> None:
     bad = ~np.isfinite(A)
     if bad.any():
         i, j = np.argwhere(bad)[0]
-        raise InputError(f"{what} has a non-finite value ({A[i, j]}) at row {i + 1}, column {j + 1}")
+        raise InputError(f"{what} has a non-finite value ({A[i, j]}) at {at_row(i + 1)}, column {j + 1}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -386,6 +386,11 @@ def _check_types(backend: str, cls: type, settings: dict[str, Any]) -> None:
     import inspect
 
     params = inspect.signature(cls.__init__).parameters
+    known = [k for k, p in params.items() if k != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+    takes_any = any(p.kind == p.VAR_KEYWORD for p in params.values())
+    unknown = [k for k in settings if k not in known]
+    if unknown and not takes_any:
+        raise ConfigError(f"GP backend {backend!r}: unknown option {', '.join(unknown)}; available: {', '.join(known)}")
     for key, value in settings.items():
         default = params[key].default if key in params else None
         if isinstance(default, (bool, int, float)) and isinstance(value, str):

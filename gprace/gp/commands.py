@@ -1,4 +1,4 @@
-"""GP commands: ``gprace select-data``, ``gprace retrain``, ``gprace evaluate gp``.
+"""GP commands: ``gprace select-data``, ``gprace retrain``, ``gprace eval gp``.
 
 Heavy imports (scikit-learn, the model) happen inside the commands; the work is in
 :mod:`gprace.gp.stages`.
@@ -14,20 +14,6 @@ import typer
 from gprace.console import console
 
 JSON = typer.Option(False, "--json", help="Print the result as JSON.")
-EVALUATE_HELP = ("Inspect finished results: an iterate folder (evaluate iterate), a GP model on a recording "
-                 "(evaluate gp). The paper's protocols that run experiments are under `gprace eval`.")
-
-
-def _evaluate_group(app: typer.Typer) -> typer.Typer:
-    """The shared ``evaluate`` sub-app (created by whichever stage registers first)."""
-    for info in app.registered_groups:
-        if info.name == "evaluate" and info.typer_instance is not None:
-            return info.typer_instance
-    sub = typer.Typer(help=EVALUATE_HELP, no_args_is_help=True)
-    app.add_typer(sub, name="evaluate")
-    return sub
-
-
 def register(app: typer.Typer) -> None:
     @app.command("select-data")
     def select_data_cmd(
@@ -49,6 +35,9 @@ def register(app: typer.Typer) -> None:
         from gprace.errors import ConfigError
         from gprace.gp.stages import select_data
 
+        from gprace.io.artifacts import check_output
+
+        check_output(output)
         if not outlier_kappa >= 0:
             raise ConfigError(f"--outlier-kappa must be >= 0 (standard deviations; 0 disables the gate), got {outlier_kappa}")
         res = select_data(inputs, output, gp, max_points, selection, vehicle, model, kernel, step,
@@ -78,7 +67,9 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Fit GP hyperparameters and posterior on a dataset; write the model."""
         from gprace.gp.stages import parse_opts, retrain
+        from gprace.io.artifacts import check_output
 
+        check_output(output)
         res = retrain(data, output, backend, kernel, seed, parse_opts(opt))
         if json_out:
             console.json(res)
@@ -91,9 +82,9 @@ def register(app: typer.Typer) -> None:
                       ["output", "length scales", "signal std", "noise std"], rows)
         console.result(f"wrote {res['output']}")
 
-    ev = _evaluate_group(app)
+    from gprace.timetrial.commands import SCORE_PANEL, eval_group
 
-    @ev.command("gp")
+    @eval_group(app).command("gp", rich_help_panel=SCORE_PANEL)
     def evaluate_gp_cmd(
         model: Path = typer.Argument(..., help="GP model (tracking or planning)."),
         run: Path = typer.Argument(..., help="Recording to evaluate on (HDF5 or CSV)."),

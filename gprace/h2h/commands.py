@@ -71,6 +71,11 @@ def print_table(tab: dict, as_json: bool) -> None:
     console.table(f"Head-to-head racing ({tab['common_inside']} scenarios with every predictor inside)",
                   ["predictor", "runs/failed", "border", "collide", "overtakes", "overtake s", "n", "fallbacks",
                    "solve ms"], rows)
+    from gprace.h2h.protocol import failed_races_text
+
+    for p, r in tab["racing"].items():
+        if r.get("failed"):
+            console.result(f"{p}: failed races {failed_races_text(r)}")
     errs = {p: e for p, e in tab["ey_error"].items() if e["mean"]}
     K = max((len(e["mean"]) for e in errs.values()), default=0)
     erows = [[f"{k + 1}"] + [f"{e['mean'][k]:.3f}±{e['std'][k]:.3f}" for e in errs.values()] for k in range(K)]
@@ -80,12 +85,12 @@ def print_table(tab: dict, as_json: bool) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    from gprace.timetrial.commands import EVAL_HELP
+    from gprace.timetrial.commands import RUN_PANEL, eval_group
 
-    ev = _group(app, "eval", EVAL_HELP)
+    ev = eval_group(app)
     h2h = _group(app, "h2h", "Head-to-head racing steps: collect, train, explore.")
 
-    @ev.command("head2head")
+    @ev.command("head2head", rich_help_panel=RUN_PANEL)
     def head2head(
         tracks: int = typer.Option(100, "--tracks", help="Random evaluation scenarios."),
         out: Path = OUT,

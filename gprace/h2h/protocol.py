@@ -201,8 +201,6 @@ def run_tasks(tasks: list[dict], run_dir: Path, st: Settings, what: str,
             records[i] = rec
         else:
             todo.append(i)
-    if todo:
-        console.info(f"{what}: {len(todo)} runs to do ({len(tasks) - len(todo)} reused) in {run_dir}")
 
     def done(r) -> None:
         i = todo[r.index]
@@ -211,7 +209,7 @@ def run_tasks(tasks: list[dict], run_dir: Path, st: Settings, what: str,
             console.warn(f"{what}: run {i} failed and is skipped: {r.error.splitlines()[0]}")
 
     run_batch(fn, [tasks[i] for i in todo], executor=st.executor, workers=st.workers,
-              scheduler=st.scheduler, on_done=done, label=f"{what} runs")
+              scheduler=st.scheduler, on_done=done, label=f"{what}: {len(todo)} runs to do ({len(tasks) - len(todo)} reused)")
     return [r for r in records if r is not None]
 
 
@@ -324,6 +322,9 @@ def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyp
         settings["n_inducing"] = min(st.inducing, len(Z))
     import time
 
+    from gprace.console import console
+
+    console.info(f"h2h train: fitting the {backend} opponent GP on {len(Z)} points ({model.name})")
     t0 = time.perf_counter()
     gp = make_gp(backend, **settings).fit(Z, Y)
     meta = {"fit_s": time.perf_counter() - t0, "feature_map": FEATURE_MAP, "input_names": list(FEATURES), "output_names": list(OUTPUTS),
@@ -497,6 +498,8 @@ def table(st: Settings, raced: dict[str, list[dict]], errors: dict[str, np.ndarr
         ms = np.concatenate([np.asarray(r["arrays"].get("ego_solve_ms", [])) for r in ok]) if ok else np.zeros(0)
         rows[p] = {
             "runs": len(recs), "failed": len(recs) - len(ok),
+            "failed_where": [{"scenario": i, "reason": (r["attrs"].get("error") or "failed").strip().splitlines()[0]}
+                             for i, r in enumerate(recs) if not r["attrs"].get("ok")],
             "border_hits": int(sum(bool(r["attrs"].get("border_hit")) for r in ok)),
             "collisions": int(sum(bool(r["attrs"].get("collision")) for r in ok)),
             "overtakes": int(np.isfinite(ot).sum()),
@@ -512,6 +515,16 @@ def table(st: Settings, raced: dict[str, list[dict]], errors: dict[str, np.ndarr
                   "points": int(E.shape[1])}
     return {"settings": {k: v for k, v in asdict(st).items() if k not in ("workers", "executor", "scheduler", "resume")},
             "common_inside": int(inside.sum()), "racing": rows, "ey_error": err}
+
+
+def failed_races_text(row: dict, most: int = 5) -> str:
+    """'k of n' failed races of one predictor's row of the table, and where (scenario and reason)."""
+    where = row.get("failed_where") or []
+    text = f"{row.get('failed', len(where))} of {row.get('runs', '?')}"
+    if where:
+        text += ": " + "; ".join(f"scenario {f['scenario']}: {f['reason']}" for f in where[:most])
+        text += f"; ... ({len(where) - most} more)" if len(where) > most else ""
+    return text
 
 
 def head2head(st: Settings, out: Path) -> dict:

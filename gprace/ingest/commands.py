@@ -34,6 +34,9 @@ def register(app: typer.Typer) -> None:
             raise InputError("import: give the run file to write with -o/--output (.h5 or .csv)")
         if output.suffix.lower() not in (".h5", ".hdf5", ".csv"):
             raise InputError(f"{output}: the output must be .h5 or .csv")
+        from gprace.io.artifacts import check_output
+
+        check_output(output)
         import time
 
         from gprace.ingest.importer import import_hash, import_recording

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gprace.errors import InputError
+from gprace.errors import InputError, at_row
 from gprace.ingest.mapping import QUANTITIES, UNITS, DIMENSION, RecordingMap, si_factor
 
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -104,13 +104,18 @@ def read_raw(path: Path, rmap: RecordingMap) -> Raw:
     raise InputError(f"{path}: unknown recording format {path.suffix!r} (expected .csv, .mcap, .db3, .bag, a rosbag2 folder, .mf4 or .mdf)")
 
 
-def check_time(t: np.ndarray, source: str, what: str) -> None:
-    """Time stamps must not go backwards (equal stamps are allowed: the last sample counts)."""
+def check_time(t: np.ndarray, source: str, what: str, rows: np.ndarray | None = None) -> None:
+    """Time stamps must not go backwards (equal stamps are allowed: the last sample counts).
+
+    ``rows``: the file row (:func:`gprace.errors.at_row`) of each stamp, for a table whose
+    quantity was not sampled on every row; without it the stamp is counted within ``what``.
+    """
     bad = np.flatnonzero(np.diff(t) < 0)
     if len(bad):
         i = int(bad[0])
+        where = f"sample {i + 2}" if rows is None else at_row(int(rows[i + 1]))
         raise InputError(
-            f"{source}: time stamps go backwards in {what} at sample {i + 2} "
+            f"{source}: time stamps go backwards in {what} at {where} "
             f"({t[i + 1]:.6g} s after {t[i]:.6g} s); sort the log or fix the clock"
         )
 
@@ -147,7 +152,7 @@ def read_csv(path: Path, rmap: RecordingMap) -> Raw:
         if not ok.any():
             continue
         t = t_all[ok]
-        check_time(t, str(path), f"column {cols.t!r}")
+        check_time(t, str(path), f"column {cols.t!r}", rows=np.flatnonzero(ok) + 1)
         raw.add(q, t, v[ok], f"column {name!r}", rmap)
     return raw
 
@@ -169,7 +174,7 @@ def _csv_numbers(path: Path, header: list[str]) -> np.ndarray:
     rows = [ln.split(",") for _, ln in lines]
     out = np.full((len(rows), len(header)), np.nan)
     for i, r in enumerate(rows):
-        where = f"row {i + 1} (line {lines[i][0]})"  # rows count samples from 1, as in gprace.io.runs
+        where = at_row(i + 1, lines[i][0])
         if len(r) != len(header):
             raise InputError(f"{path}: {where} has {len(r)} fields, header has {len(header)} (truncated file?)")
         for j, c in enumerate(r):

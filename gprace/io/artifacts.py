@@ -50,6 +50,20 @@ def check_folder(path: str | Path, option: str = "--out") -> Path:
     return path
 
 
+def check_output(path: str | Path | None, option: str = "--output") -> Path | None:
+    """``path`` as a file that can be written: an InputError if it is a folder or a file is in the
+    way of its folder (checked where a command starts, before the work whose result it holds)."""
+    if path is None:
+        return None
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{option} {path}: is a folder, not a file")
+    in_way = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+    if in_way is not None:
+        raise InputError(f"{option} {path}: cannot create its folder {path.parent}: a file is in the way ({in_way})")
+    return path
+
+
 def write_artifact(path: str | Path, art: Artifact) -> Path:
     path = Path(path)
     try:

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from gprace.errors import InputError
+from gprace.errors import InputError, at_row
 from gprace.io.artifacts import Artifact, read_artifact, write_artifact
 
 RUN_COLUMNS = ("t", "s", "e_y", "e_psi", "v_x", "v_y", "yaw_rate", "delta", "a_x", "kappa")
@@ -86,8 +86,8 @@ class Run:
 
 
 def check_columns(data: dict[str, np.ndarray], source: str) -> None:
-    """Columns, lengths, finiteness, time order and units; rows count samples from 1 (the header
-    of a CSV not counted, so the CSV line is the row + 1)."""
+    """Columns, lengths, finiteness, time order and units; rows as :func:`gprace.errors.at_row`
+    counts them (samples from 1, the header of a CSV not counted)."""
     missing = [c for c in RUN_COLUMNS if c not in data]
     if missing:
         raise InputError(f"{source}: missing column{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
@@ -101,11 +101,11 @@ def check_columns(data: dict[str, np.ndarray], source: str) -> None:
         bad = ~np.isfinite(a)
         if bad.any():
             i = int(np.argmax(bad))
-            raise InputError(f"{source}: column {c!r} has a non-finite value ({a[i]}) at row {i + 1}")
+            raise InputError(f"{source}: column {c!r} has a non-finite value ({a[i]}) at {at_row(i + 1)}")
         data[c] = a
     if np.any(np.diff(data["t"]) <= 0):
         i = int(np.argmax(np.diff(data["t"]) <= 0))
-        raise InputError(f"{source}: column 't' is not strictly increasing at row {i + 2}")
+        raise InputError(f"{source}: column 't' is not strictly increasing at {at_row(i + 2)}")
     from gprace.io.units import check_units
 
     check_units(data, source, _PLAUSIBLE)  # robust statistics + consistency between channels
@@ -121,6 +121,8 @@ def read_run(path: str | Path) -> Run:
 
     if is_raw_recording(path):
         return read_recording(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, not a recording file (CSV or HDF5 run, or a raw recording)")
     if path.suffix.lower() == ".csv":
         return _read_csv(path)
     art = read_artifact(path, "run")
@@ -157,8 +159,8 @@ def _read_csv(path: Path) -> Run:
     header = [h.strip() for h in rows[0]]
     body = rows[1:]
     data: dict[str, list[float]] = {h: [] for h in header}
-    for i, row in enumerate(body, start=1):  # rows count samples from 1, as in check_columns
-        where = f"row {i} (line {lines[i][0]})"
+    for i, row in enumerate(body, start=1):  # rows count samples from 1 (at_row), as in check_columns
+        where = at_row(i, lines[i][0])
         if len(row) != len(header):
             raise InputError(f"{path}: {where} has {len(row)} fields, header has {len(header)} (truncated file?)")
         for h, v in zip(header, row):

@@ -65,13 +65,23 @@ def check_units(data: dict[str, np.ndarray], source: str, plausible: dict) -> No
 
     vx, vy, epsi, ey, kap = (data[c] for c in ("v_x", "v_y", "e_psi", "e_y", "kappa"))
     denom = 1.0 - kap * ey
-    sdot_model = mean_over((vx * np.cos(epsi) - vy * np.sin(epsi)) / np.where(np.abs(denom) > 0.1, denom, 1.0))
+
+    def sdot_of(epsi):  # the speed along the path the Frenet kinematics give
+        return mean_over((vx * np.cos(epsi) - vy * np.sin(epsi)) / np.where(np.abs(denom) > 0.1, denom, 1.0))
+
+    sdot_model = sdot_of(epsi)
     sdot = ds / dT
     gap_free = dT < 1.5 * k * dt
     moving = gap_free & (ds > 0) & (sdot_model > 2.0) & (sdot < 3.0 * np.quantile(sdot, 0.99) + 1.0)
     # lap wraps make ds negative and are dropped by ds > 0
     if moving.sum() >= 20:
         ratio = float(np.median(sdot_model[moving] / np.maximum(sdot[moving], 1e-9)))
+        # e_psi in degrees spoils cos(e_psi), not v_x: blame it when e_psi / 57.3 makes them agree
+        in_rad = float(np.median(sdot_of(epsi / 57.3)[moving] / np.maximum(sdot[moving], 1e-9)))
+        if not (0.67 < ratio < 1.5) and 0.67 < in_rad < 1.5:
+            raise InputError(
+                f"{source}: column 'e_psi' in degrees instead of rad? (with e_psi / 57.3 the speed along the path "
+                f"from 'v_x' agrees with 's' and 't'; as it is, {ratio:.3g} times it)")
         if not (0.67 < ratio < 1.5):
             raise InputError(
                 f"{source}: column 'v_x' is {ratio:.3g} times the speed along the path from 's' and 't' "

@@ -310,7 +310,7 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
                 L["planned"].append(float(pl))
                 L["driven"].append(float(dr))
                 table_rows.append([name, int(it), _get(r, "trial"), r.get("alpha", "-"), float(pl), float(dr),
-                                   float(dr) - float(pl), r.get("border_hits", "-")])
+                                   float(dr) - float(pl), r.get("border_hits", "-"), _lap_status(r)])
             if r.get("completed") is False:
                 sec.missing.append(f"{name}, iteration {it}, trial {_get(r, 'trial')}: lap not completed"
                                    + (f" ({r['reason']})" if r.get("reason") else ""))
@@ -331,7 +331,7 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
                     L["planned"].append(float(pl))
                     L["driven"].append(float(dr))
                     table_rows.append([name, it, trial, art.attrs.get("alpha", "-"), float(pl), float(dr),
-                                       float(dr) - float(pl), art.attrs.get("border_hit_steps", "-")])
+                                       float(dr) - float(pl), art.attrs.get("border_hit_steps", "-"), _lap_status(art.attrs)])
             if L["iteration"]:
                 v["rows_from"] = "run files"
         if v.get("summary") is None:
@@ -348,15 +348,18 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
     if lap:
         sec.add_figure("lap_times", "Lap time per iteration: planned, driven and their difference (mean and "
                        "+-1 std over trials)", lambda: F.fig_lap_times(lap))
-        iters = {n: sorted(set(d["iteration"].astype(int).tolist())) for n, d in lap.items()}
-        sec.items.append(Item("Lap times per iteration and trial", html=_table(
+        failed = "; ".join(
+            f"{n} iteration {int(x)}: {int(np.sum((d['iteration'] == x) & ~np.isfinite(d['driven'])))}/"
+            f"{int(np.sum(d['iteration'] == x))}"
+            for n, d in lap.items() for x in np.unique(d["iteration"][~np.isfinite(d["driven"])]))
+        sec.items.append(Item("Lap times per iteration and trial (failed laps per iteration: "
+                              f"{failed or 'none'})", html=_table(
             ["variant", "iteration", "trial", "alpha", "planned [s]", "driven [s]", "driven - planned [s]",
-             "border-hit steps"],
+             "border-hit steps", "lap"],
             sorted(table_rows, key=lambda r: (r[0], r[1], r[2] if r[2] is not None else -1)))))
         if len(lap) == 1 and len(variants) == 1:
             sec.missing.append("only one iterate folder: exploration vs baseline comparison needs both "
                                "(run `gprace iterate` again with `--selection random --alpha 0` into a sibling folder)")
-        del iters
     gperr = {k: {a: np.asarray(b, float) for a, b in d.items()} for k, d in gperr.items()
              if any(np.isfinite(np.asarray(e, float)).any() for g, e in d.items() if g != "iteration")}
     if gperr:
@@ -407,6 +410,13 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
     return sec
 
 
+def _lap_status(r: dict) -> str:
+    """'completed', or 'failed' and where (the reason names the place: 'the car spun at s = ...')."""
+    if r.get("completed", True) is not False:
+        return "completed"
+    return f"failed: {r['reason']}" if r.get("reason") else "failed"
+
+
 def _expected_iterations(v: dict) -> int | None:
     """Iterations the experiment asked for (iteration 0 included), from its settings."""
     st = (v.get("summary") or {}).get("settings") if isinstance(v.get("summary"), dict) else None
@@ -448,11 +458,13 @@ def h2h_section(found: Found, max_error_samples: int = 20) -> Section | None:
             sec.missing.append(f"{tables[0]}: no offline prediction errors in the table")
         racing = tab.get("racing") or {}
         if racing:
+            from gprace.h2h.protocol import failed_races_text
+
             rows = []
             for p, r in racing.items():
                 e = (tab.get("ey_error") or {}).get(p, {})
                 m = e.get("mean") or []
-                rows.append([p, r.get("runs"), r.get("failed"), r.get("border_hits"), r.get("collisions"), r.get("overtakes"),
+                rows.append([p, r.get("runs"), failed_races_text(r), r.get("border_hits"), r.get("collisions"), r.get("overtakes"),
                              _pm(r.get("overtake_time_mean"), r.get("overtake_time_std")),
                              m[0] if m else float("nan"), m[-1] if m else float("nan")])
             for p, e in (tab.get("ey_error") or {}).items():

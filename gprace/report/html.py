@@ -76,7 +76,7 @@ def build_report(folder: str | Path, out: str | Path, png_dir: str | Path | None
         png_dir.mkdir(parents=True, exist_ok=True)
     n_fig = sum(1 for s in sections for it in s.items if it.figure is not None)
     body = []
-    with console.progress("report: rendering figures", total=n_fig) as prog:
+    with console.progress(f"report: rendering {n_fig} figures", total=n_fig) as prog:
         for sec in sections:
             body.append(_section_html(sec, rep, png_dir, prog))
     if not found.files:

@@ -222,6 +222,9 @@ def _describe_json(path: Path) -> dict[str, Any]:
         res["augmented_vehicle"] = obj.get("augmented_vehicle")
     elif kind == "h2h_table":
         for p, row in (obj.get("racing") or {}).items():
+            from gprace.h2h.protocol import failed_races_text
+
+            res[f"{p}: failed races"] = failed_races_text(row)
             res[f"{p}: border hits"] = row.get("border_hits")
             res[f"{p}: overtake time [s]"] = row.get("overtake_time_mean")
         for p, e in (obj.get("ey_error") or {}).items():
@@ -229,6 +232,13 @@ def _describe_json(path: Path) -> dict[str, Any]:
             if m:
                 res[f"{p}: e_y error 1-step [m]"] = m[0]
                 res[f"{p}: e_y error {len(m)}-step [m]"] = m[-1]
+    elif kind == "timetrial_summary" and isinstance(obj, dict) and isinstance(obj.get("by_iteration"), list):
+        from gprace.timetrial.iterate import failed_laps_text
+
+        agg = obj["by_iteration"]
+        res["laps completed per iteration"] = ", ".join(f"{a.get('iteration')}: {a.get('completed')}/{a.get('trials')}"
+                                                        for a in agg)
+        res["failed laps"] = failed_laps_text(agg) or "none"
     elif isinstance(obj, dict):
         res["keys"] = sorted(obj)[:30]
     elif isinstance(obj, list):

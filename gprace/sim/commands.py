@@ -29,7 +29,11 @@ def register(app: typer.Typer) -> None:
 
         from gprace.config import SimulateConfig, load_plant, validate
         from gprace.console import console
+        from gprace.io.artifacts import check_output
         from gprace.io.runs import write_run, write_run_csv
+
+        check_output(output)
+        check_output(csv, "--csv")
         from gprace.sim import lap_times, run_hash, simulate
         from gprace.tracks import load_track
 
@@ -41,6 +45,7 @@ def register(app: typer.Typer) -> None:
         )
         plant_cfg = load_plant(plant)
         trk = load_track(track)
+        console.info(f"simulate: driving {plant} on {trk.name} for {laps:g} lap(s)")
         t0 = time.perf_counter()
         run = simulate(plant_cfg, trk, cfg)
         elapsed = time.perf_counter() - t0

@@ -1,4 +1,5 @@
-"""Time-trial commands: ``gprace plan``, ``gprace run``, ``gprace iterate``, ``gprace evaluate iterate``."""
+"""Time-trial commands: ``gprace plan``, ``gprace run``, ``gprace iterate``, ``gprace eval timetrial``,
+``gprace eval iterate``."""
 
 from __future__ import annotations
 
@@ -8,16 +9,14 @@ from pathlib import Path
 import typer
 
 
-def evaluate_group(app: typer.Typer) -> typer.Typer:
-    """The shared ``evaluate`` sub-app: reuse it if another stage registered it, else create it.
-
-    Other stages add their subcommands with ``evaluate_group(app).command("name")``.
-    """
+def eval_group(app: typer.Typer) -> typer.Typer:
+    """The ``eval`` sub-app shared by the stages (created by whichever registers first): they add
+    their subcommands with ``eval_group(app).command(name, rich_help_panel=RUN_PANEL or SCORE_PANEL)``.
+    ``gprace evaluate``, its old name for scoring finished results, is an alias made in
+    :mod:`gprace.cli`."""
     from gprace.h2h.commands import _group
 
-    from gprace.gp.commands import EVALUATE_HELP
-
-    return _group(app, "evaluate", EVALUATE_HELP)
+    return _group(app, "eval", EVAL_HELP)
 
 
 def _floats(text: str, what: str) -> tuple[float, ...]:
@@ -40,7 +39,9 @@ WORKERS = typer.Option(2, "--workers", help="Parallel trials.")
 SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address.")
 
 
-EVAL_HELP = "Run the paper's evaluation protocols (timetrial, head2head); `gprace evaluate` inspects finished results."
+EVAL_HELP = ("Evaluate: run the paper's protocols (timetrial, head2head) or score finished results (iterate: "
+             "the table of an iterate folder; gp: a GP model on a recording).")
+RUN_PANEL, SCORE_PANEL = "Run a protocol", "Score finished results"
 MIN_NODES, MAX_NODES = 20, 20_000
 
 
@@ -74,8 +75,10 @@ def register(app: typer.Typer) -> None:
         from gprace.errors import ConfigError
         from gprace.model import NominalModel
         from gprace.plan import PlanSettings, curvature_plan, plan_min_time, read_plan
+        from gprace.io.artifacts import check_output
         from gprace.tracks import load_track
 
+        check_output(output)
         if ds <= 0:
             raise ConfigError(f"--ds must be positive, got {ds}")
         if grip is not None and not 0.0 < grip <= 1.0:
@@ -83,7 +86,9 @@ def register(app: typer.Typer) -> None:
         tr = load_track(track)
         check_nodes(tr, ds)
         m = NominalModel(load_vehicle(vehicle))
+        nodes = f"{tr.length / ds:.0f} nodes of {tr.name}"
         if curvature:
+            console.info(f"plan: minimum-curvature path on {nodes}")
             plan = curvature_plan(tr, m, ds=ds)
         else:
             warm = read_plan(warm_start, tr) if warm_start else None
@@ -93,6 +98,7 @@ def register(app: typer.Typer) -> None:
 
                 gp = load_predictor(model, "planning")
                 mu = lambda X, U: gp.at(X, U)[0]  # noqa: E731
+            console.info(f"plan: minimum-time NLP (IPOPT) on {nodes}" + (" with the planning GP" if mu else ""))
             plan = plan_min_time(tr, m, PlanSettings(ds=ds, grip=grip), warm=warm, mu_plan=mu)
         plan.write(output)
         if as_json:
@@ -127,8 +133,10 @@ def register(app: typer.Typer) -> None:
         from gprace.mpc.tracking import MPCSettings
         from gprace.plan import read_plan
         from gprace.timetrial.drive import DriveSettings, drive
+        from gprace.io.artifacts import check_output
         from gprace.tracks import load_track
 
+        check_output(output)
         if not 0.0 <= alpha <= 1.0:
             raise ConfigError(f"--alpha must be in [0, 1], got {alpha}")
         if laps <= 0:
@@ -158,7 +166,10 @@ def register(app: typer.Typer) -> None:
 
                 grid = make_grid(gp.gp, gp.gp.Z_ if hasattr(gp.gp, "Z_") else None, MPCSettings(), 7)
         settings = DriveSettings(laps=laps, mpc=mpc)
-        run = drive(p0, load_plant(plant), tr, m, settings, gp=gp, grid=grid, alpha=alpha, seed=seed)
+        plant_cfg = load_plant(plant)
+        console.info(f"run: driving {plan} on {plant} for {laps:g} lap(s) with the tracking MPC"
+                     + (" and the tracking GP" if gp is not None else "") + (f", exploring (alpha {alpha:g})" if alpha > 0 else ""))
+        run = drive(p0, plant_cfg, tr, m, settings, gp=gp, grid=grid, alpha=alpha, seed=seed)
         write_run(run, output)
         mt = run.meta
         if as_json:
@@ -208,9 +219,9 @@ def register(app: typer.Typer) -> None:
         summary = iterate(st, out, executor=executor, workers=workers, scheduler=scheduler)
         _print_summary(summary, as_json)
 
-    from gprace.h2h.commands import _group
+    ev = eval_group(app)
 
-    @_group(app, "eval", EVAL_HELP).command("timetrial")
+    @ev.command("timetrial", rich_help_panel=RUN_PANEL)
     def eval_timetrial(
         plant: str = PLANT,
         track: str = typer.Option("gprace_ring", "--track", help="Track: shipped name or a TUM CSV/TOML path."),
@@ -246,9 +257,7 @@ def register(app: typer.Typer) -> None:
         if res["error"]:
             raise RunFailedError(res["error"])
 
-    ev = evaluate_group(app)
-
-    @ev.command("iterate")
+    @ev.command("iterate", rich_help_panel=SCORE_PANEL)
     def evaluate_iterate(
         folder: Path = typer.Argument(..., help="An iterate --out folder."),
         as_json: bool = typer.Option(False, "--json", help="Print as JSON."),
@@ -285,6 +294,9 @@ def _print_summary(summary: dict, as_json: bool) -> None:
     for a in summary["by_iteration"]:
         a = {**a, "done": f"{a['completed']}/{a['trials']}"}
         lines.append(" ".join(_cell(a.get(k)) for k in keys2))
+    from gprace.timetrial.iterate import failed_laps_text
+
+    lines += failed_laps_text(summary["by_iteration"])
     o = summary.get("oracle")
     if o is not None:
         lines.append("")

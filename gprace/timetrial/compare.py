@@ -64,6 +64,7 @@ def figure_data(summary: dict) -> list[dict]:
             "gap_mean": float(gap.mean()) if len(gap) else float("nan"), "gap_std": float(gap.std()) if len(gap) else float("nan"),
             "err_tracking": a["err_tracking"], "err_planning": a["err_planning"],
             "cov_tracking": a["cov_tracking"], "cov_planning": a["cov_planning"], "gap_closed_min": a["gap_closed_min"],
+            "failed": a.get("failed", []),
         })
     return rows
 
@@ -87,11 +88,14 @@ def format_table(res: dict) -> str:
              f"GP features {res['features']} (lap times [s]; GP errors: held-out RMS / its std; cov: share of held-out "
              "errors inside the 95 % band, smallest output; closed: smallest share over trials of the gap between "
              "iteration 0 and the oracle lap)"]
+    from gprace.timetrial.iterate import failed_laps_text
+
     for name, rows in res["variants"].items():
         lines += ["", name, " ".join(f"{h:>7}" for h, _ in COLUMNS)]
         for r in rows:
             r = {**r, "done": f"{r['completed']}/{r['laps']}"}
             lines.append(" ".join(cell(r[k]) for _, k in COLUMNS))
+        lines += [f"  {ln}" for ln in failed_laps_text([{**r, "trials": r["laps"]} for r in rows])]
     o = res.get("oracle") or {}
     lines.append("")
     if o.get("known"):

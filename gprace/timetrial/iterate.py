@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gprace.console import jsonable
+from gprace.console import console, jsonable
 from gprace.errors import ConfigError, InputError, RunFailedError, SolverError
 
 FAIL_ENV = "GPRACE_ITERATE_FAIL_AFTER"  # test hook: raise after the named step's marker is written
@@ -170,7 +170,8 @@ def iterate_many(experiments, executor: str = "local", workers: int = 1, schedul
         prepared.append((settings, out, share))
     # the oracle lap runs beside the trials (it is one more task of the batch), once per shared set
     tasks.sort(key=lambda t: "oracle" in t)
-    results = run_batch(run_chain, tasks, executor=executor, workers=workers, scheduler=scheduler, label="trials")
+    label = f"iterate: {sum('oracle' not in t for t in tasks)} trial(s)" + (" and the oracle lap" if tasks[-1:] and "oracle" in tasks[-1] else "")
+    results = run_batch(run_chain, tasks, executor=executor, workers=workers, scheduler=scheduler, label=label)
     for _, out, share in prepared:
         if share is not None and (share / "oracle.json").exists() and not Steps(out).done("oracle"):
             shutil.copy2(share / "oracle.json", out / "oracle.json")
@@ -378,6 +379,8 @@ def _run_chain(task: dict) -> list[dict]:
 
     # iteration 0 ------------------------------------------------------------------------------
     d0 = tdir / "iter_00"
+    if not steps.done(tag(0, "drive")):
+        console.info(f"iterate: {out.name} trial {j} iteration 0 (nominal model): curvature plan, drive")
     if not steps.done(tag(0, "plan")):
         p0 = curvature_plan(track, model, ds=st.plan_ds, speed_scale=st.first_speed_scale)
         # what the curvature plan used: its lateral and braking limits scaled, the drive limit full
@@ -394,6 +397,8 @@ def _run_chain(task: dict) -> list[dict]:
     for i in range(1, st.iterations + 1):
         alpha = st.alpha(i)
         di, dp = tdir / f"iter_{i:02d}", tdir / f"iter_{i - 1:02d}"
+        if not steps.done(tag(i, "drive")):
+            console.info(f"iterate: {out.name} trial {j} iteration {i} (alpha {alpha:g}): select, retrain, plan, drive")
         # (1) data selection ---------------------------------------------------------------------
         if not steps.done(tag(i, "select")):
             prev_run = read_run(dp / "run.h5")
@@ -568,6 +573,8 @@ def build_summary(out: str | Path) -> dict:
             "cov_planning": float(np.nanmin([r.get("cov_planning", np.nan) for r in rs])) if i else float("nan"),
             "gap_closed_min": float(np.nanmin([r["gap_closed"] for r in rs])) if i and o_lap is not None else float("nan"),
             "completed": int(sum(r["completed"] for r in rs)),
+            "failed": [{"trial": r["trial"], "reason": r.get("reason") or "lap not completed"}
+                       for r in rs if not r["completed"]],
         })
     # per trial: its iteration-0 lap, its best driven alpha-0 lap (the racing laps after the
     # exploration) and the share of the gap to the oracle that lap closed
@@ -580,6 +587,14 @@ def build_summary(out: str | Path) -> dict:
                           "gap_closed_best": best["gap_closed"] if best else float("nan")})
     return {"settings": json.loads((out / "settings.json").read_text()), "oracle": oracle, "rows": rows, "by_iteration": agg,
             "per_trial": per_trial}
+
+
+def failed_laps_text(by_iteration: list[dict]) -> list[str]:
+    """One line per iteration with failed laps: how many of how many, and where each failed
+    (the tables of ``eval iterate``, ``eval timetrial`` and ``show summary.json`` use it)."""
+    return [f"iteration {a['iteration']}: {len(a['failed'])} of {a['trials']} laps failed: "
+            + "; ".join(f"trial {f['trial']}: {f['reason']}" for f in a["failed"])
+            for a in by_iteration if a.get("failed")]
 
 
 SUMMARY_COLUMNS = ["iteration", "trial", "alpha", "planned", "driven", "gap", "err_tracking", "err_planning",

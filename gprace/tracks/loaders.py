@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from gprace.config import configs_dir, read_toml, validate
-from gprace.errors import InputError
+from gprace.errors import InputError, at_row
 from gprace.tracks.segments import SegmentTrack, build_track
 from gprace.tracks.track import Track
 
@@ -110,37 +110,36 @@ def read_tum_csv(path: str | Path) -> dict[str, np.ndarray]:
     if not rows:
         raise InputError(f"{path}: no data rows after the header")
     cells = [ln.split(",") for _, ln in rows]
-    for (i, _), c in zip(rows, cells):
+    for r, ((i, _), c) in enumerate(zip(rows, cells)):
         if len(c) != len(names):
             raise InputError(
-                f"{path}: line {i}: expected {len(names)} values, got {len(c)} (truncated or malformed row)"
+                f"{path}: {at_row(r + 1, i)}: expected {len(names)} values, got {len(c)} (truncated or malformed row)"
             )
     try:
         data = np.array(cells, dtype=float)
     except ValueError:
-        for (i, _), c in zip(rows, cells):
+        for r, ((i, _), c) in enumerate(zip(rows, cells)):
             for name, v in zip(names, c):
                 if not _is_number(v):
-                    raise InputError(f"{path}: line {i}, column {name}: not a number: {v.strip()!r}") from None
+                    raise InputError(f"{path}: {at_row(r + 1, i)}, column {name}: not a number: {v.strip()!r}") from None
         raise  # pragma: no cover - np.array failed for a reason the loop did not find
     bad = ~np.isfinite(data)
     if bad.any():
         r, c = np.argwhere(bad)[0]
-        raise InputError(f"{path}: line {rows[r][0]}, column {names[c]}: value is not finite ({data[r, c]})")
+        raise InputError(f"{path}: {at_row(r + 1, rows[r][0])}, column {names[c]}: value is not finite ({data[r, c]})")
     cols = {name: data[:, j] for j, name in enumerate(names)}
     for name in ("w_tr_right_m", "w_tr_left_m"):
         nonpos = cols[name] <= 0
         if nonpos.any():
             r = int(np.argmax(nonpos))
-            raise InputError(f"{path}: line {rows[r][0]}, column {name}: width must be positive, got {cols[name][r]}")
+            raise InputError(f"{path}: {at_row(r + 1, rows[r][0])}, column {name}: width must be positive, got {cols[name][r]}")
     if len(data) < 4:
         raise InputError(f"{path}: only {len(data)} data rows; a track needs at least 4 points")
     step = np.hypot(np.diff(cols["x_m"]), np.diff(cols["y_m"]))
     tiny = 1e-9 * max(np.ptp(cols["x_m"]), np.ptp(cols["y_m"]), 1e-12)
     if np.any(step <= tiny):
         r = int(np.argmax(step <= tiny))
-        raise InputError(f"{path}: lines {rows[r][0]} and {rows[r + 1][0]}: the same point twice (degenerate track)")
-    cols["_lines"] = np.array([i for i, _ in rows])
+        raise InputError(f"{path}: {at_row(r + 1, rows[r][0])} and {at_row(r + 2, rows[r + 1][0])}: the same point twice (degenerate track)")
     return cols
 
 
