@@ -96,3 +96,14 @@ def test_sparse_backend_report():
     assert not q.degenerate, q.problems()
     assert len(q.noise) == 2 and len(q.at_bounds) == 2 and q.heldout_points == 30
     assert "refitted on all 150" in q.heldout_source and gp.n_train_ == 150
+
+
+def test_a_validation_set_the_data_do_not_cover_gives_a_warning():
+    """Nobody learns an output on a validation set from elsewhere: no retry can help, so it is
+    reported, not refused (an exploration dictionary judged on random-track steps)."""
+    Z, Y = _data(320, 6)
+    Zv, Yv = _data(100, 7)
+    Yv[:, 1] = np.random.default_rng(8).normal(size=100)  # another relation where it is judged
+    gp, q = Q.checked_fit("exact", {"kernel": "matern15"}, Z, Y, Zv, Yv, outputs=["a", "b"], attempts=1)
+    assert not q.degenerate and q.reference_points == Q.REFERENCE_POINTS
+    assert "do not cover the held-out set" in q.cautions() and q.cautions().startswith("b:")

@@ -17,9 +17,12 @@ reference learns the output (held-out error below :data:`NOTHING_LEARNED`, i.e. 
 than 10 % of the variance) but the fit does not: its own error is at least that, its noise share is
 at least :data:`NOISE_MAX`, or its hyperparameters make it a constant (every length scale at the
 upper bound, or the signal variance at the lower one) or white noise (every length scale at the
-lower bound). Where neither learns an output, the data carry no signal for it: degenerate when the
-reference saw :data:`REFERENCE_POINTS` points, a ``warning`` when it saw fewer (a 100-point
-opponent dataset does not determine the speed and yaw-rate changes; see docs/decisions.md). A
+lower bound). Where neither learns an output on held-out rows of the training data, the data carry
+no signal for it: degenerate when the reference saw :data:`REFERENCE_POINTS` points, a ``warning``
+when it saw fewer (a 100-point opponent dataset does not determine the speed and yaw-rate changes;
+see docs/decisions.md). On a separate validation set, that case is a ``warning`` too: the training
+data do not cover the validation set (an exploration dictionary of mostly closed-loop data judged on
+random-track steps), which no retry of the fit can change. A
 single length scale at its upper bound is no fault (that input does not matter for that output,
 which is what ARD is for), nor is the noise at its lower bound (simulated data are noiseless).
 
@@ -134,9 +137,12 @@ def reference_gp(kernel: str, Z: np.ndarray, Y: np.ndarray, points: int = REFERE
 def fit_quality(gp: GPBackend, Z: np.ndarray, Y: np.ndarray, Z_val: np.ndarray, Y_val: np.ndarray,
                 outputs: Sequence[str] | None = None, inputs: Sequence[str] | None = None,
                 reference_points: int = REFERENCE_POINTS, seed: int = 0,
-                reference: tuple[GPBackend, np.ndarray] | None = None, heldout_source: str = "held-out set") -> FitQuality:
+                reference: tuple[GPBackend, np.ndarray] | None = None, heldout_source: str = "held-out set",
+                heldout_from_training: bool = False) -> FitQuality:
     """Quality report of ``gp`` fitted on (Z, Y), measured on held-out points ``(Z_val, Y_val)``
-    (see the module docstring). ``reference`` (from :func:`reference_gp` on (Z, Y)) skips refitting it."""
+    (see the module docstring); ``heldout_from_training``: they were drawn from the same data (so
+    an output nobody learns has no signal, rather than a held-out set the data do not cover).
+    ``reference`` (from :func:`reference_gp` on (Z, Y)) skips refitting it."""
     Z, Y = np.asarray(Z, float), np.asarray(Y, float).reshape(len(Z), -1)
     Z_val, Y_val = np.asarray(Z_val, float), np.asarray(Y_val, float).reshape(len(Z_val), -1)
     p = Y.shape[1]
@@ -164,10 +170,12 @@ def fit_quality(gp: GPBackend, Z: np.ndarray, Y: np.ndarray, Z_val: np.ndarray, 
             r.append(f"white noise: every length scale at its lower bound ({ref_txt})")
         if not learned and held[o] >= NOTHING_LEARNED:
             txt = f"learned nothing (held-out error {held[o]:.2f}), nor did {ref_txt}"
-            if len(idx) >= REFERENCE_POINTS:
+            if len(idx) < REFERENCE_POINTS:
+                w.append(txt + f": fewer than {REFERENCE_POINTS} points cannot tell a signal from noise")
+            elif heldout_from_training:
                 r.append(txt + ": no signal in the data")
             else:
-                w.append(txt + f": fewer than {REFERENCE_POINTS} points cannot tell a signal from noise")
+                w.append(txt + ": the training data do not cover the held-out set")
         reasons.append(r)
         warnings.append(w)
     return FitQuality(outputs=outputs, noise=noise.tolist(), heldout=held.tolist(), reference=refe.tolist(),
@@ -224,7 +232,8 @@ def checked_fit(backend: str, settings: dict[str, Any], Z: np.ndarray, Y: np.nda
             if a == attempts - 1 and attempts > 2:
                 s["optimize"] = False
         gp = make_gp(backend, **s).fit(Zf, Yf)
-        q = fit_quality(gp, Zf, Yf, Z_val, Y_val, outputs, inputs, seed=seed, reference=ref, heldout_source=source)
+        q = fit_quality(gp, Zf, Yf, Z_val, Y_val, outputs, inputs, seed=seed, reference=ref, heldout_source=source,
+                        heldout_from_training=Zf is not Z)
         q.attempts, q.retries = a + 1, list(retries)
         if not q.degenerate:
             if Zf is not Z:
