@@ -71,7 +71,7 @@ GP_SETTINGS: dict[str, dict[str, Any]] = {
 OFFLINE = ("baseline", "explore", "select", "cv")
 CHAIN_STRIDE = 1_000_000  # seeds of chain s: the seeds of chain 0 plus s * CHAIN_STRIDE
 VALIDATION_POINTS = 1000
-QUALITY_VERSION = 1  # models fitted before the quality reports are refitted (and checked)
+QUALITY_VERSION = 2  # models fitted before the quality reports are refitted (and checked)
 
 
 @dataclass
