@@ -33,6 +33,10 @@ class UnknownBackendError(GpraceError, KeyError):
         return str(self.args[0]) if self.args else ""
 
 
+class FitError(GpraceError, ValueError):
+    """A model fit degenerated (an output learned nothing) and was refused rather than used."""
+
+
 class SolverError(GpraceError, RuntimeError):
     """A numerical solver failed in a way the caller cannot recover from."""
 

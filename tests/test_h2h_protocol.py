@@ -187,3 +187,112 @@ def test_exploration_width_outside_the_loop_validity(capsys, tmp_path):
     assert main(["eval", "head2head", "--explore-width", "3", "--out", str(tmp_path / "out")]) == 2
     assert "--explore-width" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()  # rejected before any work
+
+
+# ----------------------------------------------------------------------------------------------
+# spread over seeds and bootstrap over tracks
+def _hand_made(times_e, times_b, err_e, err_b, hits_e=(0, 0, 0, 0)):
+    """4 tracks, raced explore and baseline; offline errors with K = 1 and one column per track
+    (track 3 two columns)."""
+    from gprace.h2h.spread import track_data
+
+    def recs(times, hits):
+        return [{"attrs": {"ok": True, "border_hit": bool(h), "collision": False, "overtake_time": t}}
+                for t, h in zip(times, hits)]
+
+    tracks = np.array([0, 1, 2, 3, 3])
+    errors = {"explore": np.array([err_e]), "baseline": np.array([err_b])}
+    return track_data({"explore": recs(times_e, hits_e), "baseline": recs(times_b, (0, 0, 0, 0))}, errors, tracks, 4)
+
+
+def test_figures_and_their_resamples_on_hand_made_numbers():
+    from gprace.h2h.spread import figures
+
+    nan = np.nan
+    td = _hand_made([2.0, nan, 4.0, 6.0], [3.0, 5.0, nan, 7.0], [1, 2, 3, 4, 6], [2, 2, 2, 2, 2], hits_e=(0, 0, 1, 0))
+    f = figures(td, np.ones((1, 4)))
+    assert f["explore.overtakes"][0] == 3 and f["baseline.overtakes"][0] == 3
+    assert f["explore.border_hits"][0] == 1 and f["diff.border_hits"][0] == 1
+    # track 2 is out (explore hit the border): overtake times over tracks 0, 1 and 3
+    assert f["explore.overtake_time"][0] == pytest.approx(4.0) and f["baseline.overtake_time"][0] == pytest.approx(5.0)
+    assert f["diff.overtake_time"][0] == pytest.approx(((2 - 3) + (6 - 7)) / 2)  # paired, both overtook
+    assert f["explore.ey_error_1"][0] == pytest.approx(16 / 5) and f["diff.ey_error_1"][0] == pytest.approx(16 / 5 - 2)
+    # a resample is the table of the duplicated tracks: track 3 twice, track 1 twice, 0 and 2 never
+    w = figures(td, np.array([[0, 2, 0, 2]]))
+    assert w["explore.overtakes"][0] == 2 and w["explore.ey_error_1"][0] == pytest.approx((2 * 2 + 2 * 10) / 6)
+    assert w["explore.overtake_time"][0] == pytest.approx(6.0) and w["diff.overtake_time"][0] == pytest.approx(-1.0)
+
+
+def test_spread_over_seeds_and_claims():
+    from gprace.h2h.spread import seed_stats, summarise, verdict
+
+    s = seed_stats([0.02, 0.03, 0.025])
+    assert s["mean"] == pytest.approx(0.025) and s["seed_std"] == pytest.approx(0.005)
+    assert s["min"] == 0.02 and s["max"] == 0.03 and seed_stats([1.0])["seed_std"] is None
+    assert verdict([[-3, -1], [-2, -0.5]]) == "holds"
+    assert verdict([[-3, -1], [-2, 0.5]]) == "not resolved"  # one seed within its track spread
+    assert verdict([[-3, -1], [1, 2]]) == "seeds disagree"
+    assert verdict([[1, 2], [0.5, 3]]) == "fails"
+    assert verdict([[1, 2]], claimed=+1) == "holds"
+
+    nan = np.nan
+    t = [1.0, 1.0, 1.0, 1.0]
+    a = _hand_made(t, t, [1, 1.1, 0.9, 1.0, 1.05], [2, 2.1, 1.9, 2.0, 2.05])  # explore better on every track
+    b = _hand_made(t, t, [1.5, 1.6, 1.4, 1.5, 1.55], [2, 2.1, 1.9, 2.0, 2.05])
+    c = _hand_made(t, t, [3, 3.1, 2.9, 3.0, 3.05], [2, 2.1, 1.9, 2.0, 2.05])  # worse in this seed
+    two = summarise([a, b], B=300)
+    row = two["diff.ey_error_1"]
+    assert row["values"] == pytest.approx([-1.0, -0.5]) and row["mean"] == pytest.approx(-0.75)
+    assert row["seed_std"] == pytest.approx(np.std([-1.0, -0.5], ddof=1))
+    assert row["verdict"] == "holds" and row["ci"][0] <= -0.75 <= row["ci"][1]
+    assert two["explore.ey_error_1"]["mean"] == pytest.approx((1.01 + 1.51) / 2)
+    assert summarise([a, c], B=300)["diff.ey_error_1"]["verdict"] == "seeds disagree"
+    assert np.isnan(summarise([_hand_made([nan] * 4, t, [1] * 5, [1] * 5)], B=50)["diff.overtake_time"]["values"][0])
+
+
+def test_seeds_option_and_chain_layout(tmp_path):
+    assert P.parse_seeds("3") == (0, 1, 2) and P.parse_seeds("0,4,7") == (0, 4, 7) and P.parse_seeds("5,") == (5,)
+    for bad in ("0", "a", "1,1", "-1,2"):
+        with pytest.raises(InputError, match="--seeds"):
+            P.parse_seeds(bad)
+    assert main(["eval", "head2head", "--seeds", "x", "--out", str(tmp_path / "o")]) == 2
+    # seed 0 is the single-seed protocol (same folder, same run seeds: finished work is reused)
+    st = P.Settings()
+    assert P.chain_dir(tmp_path, 0) == tmp_path and P.chain_dir(tmp_path, 2) == tmp_path / "seed_2"
+    assert [t["seed"] for t in P.collect_tasks(st, 2)] == [P.SEED_COLLECT, P.SEED_COLLECT + 1]
+    other = P.collect_tasks(P.Settings(seed=1), 2)
+    assert {t["seed"] for t in other}.isdisjoint({P.SEED_COLLECT, P.SEED_COLLECT + 1})
+    assert P.eval_tasks(P.Settings(seed=1, tracks=2), "cv", None) == P.eval_tasks(P.Settings(tracks=2), "cv", None)
+
+
+def test_train_refuses_a_degenerate_fit_and_reports_a_sound_one(tmp_path, capsys, monkeypatch):
+    """An opponent dataset whose last output is pure noise: `h2h train` exits 2 with one line and
+    writes no model (nothing can race it); without that output the report is printed and stored.
+    (The reference's 300 points that make "no signal" a refusal are lowered to keep the test fast.)"""
+    from threadpoolctl import threadpool_limits
+
+    from gprace.gp import quality
+
+    monkeypatch.setattr(quality, "REFERENCE_POINTS", 100)
+
+    rng = np.random.default_rng(0)
+    n = 200
+    Z = rng.normal(size=(n, 11))
+    Y = np.column_stack([np.sin(Z[:, 0]), 0.5 * Z[:, 1], np.tanh(Z[:, 2]), Z[:, 3] * 0.2, rng.normal(size=n)])
+    bad, good = tmp_path / "bad.h5", tmp_path / "good.h5"
+    P._write_dataset(bad, Z, Y, np.zeros(n), {}, {})
+    Y[:, 4] = np.cos(Z[:, 4])
+    P._write_dataset(good, Z, Y, np.zeros(n), {}, {})
+    with threadpool_limits(limits=1):
+        assert main(["h2h", "train", str(bad), str(tmp_path / "m_bad.h5")]) == 2
+        err = capsys.readouterr().err
+        # the stage's start line, then one error line naming the output
+        errors = [ln for ln in err.splitlines() if ln.startswith("error:")]
+        assert len(errors) == 1 and "dyaw_rate_opp" in errors[0] and "refused" in errors[0]
+        assert err.strip().splitlines()[-1] == errors[0]
+        assert not (tmp_path / "m_bad.h5").exists()
+        assert main(["h2h", "train", str(good), str(tmp_path / "m.h5")]) == 0
+    out = capsys.readouterr().out
+    assert "Fit quality" in out and "dyaw_rate_opp" in out
+    q = P.fit_report(tmp_path / "m.h5")
+    assert not q.degenerate and q.outputs[-1] == "dyaw_rate_opp" and max(q.heldout) < 0.95

@@ -6,6 +6,7 @@ Heavy imports (casadi, dask, the GP layer) happen inside the commands.
 from __future__ import annotations
 
 import os
+from dataclasses import asdict
 from pathlib import Path
 from typing import Optional
 
@@ -58,19 +59,54 @@ def _settings(out: Path, **kw):
     return st
 
 
+def _cell(row: dict, fmt: str) -> str:
+    """``mean ±seed std [bootstrap interval over tracks]`` of one figure of the spread."""
+    if row is None or row.get("mean") is None:
+        return "-"
+    txt = format(row["mean"], fmt)
+    if row.get("seed_std") is not None:
+        txt += f" ±{format(row['seed_std'], fmt)}"
+    lo, hi = row.get("ci") or (None, None)
+    return txt if lo is None else f"{txt} [{format(lo, fmt)}, {format(hi, fmt)}]"
+
+
+def print_fits(fits: dict) -> None:
+    """The fit quality of every model of every seed (held-out error per output against the exact
+    GP on a subsample)."""
+    from gprace.gp.quality import FitQuality
+
+    rows = []
+    for seed, models in fits.items():
+        for name, q in models.items():
+            q = FitQuality(**q)
+            rows.append([seed, name, *(f"{h:.3f}/{r:.3f}" for h, r in zip(q.heldout, q.reference)),
+                         f"{max(q.noise):.2g}", str(q.attempts)])
+            outputs = q.outputs
+    if rows:
+        console.table("Fit quality: held-out error / exact GP on a subsample (RMSE / spread of the held-out "
+                      "outputs; 1 = learned nothing)", ["seed", "model", *outputs, "noise max", "attempts"], rows)
+
+
 def print_table(tab: dict, as_json: bool) -> None:
     if as_json:
         console.json(tab)
         return
+    spread = tab.get("spread", {})
+    seeds = tab.get("seeds", [0])
+    how = (f"mean ±std over {len(seeds)} seeds" if len(seeds) > 1 else f"seed {seeds[0]}") + \
+        " [95% bootstrap interval over tracks]"
+    print_fits(tab.get("fits", {}))
     rows = []
     for p, r in tab["racing"].items():
         ot = "-" if r["overtake_time_mean"] is None else f"{r['overtake_time_mean']:.2f}±{r['overtake_time_std']:.2f}"
         ms = "-" if r["ego_solve_ms_median"] is None else f"{r['ego_solve_ms_median']:.1f}"
-        rows.append([p, f"{r['runs']}/{r['failed']}", r["border_hits"], r["collisions"], r["overtakes"],
-                     ot, r["overtake_scenarios"], r["fallbacks_ego"], ms])
-    console.table(f"Head-to-head racing ({tab['common_inside']} scenarios with every predictor inside)",
-                  ["predictor", "runs/failed", "border", "collide", "overtakes", "overtake s", "n", "fallbacks",
-                   "solve ms"], rows)
+        rows.append([p, f"{r['runs']}/{r['failed']}", _cell(spread.get(f"{p}.border_hits"), ".3g"),
+                     _cell(spread.get(f"{p}.collisions"), ".3g"), _cell(spread.get(f"{p}.overtakes"), ".3g"),
+                     _cell(spread.get(f"{p}.overtake_time"), ".2f"), ot, r["overtake_scenarios"],
+                     r["fallbacks_ego"], ms])
+    console.table(f"Head-to-head racing, {how}; first seed: {tab['common_inside']} scenarios with every predictor "
+                  "inside, overtake time mean±std over them", ["predictor", "runs/failed", "border", "collide",
+                  "overtakes", "overtake s", "first seed s", "n", "fallbacks", "solve ms"], rows)
     from gprace.h2h.protocol import failed_races_text
 
     for p, r in tab["racing"].items():
@@ -78,10 +114,20 @@ def print_table(tab: dict, as_json: bool) -> None:
             console.result(f"{p}: failed races {failed_races_text(r)}")
     errs = {p: e for p, e in tab["ey_error"].items() if e["mean"]}
     K = max((len(e["mean"]) for e in errs.values()), default=0)
-    erows = [[f"{k + 1}"] + [f"{e['mean'][k]:.3f}±{e['std'][k]:.3f}" for e in errs.values()] for k in range(K)]
+    erows = [[f"{k + 1}"] + [_cell(spread.get(f"{p}.ey_error_{k + 1}"), ".4f") for p in errs] for k in range(K)]
     points = ", ".join(f"{p} {e['points']}" for p, e in errs.items())
-    console.table(f"Opponent e_y prediction error in metres, offline on all closed-loop opponent trajectories "
-                  f"(start times: {points})", ["steps ahead", *errs], erows)
+    console.table(f"Opponent e_y prediction error in metres, {how}, offline on all closed-loop opponent "
+                  f"trajectories (start times in the first seed: {points})", ["steps ahead", *errs], erows)
+    claims = tab.get("claims", {})
+    if claims:
+        crows = []
+        for name, c in claims.items():
+            fmt = ".4f" if name.startswith("ey_error") else ".3g"
+            crows.append([name, _cell(c, fmt), " ".join("-" if lo is None else f"[{lo:{fmt}}, {hi:{fmt}}]"
+                                                        for lo, hi in c["seed_ci"]), c["verdict"]])
+        console.table("Claims: exploration - baseline (the paper: lower, except more overtakes); a claim holds only "
+                      "where every seed's 95% interval over tracks is on its side", ["figure", "difference",
+                      "interval per seed", "verdict"], crows)
 
 
 def register(app: typer.Typer) -> None:
@@ -110,18 +156,21 @@ def register(app: typer.Typer) -> None:
         inducing: int = INDUCING,
         samples: int = typer.Option(50, "--samples", help="GP rollout samples."),
         max_time: float = MAX_TIME,
+        seeds: str = typer.Option("1", "--seeds", help="Seeds of the whole chain (collection, training, exploration, "
+                                  "evaluation): a count N (seeds 0..N-1) or a list such as 0,4,7. Seed 0 writes to "
+                                  "--out, seed s to --out/seed_<s>; the evaluation scenarios are shared."),
         workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
         resume: bool = RESUME, as_json: bool = JSON,
     ) -> None:
         """The paper's head-to-head comparison: collect, train, explore, race all predictors, tabulate."""
-        from gprace.h2h.protocol import head2head as run
+        from gprace.h2h.protocol import head2head as run, parse_seeds
 
         st = _settings(out, tracks=tracks, runs=runs, init_runs=init_runs, explore_minutes=explore_minutes,
                        episode_seconds=episode_seconds, explore_width=explore_width, alpha=alpha, dict_size=dict_size,
                        points_per_run=points_per_run, width=width,
                        stretches=stretches, predictors=predictors, backend=backend, exact_max=exact_max,
                        inducing=inducing, samples=samples, max_time=max_time, workers=workers, executor=executor,
-                       scheduler=scheduler, resume=resume)
+                       scheduler=scheduler, resume=resume, seeds=parse_seeds(seeds))
         print_table(run(st, out), as_json)
 
     @h2h.command("collect")
@@ -148,17 +197,29 @@ def register(app: typer.Typer) -> None:
         size: Optional[int] = typer.Option(None, "--select", help="Diverse selection of this many points first."),
         hyper_model: Optional[Path] = typer.Option(None, "--hyper-model", help="GP whose hyperparameters drive the selection."),
         initial: Optional[Path] = typer.Option(None, "--initial", help="Dataset that starts the dictionary."),
+        validation: Optional[Path] = typer.Option(
+            None, "--validation", help="Held-out dataset of the fit quality report (default: training points "
+            "outside the reference's subsample)."),
         backend: str = GP_BACKEND, exact_max: int = EXACT_MAX, inducing: int = INDUCING, as_json: bool = JSON,
     ) -> None:
-        """Fit the opponent GP (Matern 1.5) on a dataset."""
+        """Fit the opponent GP (Matern 1.5) on a dataset; print its fit quality (a degenerate fit is refused)."""
+        from gprace.gp.quality import COLUMNS
         from gprace.h2h.predictors import read_opponent_gp
-        from gprace.h2h.protocol import Settings, train as run
+        from gprace.h2h.protocol import Settings, fit_report, train as run
 
         st = Settings(backend=backend, exact_max=exact_max, inducing=inducing)
-        path = run(dataset, model, st, size=size, hyper_model=hyper_model, initial=initial)
+        path = run(dataset, model, st, size=size, hyper_model=hyper_model, initial=initial, validation=validation)
         _, attrs = read_opponent_gp(path)
-        res = {"model": str(path), "backend": attrs["backend"], "points": int(attrs.get("n_points", 0))}
-        console.json(res) if as_json else console.result(f"{res['model']}: {res['backend']} GP on {res['points']} points")
+        q = fit_report(path)
+        res = {"model": str(path), "backend": attrs["backend"], "points": int(attrs.get("n_points", 0)),
+               "quality": None if q is None else asdict(q)}
+        if as_json:
+            console.json(res)
+            return
+        if q is not None:
+            console.table(f"Fit quality (held-out: {q.heldout_points} points, {q.heldout_source}; exact GP on "
+                          f"{q.reference_points} points; attempts {q.attempts})", COLUMNS, q.rows())
+        console.result(f"{res['model']}: {res['backend']} GP on {res['points']} points")
 
     @h2h.command("explore")
     def explore(

@@ -4,18 +4,30 @@ Layout of ``--out DIR`` (every file an HDF5 artifact, written atomically)::
 
     collect/runs/run_<i>.h5       one record per collection race (oracle predictor), kind h2h_run
     collect/dataset.h5            (Z, Y) of all collection runs, kind h2h_dataset
+    collect/validation.h5         held-out steps of the collection runs (in no dataset): fit quality
     init/dataset.h5               the first ``init_runs`` collection runs (the exploration's start)
     explore/runs/run_<i>.h5       exploration episodes on the closed loop (alpha = 0.9)
     explore/dataset.h5            init data + exploration data
     models/{baseline,init,explore,select}.h5   GP models (kind gp_model)
     eval/<predictor>/run_<i>.h5   the races of every predictor on the same scenarios
     errors/<predictor>/run_<i>.h5 offline e_y errors of every offline predictor on those races
-    table.json                    the comparison table
+    table.json                    the comparison table (all seeds)
+    seed_<s>/...                  the same layout for chain seed s > 0 (``--seeds``)
 
 Every batch of runs goes through :func:`gprace.executor.run_batch`. Each run record stores a hash
 of its task; with ``resume`` a record whose hash matches is kept and only missing or failed runs
 are rerun. A run that raises is recorded (``ok = False`` and its error) and skipped by the table.
 Datasets and models are reused when present and built from the same inputs (their ``config_hash``).
+
+Every GP fit goes through :func:`gprace.gp.quality.checked_fit`: its quality report (noise,
+hyperparameters at bounds, held-out error on ``collect/validation.h5`` against an exact GP on a
+subsample) is stored in the model's ``quality`` attribute and printed; a degenerate fit is retried
+and otherwise refused (FitError, exit 2), so it is never raced.
+
+Seeds (``--seeds``): chain s repeats collection, training and exploration with every seed shifted
+by ``s * CHAIN_STRIDE`` (seed 0 is the single-seed protocol, same runs, same folder) and races the
+same evaluation scenarios; :mod:`gprace.h2h.spread` gives every figure's spread over seeds next to
+its bootstrap interval over tracks and judges the paper's claims against both.
 
 Decisions (the paper is silent): each collection run contributes ``points_per_run`` (10) evenly
 spaced steps, which gives the paper's "about 5000 points" from 500 runs (all points of the
@@ -31,15 +43,18 @@ exploration GP's dictionary; GPs with more than ``exact_max`` points use the ``s
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from gprace.config import config_hash
 from gprace.errors import ConfigError, InputError
 from gprace.h2h.predictors import FEATURE_MAP, FEATURES, OUTPUTS
+
+if TYPE_CHECKING:
+    from gprace.h2h.spread import TrackData
 
 RUN_KIND = "h2h_run"
 DATASET_KIND = "h2h_dataset"
@@ -54,6 +69,9 @@ GP_SETTINGS: dict[str, dict[str, Any]] = {
     "sparse": {"min_noise": 1e-3, "jitter": 1e-6, "max_iter": 50, "init_points": 800},
 }
 OFFLINE = ("baseline", "explore", "select", "cv")
+CHAIN_STRIDE = 1_000_000  # seeds of chain s: the seeds of chain 0 plus s * CHAIN_STRIDE
+VALIDATION_POINTS = 1000
+QUALITY_VERSION = 2  # models fitted before the quality reports are refitted (and checked)
 
 
 @dataclass
@@ -83,8 +101,12 @@ class Settings:
     executor: str = "local"
     scheduler: str | None = None
     resume: bool = False
+    seeds: tuple[int, ...] = (0,)  # chains of the whole protocol (``--seeds``)
+    seed: int = 0  # the chain being run (set per chain by :func:`head2head`)
 
     def check(self) -> None:
+        if not self.seeds or min(self.seeds) < 0 or len(set(self.seeds)) != len(self.seeds):
+            raise InputError(f"--seeds: a list of distinct seeds >= 0, got {list(self.seeds)}")
         if self.tracks < 1:
             raise InputError(f"--tracks must be >= 1, got {self.tracks}")
         if self.runs < 1 or self.init_runs < 1:
@@ -244,39 +266,55 @@ def _cached(path: Path, key: dict) -> bool:
         return False
 
 
-def dataset_from_records(records: list[dict], per_run: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _kept_steps(n: int, per_run: int | None) -> np.ndarray:
+    """The evenly spaced steps a run contributes to a dataset (all of them without ``per_run``)."""
+    if per_run is None or n <= per_run:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, per_run).round().astype(int))
+
+
+def dataset_from_records(records: list[dict], per_run: int | None = None,
+                         held_out: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stack the (Z, Y) pairs of the successful runs; ``per_run`` keeps that many evenly spaced
-    steps of each run (the paper's baseline: about 5000 points from 500 runs)."""
+    steps of each run (the paper's baseline: about 5000 points from 500 runs); ``held_out`` keeps
+    the other steps instead (points no model of the protocol is trained on)."""
     Zs, Ys, R = [], [], []
     for i, r in enumerate(records):
         if r["attrs"].get("ok") and "Z" in r["arrays"] and len(r["arrays"]["Z"]):
             Z, Y = r["arrays"]["Z"], r["arrays"]["Y"]
-            if per_run is not None and len(Z) > per_run:
-                keep = np.unique(np.linspace(0, len(Z) - 1, per_run).round().astype(int))
-                Z, Y = Z[keep], Y[keep]
-            Zs.append(Z)
-            Ys.append(Y)
-            R.append(np.full(len(Z), i))
-    if not Zs:
+            keep = _kept_steps(len(Z), per_run)
+            if held_out:
+                keep = np.setdiff1d(np.arange(len(Z)), keep)
+            Zs.append(Z[keep])
+            Ys.append(Y[keep])
+            R.append(np.full(len(keep), i))
+    if not Zs or not sum(len(z) for z in Zs):
         raise InputError("no successful run produced data; see the failed-run records")
     return np.vstack(Zs), np.vstack(Ys), np.concatenate(R)
 
 
 def collect_tasks(st: Settings, n: int) -> list[dict]:
-    return [{"id": f"collect-{i}", "track": {"kind": "random", "seed": SEED_COLLECT + i, "stretches": st.stretches,
-             "width": st.width}, "seed": SEED_COLLECT + i, "predictor": "oracle", "config": st.race_config()}
+    base = SEED_COLLECT + CHAIN_STRIDE * st.seed
+    return [{"id": f"collect-{i}", "track": {"kind": "random", "seed": base + i, "stretches": st.stretches,
+             "width": st.width}, "seed": base + i, "predictor": "oracle", "config": st.race_config()}
             for i in range(n)]
 
 
 def collect(st: Settings, out: Path) -> dict[str, Path]:
-    """Baseline collection (``runs`` random tracks, oracle predictor) and the initial subset."""
+    """Baseline collection (``runs`` random tracks, oracle predictor), the initial subset and the
+    validation set (:data:`VALIDATION_POINTS` random steps of the collection runs that no dataset
+    keeps; the held-out points of every fit's quality report)."""
     tasks = collect_tasks(st, st.runs)
-    paths = {"collect": out / "collect" / "dataset.h5", "init": out / "init" / "dataset.h5"}
+    paths = {"collect": out / "collect" / "dataset.h5", "init": out / "init" / "dataset.h5",
+             "validation": out / "collect" / "validation.h5"}
     key = {"tasks": [_task_hash(t) for t in tasks], "per_run": st.points_per_run}
     key_init = {"tasks": key["tasks"][: st.init_runs], "per_run": st.points_per_run}
-    if _cached(paths["collect"], key) and _cached(paths["init"], key_init):
+    key_val = {**key, "validation": VALIDATION_POINTS}
+    if _cached(paths["collect"], key) and _cached(paths["init"], key_init) and _cached(paths["validation"], key_val):
         return paths
-    recs = run_tasks(tasks, out / "collect" / "runs", st, "collect")
+    # the datasets are reused whatever --resume says; so are the finished runs behind them
+    reuse = replace(st, resume=True) if _cached(paths["collect"], key) else st
+    recs = run_tasks(tasks, out / "collect" / "runs", reuse, "collect")
     Z, Y, R = dataset_from_records(recs, st.points_per_run)
     n_failed = sum(not r["attrs"].get("ok") for r in recs)
     _write_dataset(paths["collect"], Z, Y, R, key, {"runs": len(recs), "failed": n_failed, "source": "collect"})
@@ -284,24 +322,30 @@ def collect(st: Settings, out: Path) -> dict[str, Path]:
     if not m.any():
         raise InputError(f"none of the first {st.init_runs} collection runs succeeded")
     _write_dataset(paths["init"], Z[m], Y[m], R[m], key_init, {"runs": st.init_runs, "source": "init"})
+    Zv, Yv, Rv = dataset_from_records(recs, st.points_per_run, held_out=True)
+    pick = np.sort(np.random.default_rng(SEED_COLLECT + st.seed).permutation(len(Zv))[:VALIDATION_POINTS])
+    _write_dataset(paths["validation"], Zv[pick], Yv[pick], Rv[pick], key_val, {"runs": len(recs), "source": "validation"})
     return paths
 
 
 def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyper_model: Path | None = None,
-          initial: Path | None = None, seed: int = 0) -> Path:
-    """Fit the opponent GP (Matern 1.5) on a dataset.
+          initial: Path | None = None, seed: int = 0, validation: Path | None = None) -> Path:
+    """Fit the opponent GP (Matern 1.5) on a dataset, checked by :func:`gprace.gp.quality.checked_fit`.
 
     With ``size``, the points are first streamed through the GP layer's diverse selection
     (:func:`gprace.gp.selection.select_diverse`) with the hyperparameters of ``hyper_model``,
     starting from the dictionary ``initial`` (a dataset) when given; the GP is then refitted on
-    the selected dictionary.
+    the selected dictionary. The fit's quality report (held-out points: ``validation``, a dataset)
+    is stored in the model's ``quality`` attribute; a degenerate fit is retried and then refused
+    (:class:`~gprace.errors.FitError`), and no model file is written.
     """
-    from gprace.gp.base import make_gp
+    from gprace.gp.quality import checked_fit
     from gprace.h2h.predictors import load_opponent_gp, save_opponent_gp
 
     key = {"data": _hash_file(dataset), "size": size, "backend": st.backend, "exact_max": st.exact_max,
            "inducing": st.inducing, "seed": seed, "optimize": st.optimize,
-           "hyper": _hash_file(hyper_model) if hyper_model else None, "initial": _hash_file(initial) if initial else None}
+           "hyper": _hash_file(hyper_model) if hyper_model else None, "initial": _hash_file(initial) if initial else None,
+           "validation": _hash_file(validation) if validation else None, "quality": QUALITY_VERSION}
     if _cached(model, key):
         return model
     Z, Y = read_dataset(dataset)
@@ -326,11 +370,22 @@ def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyp
 
     console.info(f"h2h train: fitting the {backend} opponent GP on {len(Z)} points ({model.name})")
     t0 = time.perf_counter()
-    gp = make_gp(backend, **settings).fit(Z, Y)
+    Zv, Yv = read_dataset(validation) if validation is not None else (None, None)
+    gp, quality = checked_fit(backend, settings, Z, Y, Zv, Yv, outputs=OUTPUTS, inputs=FEATURES, what=str(model))
     meta = {"fit_s": time.perf_counter() - t0, "feature_map": FEATURE_MAP, "input_names": list(FEATURES), "output_names": list(OUTPUTS),
-            "n_points": len(Z), "y_std": json.dumps(Y.std(axis=0).tolist()), **extra}
+            "n_points": len(Z), "y_std": json.dumps(Y.std(axis=0).tolist()), "quality": quality.to_json(), **extra}
     model.parent.mkdir(parents=True, exist_ok=True)
     return save_opponent_gp(model, gp, meta, config_hash=config_hash(key), seed=seed)
+
+
+def fit_report(model: Path):
+    """The :class:`~gprace.gp.quality.FitQuality` stored with a model (None for a model from before
+    the reports)."""
+    from gprace.gp.quality import FitQuality
+    from gprace.h2h.predictors import read_opponent_gp
+
+    text = read_opponent_gp(model)[1].get("quality")
+    return FitQuality.from_json(str(text)) if text else None
 
 
 def _hash_file(path: Path) -> str:
@@ -350,7 +405,8 @@ def explore(st: Settings, out: Path, init_model: Path, init_data: Path) -> Path:
     n_ep = max(1, int(round(st.explore_minutes * 60.0 / st.episode_seconds)))
     loop = {"kind": "loop", "width": st.width if st.explore_width is None else st.explore_width}
     model_hash, data_hash = _hash_file(init_model), _hash_file(init_data)
-    tasks = [{"id": f"explore-{i}", "track": loop, "seed": SEED_EXPLORE + i, "predictor": "gp",
+    base = SEED_EXPLORE + CHAIN_STRIDE * st.seed
+    tasks = [{"id": f"explore-{i}", "track": loop, "seed": base + i, "predictor": "gp",
               "model": str(init_model), "alpha": st.alpha, "explore_data": str(init_data),
               "duration": st.episode_seconds, "config": st.race_config(), "model_hash": model_hash,
               "data_hash": data_hash}
@@ -369,16 +425,29 @@ def explore(st: Settings, out: Path, init_model: Path, init_data: Path) -> Path:
 def models(st: Settings, out: Path) -> dict[str, Path]:
     """All GP models of the protocol (cached): baseline (all collection data), init (first
     ``init_runs``), explore (diverse selection of init + exploration data, init's hyperparameters),
-    select (diverse selection of the baseline data, baseline's hyperparameters, same size)."""
+    select (diverse selection of the baseline data, baseline's hyperparameters, same size). Every
+    fit is checked against the validation set (see :func:`train`) and reported on the console."""
     d = collect(st, out)
     m = out / "models"
-    paths = {"baseline": train(d["collect"], m / "baseline.h5", st), "init": train(d["init"], m / "init.h5", st)}
+    fit = dict(seed=st.seed, validation=d["validation"])
+    paths = {"baseline": train(d["collect"], m / "baseline.h5", st, **fit), "init": train(d["init"], m / "init.h5", st, **fit)}
     ex = explore(st, out, paths["init"], d["init"])
-    paths["explore"] = train(ex, m / "explore.h5", st, size=st.dict_size, hyper_model=paths["init"], initial=d["init"])
+    paths["explore"] = train(ex, m / "explore.h5", st, size=st.dict_size, hyper_model=paths["init"], initial=d["init"], **fit)
     from gprace.h2h.predictors import read_opponent_gp
 
     n_explore = int(read_opponent_gp(paths["explore"])[1].get("n_points", st.dict_size))
-    paths["select"] = train(d["collect"], m / "select.h5", st, size=n_explore, hyper_model=paths["baseline"])
+    paths["select"] = train(d["collect"], m / "select.h5", st, size=n_explore, hyper_model=paths["baseline"], **fit)
+    from gprace.console import console
+
+    for name, path in paths.items():
+        q = fit_report(path)
+        worst = int(np.argmax(np.asarray(q.heldout) / np.asarray(q.reference)))
+        console.info(f"fit {name}{'' if st.seed == 0 else f' (seed {st.seed})'}: held-out error "
+                     f"{' '.join(f'{h:.3f}' for h in q.heldout)} (exact GP on {q.reference_points} points: "
+                     f"{' '.join(f'{r:.3f}' for r in q.reference)}), noise max {max(q.noise):.2g}, worst "
+                     f"{q.outputs[worst]}, attempts {q.attempts}")
+        if q.cautions():
+            console.warn(f"fit {name}: {q.cautions()}")
     return paths
 
 
@@ -455,23 +524,34 @@ def _offline_errors(task: dict) -> dict:
 def offline_errors(st: Settings, out: Path, raced: dict[str, list[dict]], model_paths: dict[str, Path]) -> dict:
     """Offline e_y errors ``{offline predictor: (K, start times)}`` over every closed-loop race;
     one task per race, recorded under ``errors/`` and reused like the races."""
+    return offline_error_columns(st, out, raced, model_paths)[0]
+
+
+def offline_error_columns(st: Settings, out: Path, raced: dict[str, list[dict]],
+                          model_paths: dict[str, Path]) -> tuple[dict, np.ndarray]:
+    """:func:`offline_errors` and the evaluation track of every column (start time)."""
     names = {p: (str(model_paths[p]) if p != "cv" else None) for p in st.offline}
     hashes = {p: _hash_file(Path(v)) for p, v in names.items() if v is not None}
     errs: dict[str, list[np.ndarray]] = {p: [] for p in st.offline}
+    tracks: list[np.ndarray] = []
     for p in st.raced:
-        tasks = []
+        tasks, track_of = [], []
         for i, rec in enumerate(raced[p]):
             if rec["attrs"].get("ok"):
                 t = json.loads(rec["attrs"]["task"])
                 tasks.append({"id": f"errors-{p}-{i}", "record": str(_record_path(out / "eval" / p, i)),
                               "record_hash": rec["attrs"]["task_hash"], "track": t["track"], "seed": t["seed"],
                               "config": t["config"], "models": names, "model_hashes": hashes})
-        for r in run_tasks(tasks, out / "errors" / p, st, f"offline errors {p}", fn=offline_errors_task):
+                track_of.append(i)
+        recs = run_tasks(tasks, out / "errors" / p, st, f"offline errors {p}", fn=offline_errors_task)
+        for i, r in zip(track_of, recs):
             if r["attrs"].get("ok"):
                 for q in st.offline:
                     errs[q].append(r["arrays"][q])
+                tracks.append(np.full(r["arrays"][st.offline[0]].shape[1] if st.offline else 0, i))
     K = H2H_K(st)
-    return {p: (np.hstack(v) if v else np.zeros((K, 0))) for p, v in errs.items()}
+    return ({p: (np.hstack(v) if v else np.zeros((K, 0))) for p, v in errs.items()},
+            np.concatenate(tracks) if tracks else np.zeros(0, int))
 
 
 def H2H_K(st: Settings) -> int:
@@ -527,14 +607,60 @@ def failed_races_text(row: dict, most: int = 5) -> str:
     return text
 
 
-def head2head(st: Settings, out: Path) -> dict:
-    st.check()
+def chain_dir(out: Path, seed: int) -> Path:
+    """Folder of one chain: ``out`` itself for seed 0 (the single-seed layout), else ``out/seed_<s>``."""
+    return out if seed == 0 else out / f"seed_{seed}"
+
+
+def run_chain(st: Settings, out: Path) -> tuple[dict, "TrackData", dict]:
+    """One seed of the whole chain (collection, training, exploration, evaluation) in ``out``:
+    its table, its results per track and its fit reports."""
+    from gprace.h2h.spread import track_data
+
     paths = models(st, out)
     raced = race_predictors(st, out, paths)
-    errors = offline_errors(st, out, raced, paths)
-    tab = table(st, raced, errors)
+    errors, tracks = offline_error_columns(st, out, raced, paths)
+    fits = {name: asdict(fit_report(path)) for name, path in paths.items()}
+    return table(st, raced, errors), track_data(raced, errors, tracks, st.tracks), fits
+
+
+def head2head(st: Settings, out: Path) -> dict:
+    """The protocol over ``st.seeds``: one chain per seed (:func:`chain_dir`), every batch through
+    the executor; the table of the first seed plus ``per_seed`` tables, ``fits`` (quality reports),
+    ``spread`` (every figure over seeds and its bootstrap interval over tracks) and ``claims``."""
+    from gprace.h2h.spread import summarise
+
+    st.check()
+    tables, data, fits = {}, [], {}
+    for s in st.seeds:
+        tab, td, fit = run_chain(replace(st, seed=s), chain_dir(out, s))
+        tables[str(s)], fits[str(s)] = tab, fit
+        data.append(td)
+    spread = summarise(data)
+    first = tables[str(st.seeds[0])]
+    tab = {**first, "seeds": list(st.seeds), "per_seed": tables, "fits": fits,
+           "spread": {k: v for k, v in spread.items() if not k.startswith("diff.")},
+           "claims": {k[len("diff."):]: v for k, v in spread.items() if k.startswith("diff.")}}
+    tab["settings"] = {k: v for k, v in first["settings"].items() if k != "seed"}
     (out / "table.json").write_text(json.dumps(tab, indent=2, default=_nan))
     return tab
+
+
+def parse_seeds(text: str | int) -> tuple[int, ...]:
+    """``--seeds``: a count N (seeds 0..N-1) or a comma-separated list of seeds (``"0,4,7"``, ``"5,"``)."""
+    t = str(text).strip()
+    try:
+        if "," not in t:
+            n = int(t)
+            if n < 1:
+                raise InputError(f"--seeds must be a count >= 1 or a list of seeds, got {text!r}")
+            return tuple(range(n))
+        seeds = tuple(int(x) for x in t.split(",") if x.strip())
+    except ValueError:
+        raise InputError(f"--seeds must be a count or a comma-separated list of integers, got {text!r}") from None
+    if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
+        raise InputError(f"--seeds: a list of distinct seeds >= 0, got {text!r}")
+    return seeds
 
 
 def _nan(o):

@@ -1,0 +1,167 @@
+"""Spread of the head-to-head figures: bootstrap over tracks and spread over seeds of the chain.
+
+Every figure of the table (border hits, collisions, overtakes, overtake time, e_y error per step)
+is a weighted sum over the evaluation tracks, so one function, :func:`figures`, computes it for
+the plain table (weights 1) and for every bootstrap resample at once (weights = how often each
+track was drawn, ``(B, n)``). The chains of all seeds race the same evaluation scenarios, so a
+resample draws the same tracks for every seed and the bootstrap interval of the seed mean covers
+the choice of scenarios, while the spread over seeds (sample standard deviation) covers
+collection, training and exploration.
+
+A claim of the paper (exploration against the baseline) is a difference ``explore - baseline``
+with a claimed sign. It ``holds`` only where, in every seed, the 95 % bootstrap interval of the
+difference lies on the claimed side of zero; it ``fails`` where in every seed it lies on the other
+side; ``seeds disagree`` where some seeds show it and others the opposite, ``not resolved``
+otherwise (the difference is within the spread).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+BOOTSTRAP = 2000
+LEVEL = 0.95
+
+
+@dataclass
+class TrackData:
+    """One chain's results per evaluation track (the unit of the bootstrap)."""
+
+    border: dict[str, np.ndarray]  # raced predictor -> (n,) 0/1
+    collision: dict[str, np.ndarray]
+    overtake_time: dict[str, np.ndarray]  # (n,) seconds, NaN without an overtake (or a failed run)
+    inside: np.ndarray  # (n,) every raced predictor ran and stayed inside
+    err_sum: dict[str, np.ndarray]  # offline predictor -> (n, K) sum of |e_y| errors of the track's start times
+    err_count: np.ndarray  # (n,) start times per track
+
+    @property
+    def n(self) -> int:
+        return len(self.inside)
+
+
+def track_data(raced: dict[str, list[dict]], errors: dict[str, np.ndarray], tracks: np.ndarray, n: int) -> TrackData:
+    """From the run records of each raced predictor (one per track) and the offline errors
+    ``{predictor: (K, columns)}`` with the track of every column ``tracks (columns,)``."""
+    border, collision, ot = {}, {}, {}
+    inside = np.ones(n, dtype=bool)
+    for p, recs in raced.items():
+        ok = np.array([bool(r["attrs"].get("ok")) for r in recs], dtype=bool)
+        a = [r["attrs"] for r in recs]
+        border[p] = np.array([bool(x.get("border_hit")) for x in a], float) * ok
+        collision[p] = np.array([bool(x.get("collision")) for x in a], float) * ok
+        ot[p] = np.where(ok, np.array([x.get("overtake_time", np.nan) for x in a], float), np.nan)
+        inside &= ok & (border[p] == 0)
+    tracks = np.asarray(tracks, int)
+    count = np.bincount(tracks, minlength=n).astype(float)
+    err_sum = {q: np.stack([np.bincount(tracks, weights=E[k], minlength=n) for k in range(E.shape[0])], axis=1)
+               if E.shape[1] else np.zeros((n, E.shape[0])) for q, E in errors.items()}
+    return TrackData(border, collision, ot, inside, err_sum, count)
+
+
+def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.nan)
+
+
+def figures(td: TrackData, W: np.ndarray) -> dict[str, np.ndarray]:
+    """Every figure and every claim's difference for track weights ``W (B, n)``: ``{name: (B,)}``.
+
+    Names: ``<predictor>.border_hits``, ``.collisions``, ``.overtakes``, ``.overtake_time`` (mean
+    over the tracks where every raced predictor stayed inside and this one overtook, as in the
+    table), ``<predictor>.ey_error_<k>`` (k = 1..K), and for the claims ``diff.<figure>`` =
+    explore - baseline (overtake time paired: tracks where both overtook)."""
+    W = np.atleast_2d(np.asarray(W, float))
+    out: dict[str, np.ndarray] = {}
+    for p in td.border:
+        t = td.overtake_time[p]
+        m = td.inside & np.isfinite(t)
+        out[f"{p}.border_hits"] = W @ td.border[p]
+        out[f"{p}.collisions"] = W @ td.collision[p]
+        out[f"{p}.overtakes"] = W @ np.isfinite(t).astype(float)
+        out[f"{p}.overtake_time"] = _ratio(W @ np.where(m, t, 0.0), W @ m.astype(float))
+    den = W @ td.err_count
+    for q, S in td.err_sum.items():
+        for k in range(S.shape[1]):
+            out[f"{q}.ey_error_{k + 1}"] = _ratio(W @ S[:, k], den)
+    if "explore" in td.border and "baseline" in td.border:
+        for f in ("border_hits", "collisions", "overtakes"):
+            out[f"diff.{f}"] = out[f"explore.{f}"] - out[f"baseline.{f}"]
+        te, tb = td.overtake_time["explore"], td.overtake_time["baseline"]
+        both = td.inside & np.isfinite(te) & np.isfinite(tb)
+        out["diff.overtake_time"] = _ratio(W @ np.where(both, te - tb, 0.0), W @ both.astype(float))
+    if "explore" in td.err_sum and "baseline" in td.err_sum:
+        for k in range(td.err_sum["explore"].shape[1]):
+            out[f"diff.ey_error_{k + 1}"] = out[f"explore.ey_error_{k + 1}"] - out[f"baseline.ey_error_{k + 1}"]
+    return out
+
+
+def resample_weights(n: int, B: int = BOOTSTRAP, seed: int = 0) -> np.ndarray:
+    """``(B, n)``: how often each of ``n`` tracks is drawn in each of ``B`` resamples."""
+    return np.random.default_rng(seed).multinomial(n, np.full(n, 1.0 / n), size=B).astype(float)
+
+
+def _interval(v: np.ndarray) -> list[float | None]:
+    v = v[np.isfinite(v)]
+    if not len(v):
+        return [None, None]
+    a = 100 * (1 - LEVEL) / 2
+    return [float(np.percentile(v, a)), float(np.percentile(v, 100 - a))]
+
+
+def seed_stats(values: list[float]) -> dict:
+    """Mean, sample standard deviation (None for one seed), min and max over seeds (NaN ignored)."""
+    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], float)
+    return {"mean": float(v.mean()) if len(v) else None,
+            "seed_std": float(v.std(ddof=1)) if len(v) > 1 else None,
+            "min": float(v.min()) if len(v) else None, "max": float(v.max()) if len(v) else None}
+
+
+def summarise(per_seed: list[TrackData], B: int = BOOTSTRAP, seed: int = 0) -> dict[str, dict]:
+    """Per figure: ``values`` per seed, their :func:`seed_stats` and ``ci``, the bootstrap interval
+    over tracks of the seed mean; for ``diff.*`` also ``seed_ci`` (each seed's interval) and the
+    ``verdict`` (see the module docstring)."""
+    n = per_seed[0].n
+    W = resample_weights(n, B, seed)
+    ones = np.ones((1, n))
+    plain = [figures(td, ones) for td in per_seed]
+    boot = [figures(td, W) for td in per_seed]
+    out = {}
+    for name in plain[0]:
+        vals = [float(f[name][0]) for f in plain]
+        with np.errstate(invalid="ignore"):
+            mean_boot = np.mean(np.stack([b[name] for b in boot]), axis=0)
+        row = {"values": vals, **seed_stats(vals), "ci": _interval(mean_boot)}
+        if name.startswith("diff."):
+            row["seed_ci"] = [_interval(b[name]) for b in boot]
+            row["verdict"] = verdict(row["seed_ci"], claimed=CLAIMED_SIGN.get(name.split(".", 1)[1], -1))
+        out[name] = row
+    return out
+
+
+CLAIMED_SIGN = {"overtakes": +1}
+"""The paper claims exploration lowers every difference (errors, border hits, collisions,
+overtake time) except the number of overtakes, which it raises."""
+
+
+def verdict(seed_ci: list[list[float | None]], claimed: int = -1) -> str:
+    """``holds`` / ``fails`` / ``seeds disagree`` / ``not resolved`` from each seed's interval of
+    ``explore - baseline`` and the claimed sign (-1: exploration lowers the figure)."""
+    side = []
+    for lo, hi in seed_ci:
+        if lo is None:
+            side.append(0)
+        elif claimed * hi > 0 and claimed * lo > 0:
+            side.append(1)  # the whole interval on the claimed side
+        elif claimed * hi < 0 and claimed * lo < 0:
+            side.append(-1)
+        else:
+            side.append(0)
+    if side and all(s == 1 for s in side):
+        return "holds"
+    if side and all(s == -1 for s in side):
+        return "fails"
+    if 1 in side and -1 in side:
+        return "seeds disagree"
+    return "not resolved"

@@ -1,0 +1,109 @@
+"""Fit quality reports: a known noise level is recovered, a degenerate fit is retried or refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gprace.errors import FitError
+from gprace.gp import make_gp
+from gprace.gp import quality as Q
+
+SIGMA = 0.1
+
+
+@pytest.fixture(autouse=True)
+def one_blas_thread():
+    """Small fits run 2 to 5 times faster without BLAS threads on a busy machine."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        yield
+
+
+def _data(n: int, seed: int, noise_output: bool = False):
+    rng = np.random.default_rng(seed)
+    Z = rng.uniform(-2, 2, (n, 2))
+    f = np.sin(1.5 * Z[:, 0]) + 0.3 * Z[:, 1]
+    cols = [f + SIGMA * rng.normal(size=n), 0.5 * np.cos(Z[:, 1]) + SIGMA * rng.normal(size=n)]
+    if noise_output:
+        cols[1] = rng.normal(size=n)  # pure noise: nothing to learn
+    return Z, np.column_stack(cols)
+
+
+def test_report_recovers_a_known_noise_level():
+    Z, Y = _data(100, 0)
+    Zv, Yv = _data(200, 1)
+    gp = make_gp("exact", kernel="matern15").fit(Z, Y)
+    q = Q.fit_quality(gp, Z, Y, Zv, Yv, outputs=["a", "b"], reference_points=50)
+    assert not q.degenerate, q.problems()
+    # normalised noise times the output variance is the noise variance we put in
+    np.testing.assert_allclose(np.sqrt(np.asarray(q.noise) * Y.var(axis=0)), SIGMA, rtol=0.3)
+    np.testing.assert_allclose(np.sqrt(gp.noise_), SIGMA, rtol=0.3)
+    # held-out error: close to the noise floor (sigma / spread of the outputs), like the reference's
+    floor = SIGMA / Yv.std(axis=0)
+    assert np.all(np.asarray(q.heldout) < 1.5 * floor + 0.05)
+    assert np.all(np.asarray(q.heldout) <= np.asarray(q.reference) + 0.02)
+    assert q.heldout_points == 200 and q.reference_points == 50
+    # the report travels as JSON (model attributes)
+    again = Q.FitQuality.from_json(q.to_json())
+    assert again == q and len(again.rows()) == 2
+
+
+def test_a_pure_noise_output_is_detected_and_refused():
+    Z, Y = _data(380, 2, noise_output=True)  # 304 rows fitted, 76 held out: the reference sees 300
+    with pytest.raises(FitError, match=r"noise: learned nothing .*no signal in the data.*refused") as exc:
+        Q.checked_fit("exact", {"kernel": "matern15"}, Z, Y, outputs=["signal", "noise"], attempts=1, what="m.h5")
+    assert "\n" not in str(exc.value) and "signal:" not in str(exc.value) and "after 1 attempts" in str(exc.value)
+    assert exc.value.exit_code == 2
+
+
+def test_too_few_points_to_tell_give_a_warning_not_a_refusal():
+    Z, Y = _data(100, 5, noise_output=True)
+    gp, q = Q.checked_fit("exact", {"kernel": "matern15"}, Z, Y, outputs=["signal", "noise"])
+    assert not q.degenerate and q.warnings[0] == [] and "cannot tell a signal from noise" in q.cautions()
+    assert q.rows()[1][-1].startswith("learned nothing")
+
+
+def test_a_fit_forced_degenerate_is_refused_without_retries():
+    Z, Y = _data(120, 3)
+    settings = {"kernel": "matern15", "optimize": False, "noise": 10.0, "length_scale": 100.0}
+    with pytest.raises(FitError, match="after 1 attempts") as exc:
+        Q.checked_fit("exact", settings, Z, Y, outputs=["a", "b"])
+    assert "(a: held-out error" in str(exc.value) and "noise 10.00 >= 0.5" in str(exc.value)
+
+
+def test_a_degenerate_first_fit_is_retried_from_the_reference(monkeypatch):
+    Z, Y = _data(120, 4)
+    calls = []
+    real = Q.make_gp
+
+    def flaky(backend, **s):
+        calls.append(dict(s))
+        if len(calls) == 2:  # the first fit (after the reference) degenerates
+            return real(backend, **{**s, "optimize": False, "noise": 10.0})
+        return real(backend, **s)
+
+    monkeypatch.setattr(Q, "make_gp", flaky)
+    gp, q = Q.checked_fit("exact", {"kernel": "matern15", "seed": 7}, Z, Y, outputs=["a", "b"])
+    assert q.attempts == 2 and not q.degenerate and "noise 10.00 >= 0.5" in q.retries[0]
+    assert calls[-1]["seed"] == 7 + 1000 and np.shape(calls[-1]["length_scale"]) == (2, 2)
+
+
+def test_sparse_backend_report():
+    Z, Y = _data(150, 5)
+    gp, q = Q.checked_fit("sparse", {"kernel": "matern15", "n_inducing": 40, "max_iter": 30}, Z, Y)
+    assert not q.degenerate, q.problems()
+    assert len(q.noise) == 2 and len(q.at_bounds) == 2 and q.heldout_points == 30
+    assert "refitted on all 150" in q.heldout_source and gp.n_train_ == 150
+
+
+def test_a_validation_set_the_data_do_not_cover_gives_a_warning():
+    """Nobody learns an output on a validation set from elsewhere: no retry can help, so it is
+    reported, not refused (an exploration dictionary judged on random-track steps)."""
+    Z, Y = _data(320, 6)
+    Zv, Yv = _data(100, 7)
+    Yv[:, 1] = np.random.default_rng(8).normal(size=100)  # another relation where it is judged
+    gp, q = Q.checked_fit("exact", {"kernel": "matern15"}, Z, Y, Zv, Yv, outputs=["a", "b"], attempts=1)
+    assert not q.degenerate and q.reference_points == Q.REFERENCE_POINTS
+    assert "do not cover the held-out set" in q.cautions() and q.cautions().startswith("b:")
