@@ -83,5 +83,8 @@ def test_head2head_example(tmp_path):
     assert set(tab["racing"]) == {"baseline", "explore"}
     for row in tab["racing"].values():
         assert row["runs"] == 2
+    fits = tab["fits"]["0"]  # every model's quality report, read once per chain
+    assert set(fits) == {"baseline", "init", "explore", "select"}
+    assert all(len(f["heldout"]) == len(f["outputs"]) == 5 and f["attempts"] >= 1 for f in fits.values())
     html = (tmp_path / "out" / "report.html").read_text()
     assert {"h2h", "gp", "artifacts"} <= _sections(html)

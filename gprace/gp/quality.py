@@ -158,7 +158,6 @@ def fit_quality(gp: GPBackend, Z: np.ndarray, Y: np.ndarray, Z_val: np.ndarray, 
     inputs = list(inputs) if inputs is not None else [f"z{j}" for j in range(Z.shape[1])]
     ref, idx = reference if reference is not None else reference_gp(gp.kernel, Z, Y, reference_points, seed,
                                                                     shared=_shares_kernel(gp))
-    source = heldout_source
     held, refe = _nrmse(gp.predict(Z_val)[0], Y_val), _nrmse(ref.predict(Z_val)[0], Y_val)
     noise = np.exp(gp.hyper_.log_sn2)
     bounds = [_bounds_hit(gp, o, inputs) for o in range(p)]
@@ -189,7 +188,7 @@ def fit_quality(gp: GPBackend, Z: np.ndarray, Y: np.ndarray, Z_val: np.ndarray, 
         warnings.append(w)
     return FitQuality(outputs=outputs, noise=noise.tolist(), heldout=held.tolist(), reference=refe.tolist(),
                       reference_noise=np.exp(ref.hyper_.log_sn2).tolist(), at_bounds=bounds, reasons=reasons,
-                      warnings=warnings, heldout_points=int(len(Z_val)), heldout_source=source,
+                      warnings=warnings, heldout_points=int(len(Z_val)), heldout_source=heldout_source,
                       reference_points=int(len(idx)))
 
 

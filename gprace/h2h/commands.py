@@ -210,7 +210,7 @@ def register(app: typer.Typer) -> None:
         st = Settings(backend=backend, exact_max=exact_max, inducing=inducing)
         path = run(dataset, model, st, size=size, hyper_model=hyper_model, initial=initial, validation=validation)
         _, attrs = read_opponent_gp(path)
-        q = fit_report(path)
+        q = fit_report(attrs)
         res = {"model": str(path), "backend": attrs["backend"], "points": int(attrs.get("n_points", 0)),
                "quality": None if q is None else asdict(q)}
         if as_json:

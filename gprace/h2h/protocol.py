@@ -378,13 +378,14 @@ def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyp
     return save_opponent_gp(model, gp, meta, config_hash=config_hash(key), seed=seed)
 
 
-def fit_report(model: Path):
-    """The :class:`~gprace.gp.quality.FitQuality` stored with a model (None for a model from before
-    the reports)."""
+def fit_report(model: Path | dict):
+    """The :class:`~gprace.gp.quality.FitQuality` stored with a model (its path, or its attributes
+    already read), None for a model from before the reports."""
     from gprace.gp.quality import FitQuality
     from gprace.h2h.predictors import read_opponent_gp
 
-    text = read_opponent_gp(model)[1].get("quality")
+    attrs = model if isinstance(model, dict) else read_opponent_gp(model)[1]
+    text = attrs.get("quality")
     return FitQuality.from_json(str(text)) if text else None
 
 
@@ -426,7 +427,7 @@ def models(st: Settings, out: Path) -> dict[str, Path]:
     """All GP models of the protocol (cached): baseline (all collection data), init (first
     ``init_runs``), explore (diverse selection of init + exploration data, init's hyperparameters),
     select (diverse selection of the baseline data, baseline's hyperparameters, same size). Every
-    fit is checked against the validation set (see :func:`train`) and reported on the console."""
+    fit is checked against the validation set (see :func:`train`; :func:`report_fits` prints them)."""
     d = collect(st, out)
     m = out / "models"
     fit = dict(seed=st.seed, validation=d["validation"])
@@ -437,18 +438,26 @@ def models(st: Settings, out: Path) -> dict[str, Path]:
 
     n_explore = int(read_opponent_gp(paths["explore"])[1].get("n_points", st.dict_size))
     paths["select"] = train(d["collect"], m / "select.h5", st, size=n_explore, hyper_model=paths["baseline"], **fit)
+    return paths
+
+
+def report_fits(paths: dict[str, Path], seed: int = 0) -> dict[str, Any]:
+    """Read every model's quality report once, print one line per model (and its warnings);
+    ``{name: report as a dict}``."""
     from gprace.console import console
 
+    out = {}
     for name, path in paths.items():
         q = fit_report(path)
+        out[name] = asdict(q)
         worst = int(np.argmax(np.asarray(q.heldout) / np.asarray(q.reference)))
-        console.info(f"fit {name}{'' if st.seed == 0 else f' (seed {st.seed})'}: held-out error "
+        console.info(f"fit {name}{'' if seed == 0 else f' (seed {seed})'}: held-out error "
                      f"{' '.join(f'{h:.3f}' for h in q.heldout)} (exact GP on {q.reference_points} points: "
                      f"{' '.join(f'{r:.3f}' for r in q.reference)}), noise max {max(q.noise):.2g}, worst "
                      f"{q.outputs[worst]}, attempts {q.attempts}")
         if q.cautions():
             console.warn(f"fit {name}: {q.cautions()}")
-    return paths
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -620,7 +629,7 @@ def run_chain(st: Settings, out: Path) -> tuple[dict, "TrackData", dict]:
     paths = models(st, out)
     raced = race_predictors(st, out, paths)
     errors, tracks = offline_error_columns(st, out, raced, paths)
-    fits = {name: asdict(fit_report(path)) for name, path in paths.items()}
+    fits = report_fits(paths, st.seed)
     return table(st, raced, errors), track_data(raced, errors, tracks, st.tracks), fits
 
 
