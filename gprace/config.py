@@ -299,43 +299,20 @@ def config_hash(obj: Any) -> str:
 
 
 def dumps_toml(data: dict[str, Any]) -> str:
-    """Minimal TOML writer for our configs (scalars, nested tables, arrays of tables)."""
-    lines: list[str] = []
-    _emit(data, [], lines)
-    return "\n".join(lines).strip() + "\n"
+    """TOML text of a config (tomli-w); effects in the flat form users write (``name`` beside the
+    parameters, not under ``params``)."""
+    import tomli_w
+
+    return tomli_w.dumps(_flat_effects(data))
 
 
-def _scalar(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, float)):
-        return repr(float(v)) if isinstance(v, float) else str(v)
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, (list, tuple)) and all(not isinstance(x, dict) for x in v):
-        return "[" + ", ".join(_scalar(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+def _flat_effects(data: Any) -> Any:
+    if isinstance(data, dict):
+        return {k: (_flatten_effects_list(v) if k == "effects" else _flat_effects(v)) for k, v in data.items()}
+    return data
 
 
-def _emit(data: dict[str, Any], prefix: list[str], lines: list[str]) -> None:
-    tables, arrays = [], []
-    for k, v in data.items():
-        if isinstance(v, dict):
-            tables.append((k, v))
-        elif isinstance(v, (list, tuple)) and v and all(isinstance(x, dict) for x in v):
-            arrays.append((k, v))
-        elif isinstance(v, (list, tuple)) and not v:
-            continue
-        else:
-            lines.append(f"{k} = {_scalar(v)}")
-    for k, v in tables:
-        lines.append("")
-        lines.append(f"[{'.'.join(prefix + [k])}]")
-        _emit(v, prefix + [k], lines)
-    for k, items in arrays:
-        for item in items:
-            if k == "effects" and "params" in item:  # flat form, as users write it
-                item = {"name": item["name"], **item["params"]}
-            lines.append("")
-            lines.append(f"[[{'.'.join(prefix + [k])}]]")
-            _emit(item, prefix + [k], lines)
+def _flatten_effects_list(items: Any) -> Any:
+    if not isinstance(items, list):
+        return items
+    return [{"name": e["name"], **e["params"]} if isinstance(e, dict) and "params" in e else e for e in items]

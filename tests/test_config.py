@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import tomllib
+
 import pytest
 
 from gprace.config import (
@@ -122,7 +124,8 @@ def test_toml_writer_round_trips_a_plant(tmp_path):
     f.write_text(p.to_toml())
     q = load_toml(f, PlantConfig)
     assert q == p and q.digest() == p.digest()
-    assert dumps_toml({"a": 1, "b": {"c": [1.0, 2.0]}}) == "a = 1\n\n[b]\nc = [1.0, 2.0]\n"
+    data = {"a": 1, "b": {"c": [1.0, 2.0]}, "effects": [{"name": "drag", "params": {"k": 0.5}}]}
+    assert tomllib.loads(dumps_toml(data)) == {"a": 1, "b": {"c": [1.0, 2.0]}, "effects": [{"name": "drag", "k": 0.5}]}
 
 
 def test_configs_are_frozen(audi):
