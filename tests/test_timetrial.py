@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gprace.errors import ConfigError, RunFailedError
-from gprace.timetrial.iterate import FAIL_ENV, IterateSettings, build_summary, iterate, jsonable
+from gprace.timetrial.iterate import IterateSettings, Steps, build_summary, iterate, jsonable
 
 pytest.importorskip("gprace.gp")
 
@@ -21,13 +21,20 @@ def test_iterate_resumes_after_kill(tmp_path, monkeypatch):
     from gprace.io.runs import read_run
 
     out = tmp_path / "exp"
-    monkeypatch.setenv(FAIL_ENV, "t0_i2_select")
+    mark = Steps.mark
+
+    def mark_then_fail(self, name):  # a kill right after this step's marker is written
+        mark(self, name)
+        if name == "t0_i2_select":
+            raise RuntimeError(f"injected failure after step {name}")
+
+    monkeypatch.setattr(Steps, "mark", mark_then_fail)
     with pytest.raises(RunFailedError, match="injected failure"):
         iterate(TINY, out)
     done_before = sorted(p.name for p in (out / ".steps").glob("*.done"))
     assert "t0_i2_select.done" in done_before and "t0_i2_retrain.done" not in done_before
     stamp = (out / "trial_0" / "iter_01" / "run.h5").stat().st_mtime_ns
-    monkeypatch.delenv(FAIL_ENV)
+    monkeypatch.setattr(Steps, "mark", mark)
     summary = iterate(TINY, out)
     # finished steps were not redone
     assert (out / "trial_0" / "iter_01" / "run.h5").stat().st_mtime_ns == stamp

@@ -50,9 +50,6 @@ import numpy as np
 from gprace.console import console, jsonable
 from gprace.errors import ConfigError, InputError, RunFailedError, SolverError
 
-FAIL_ENV = "GPRACE_ITERATE_FAIL_AFTER"  # test hook: raise after the named step's marker is written
-
-
 @dataclass(frozen=True)
 class IterateSettings:
     alphas: tuple[float, ...] = (0.857, 0.714, 0.0)
@@ -126,8 +123,6 @@ class Steps:
         tmp = p.with_suffix(".tmp")
         tmp.write_text(time.strftime("%Y-%m-%dT%H:%M:%S"))
         os.replace(tmp, p)
-        if os.environ.get(FAIL_ENV) == name:
-            raise RuntimeError(f"injected failure after step {name}")
 
 
 def read_record(path: Path) -> dict:
