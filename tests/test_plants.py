@@ -220,3 +220,22 @@ def test_border_hits_is_the_footprint_against_the_edges(circle_track):
     X[:, 4] = [wl - 1.01, wl - 0.99, -wr + 1.01, -wr + 0.99, wl - 2.01, wl - 1.99]
     X[4:, 3] = np.pi / 2
     np.testing.assert_array_equal(border_hits(circle_track, X, length, width), [False, True, False, True, False, True])
+
+
+def test_one_stop_rule_names_off_track_spin_and_stall():
+    from gprace.sim.stop import SPIN_EPSI, stop_reason
+
+    ok = np.array([20.0, 0.5, 0.1, 0.2, 1.0, 100.0])
+    assert stop_reason(ok, 5.0, 5.0, 2.0, 1.0) == ""
+    off = ok.copy()
+    off[4] = 9.1  # more than two car widths outside the left border
+    assert "left the track at s = 100.0" in stop_reason(off, 5.0, 5.0, 2.0, 1.0)
+    spin = ok.copy()
+    spin[3] = SPIN_EPSI + 0.01
+    assert "spun" in stop_reason(spin, 5.0, 5.0, 2.0, 1.0)
+    slide = ok.copy()
+    slide[1] = 0.6 * 20.0 + 2.01
+    assert "spun" in stop_reason(slide, 5.0, 5.0, 2.0, 1.0)
+    slow = ok.copy()
+    slow[0] = 0.9
+    assert "stalled" in stop_reason(slow, 5.0, 5.0, 2.0, 1.0)

@@ -6,8 +6,8 @@ curvature at the measured ``s``, the lap counter and ``border_hit`` (1 when the 
 from the *true* state, crosses a track edge: :func:`gprace.sim.record.border_hits`).
 
 Stops after ``laps`` laps (closed tracks) or at the track end (open tracks). A car that leaves the
-track by more than twice its width, spins (``|e_psi| > 1 rad``) or almost stops ends the run early
-with a warning; the recording up to one second before that is kept (``meta["completed"]`` False).
+track, spins or stalls (:func:`gprace.sim.stop.stop_reason`) ends the run early with a warning;
+the recording up to one second before that is kept (``meta["completed"]`` False).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from gprace.io.runs import Run
 from gprace.plants import make_plant
 from gprace.sim.controller import ReferenceController
 from gprace.sim.record import border_hits, lap_times_of, run_columns
+from gprace.sim.stop import stop_reason
 
 
 def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Run:
@@ -58,13 +59,8 @@ def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Ru
         progress = plant.lap * L + x[5] if track.closed else x[5]
         if progress >= goal:
             break
-        if x[4] > wl + 2 * vehicle.width or x[4] < -wr - 2 * vehicle.width:
-            reason = f"the car left the track at s = {x[5]:.1f} m (e_y = {x[4]:.2f} m)"
-        elif abs(x[3]) > 1.0 or abs(x[1]) > 0.5 * abs(x[0]) + 1.0:
-            reason = f"the car spun at s = {x[5]:.1f} m (e_psi = {x[3]:.2f} rad, v_y = {x[1]:.1f} m/s)"
-        elif x[0] < v_stall:
-            reason = f"the car almost stopped at s = {x[5]:.1f} m (v_x = {x[0]:.2f} m/s)"
-        elif k > n_max:
+        reason = stop_reason(x, wl, wr, vehicle.width, v_stall)
+        if not reason and k > n_max:
             reason = f"no progress to the goal after {n_max} steps"
         if reason:
             break

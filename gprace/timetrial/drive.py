@@ -4,8 +4,8 @@ The car starts on the plan at ``s = 0`` with the plan's state (a flying lap), th
 ``dt`` and the plant integrates each period. Recorded per period: the measured Frenet state, the
 applied input, curvature, lap counter, ``border_hit`` (footprint over an edge), ``solve_time``
 of the QP, ``fallback`` (the QP failed, the shifted previous solution was applied) and
-``explore`` (Algorithm 1 changed the reference). A car that leaves the track by more than twice
-its width or stalls ends the run early (``meta.completed = False``).
+``explore`` (Algorithm 1 changed the reference). A car that leaves the track, spins or stalls
+(:func:`gprace.sim.stop.stop_reason`) ends the run early (``meta.completed = False``).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import numpy as np
 from gprace.errors import InputError
 from gprace.io.runs import Run
 from gprace.mpc.tracking import MPCSettings, TrackingMPC
+from gprace.sim.stop import stop_reason
 
 
 @dataclass(frozen=True)
@@ -83,13 +84,8 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         progress = plant.lap * L + x[5]
         if progress >= goal:
             break
-        if x[4] > wl + 2 * vehicle.width or x[4] < -wr - 2 * vehicle.width:
-            reason = f"the car left the track at s = {x[5]:.1f} m (e_y = {x[4]:.2f} m)"
-        elif x[0] < v_stall:
-            reason = f"the car stalled at s = {x[5]:.1f} m"
-        elif abs(x[3]) > 1.2 or abs(x[1]) > 0.6 * abs(x[0]) + 2.0:
-            reason = f"the car spun at s = {x[5]:.1f} m (e_psi = {x[3]:.2f} rad, v_y = {x[1]:.1f} m/s)"
-        elif k > n_max:
+        reason = stop_reason(x, wl, wr, vehicle.width, v_stall)
+        if not reason and k > n_max:
             reason = f"no lap after {n_max} steps"
         if reason:
             break
