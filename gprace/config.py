@@ -89,7 +89,7 @@ class EffectConfig(Frozen):
     @model_validator(mode="after")
     def _in_catalogue(self) -> "EffectConfig":
         """Unknown effect names and parameters fail when the file is read, not at first use."""
-        from gprace.model.effects import make_effect  # lazy: effects.py imports this module
+        from gprace.model.effects import make_effect  # lazy: gprace.model imports this module
 
         make_effect(self)  # raises ConfigError (a ValueError) naming the effect and parameter
         return self

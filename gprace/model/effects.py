@@ -16,12 +16,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from types import SimpleNamespace
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from gprace.config import EffectConfig
 from gprace.errors import ConfigError
+
+if TYPE_CHECKING:  # config.py builds effects to validate its [[effects]]; no import back at run time
+    from gprace.config import EffectConfig
 
 
 @dataclass(frozen=True)
@@ -76,7 +78,9 @@ class Effect:
     def __repr__(self) -> str:
         return f"{self.name}({', '.join(f'{k}={v!r}' for k, v in self.values.items())})"
 
-    def config(self) -> EffectConfig:
+    def config(self) -> "EffectConfig":
+        from gprace.config import EffectConfig
+
         return EffectConfig(name=self.name, params={k: float(v) for k, v in self.values.items()})
 
     # stage hooks (no-ops by default) ---------------------------------------------------------
