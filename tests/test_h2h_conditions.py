@@ -169,3 +169,18 @@ def test_bad_conditions_exit_2_with_one_line(tmp_path, capsys, args, text):
     err = capsys.readouterr().err.strip()
     assert code == 2 and text in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "out").exists()
+
+
+def test_calibration_reaches_the_races_and_the_coverage_table(tmp_path):
+    st = P.Settings(tracks=2, raced=("cv",), offline=("cv",), max_time=1.5, samples=5, calib_runs=2, workers=1)
+    cal = P.calibrate(st, tmp_path, {})
+    assert set(cal) == {"cv"} and (tmp_path / "calib" / "calibration.json").exists()
+    floor = np.asarray(cal["cv"]["floor"])
+    assert floor.shape == (H2HConfig().pred_steps, 2) and np.all(floor > 0) and np.all(np.diff(floor[:, 1]) >= 0)
+    raced = P.race_predictors(st, tmp_path, {}, cal)
+    assert all(P.json.loads(r["attrs"]["task"])["calibration"]["floor"] == cal["cv"]["floor"] for r in raced["cv"])
+    errors, _, spread = P.offline_error_data(st, tmp_path, raced, {})
+    cov = P.coverage(spread, errors, cal)["cv"]
+    assert cov["points"] == errors["cv"].shape[1] > 0
+    assert all(c == 0 for c in cov["ey_raw"][1:])  # no spread: the raw band covers nothing
+    assert all(0 <= c <= 1 for c in cov["ey"]) and cov["calibrated"]
