@@ -87,10 +87,40 @@ def print_fits(fits: dict) -> None:
                       "outputs; 1 = learned nothing)", ["seed", "model", *outputs, "noise max", "attempts"], rows)
 
 
+def print_conditions(cond: dict) -> None:
+    """The conditions of the comparison (noise, baseline tracks, blocking weight, exploration)."""
+    if not cond:
+        return
+    std = lambda v: " ".join(f"{x:g}" for x in v)  # noqa: E731
+    console.table("Conditions", ["sensor noise std", "process noise std", "baseline tracks", "blocking weight",
+                                 "exploration min"],
+                  [[std(cond["sensor_std"]), std(cond["process_std"]), cond["baseline_tracks"],
+                    f"{cond['blocking_weight']:g}", f"{cond['explore_minutes']:g}"]])
+
+
+def print_coverage(cov: dict) -> None:
+    """Share of the evaluation errors inside the predicted 2-sigma band, calibrated (raw)."""
+    if not cov:
+        return
+    import numpy as np
+
+    def cell(c: dict, out: str, k: int) -> str:
+        v, r = c[out][k], c[f"{out}_raw"][k]
+        return "-" if v is None or not np.isfinite(v) else f"{100 * v:.0f} % ({100 * r:.0f} %)"
+
+    K = max((len(c["ey"]) for c in cov.values()), default=0)
+    rows = [[p, cell(c, "ey", K - 1), cell(c, "s", K - 1), cell(c, "ey", 0), cell(c, "s", 0), c["points"]]
+            for p, c in cov.items() if len(c["ey"]) == K]
+    console.table("Coverage of the errors by the predicted 2-sigma band on the evaluation races, calibrated (raw)",
+                  ["predictor", f"e_y {K} steps", f"s {K} steps",
+                                                                     "e_y 1 step", "s 1 step", "start times"], rows)
+
+
 def print_table(tab: dict, as_json: bool) -> None:
     if as_json:
         console.json(tab)
         return
+    print_conditions(tab.get("conditions", {}))
     spread = tab.get("spread", {})
     seeds = tab.get("seeds", [0])
     how = (f"mean ±std over {len(seeds)} seeds" if len(seeds) > 1 else f"seed {seeds[0]}") + \
@@ -118,6 +148,7 @@ def print_table(tab: dict, as_json: bool) -> None:
     points = ", ".join(f"{p} {e['points']}" for p, e in errs.items())
     console.table(f"Opponent e_y prediction error in metres, {how}, offline on all closed-loop opponent "
                   f"trajectories (start times in the first seed: {points})", ["steps ahead", *errs], erows)
+    print_coverage(tab.get("coverage", {}))
     claims = tab.get("claims", {})
     if claims:
         crows = []
@@ -156,6 +187,17 @@ def register(app: typer.Typer) -> None:
         inducing: int = INDUCING,
         samples: int = typer.Option(50, "--samples", help="GP rollout samples."),
         max_time: float = MAX_TIME,
+        sensor_noise: float = typer.Option(
+            1.0, "--sensor-noise", help="Scale of the measurement noise of both cars' states (1: realistic for 1:10 "
+            "cars, std v_x 0.01 m/s, v_y 0.01 m/s, yaw rate 0.02 rad/s, e_psi 0.005 rad, e_y and s 5 mm; 0: none)."),
+        process_noise: float = typer.Option(
+            1.0, "--process-noise", help="Scale of the process noise per 0.1 s plant step (1: std v_x 0.01 m/s, "
+            "v_y 0.005 m/s, yaw rate 0.02 rad/s; 0: none)."),
+        baseline_tracks: str = typer.Option(
+            "eval", "--baseline-tracks", help="Tracks of the baseline's collection: eval (random evaluation-style "
+            "tracks) or training (the short curve and chicane tracks of Zhu et al. 2022)."),
+        blocking_weight: float = typer.Option(500.0, "--blocking-weight", help="The opponent's blocking weight."),
+        calib_runs: int = typer.Option(20, "--calib-runs", help="Held-out races calibrating every predictor's spread."),
         seeds: str = typer.Option("1", "--seeds", help="Seeds of the whole chain (collection, training, exploration, "
                                   "evaluation): a count N (seeds 0..N-1) or a list such as 0,4,7. Seed 0 writes to "
                                   "--out, seed s to --out/seed_<s>; the evaluation scenarios are shared."),
@@ -169,7 +211,9 @@ def register(app: typer.Typer) -> None:
                        episode_seconds=episode_seconds, explore_width=explore_width, alpha=alpha, dict_size=dict_size,
                        points_per_run=points_per_run, width=width,
                        stretches=stretches, predictors=predictors, backend=backend, exact_max=exact_max,
-                       inducing=inducing, samples=samples, max_time=max_time, workers=workers, executor=executor,
+                       inducing=inducing, samples=samples, max_time=max_time, sensor_noise=sensor_noise,
+                       process_noise=process_noise, baseline_tracks=baseline_tracks, blocking_weight=blocking_weight,
+                       calib_runs=calib_runs, workers=workers, executor=executor,
                        scheduler=scheduler, resume=resume, seeds=parse_seeds(seeds))
         print_table(run(st, out), as_json)
 

@@ -6,7 +6,7 @@ dt 0.1 s, N = 10). Where that set-up is silent, the choices are documented on th
 
 from __future__ import annotations
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from gprace.config import Frozen
 
@@ -69,5 +69,17 @@ class H2HConfig(Frozen):
     stalemate_steps: int = Field(8, ge=1, description="steps with little change of the relative configuration")
     stalemate_tol: float = Field(0.02, ge=0, description="change threshold of (gap s, gap e_y) per step")
     hold_steps: int = Field(5, ge=1, description="steps a target is held after a stalemate")
+    sensor_std: tuple[float, float, float, float, float, float] = Field(
+        (0.0,) * 6, description="measurement noise std of each car's state [v_x, v_y, yaw_rate, e_psi, e_y, s] "
+        "seen by both controllers and the predictor (per step, white; 0: the true state)")
+    process_std: tuple[float, float, float, float, float, float] = Field(
+        (0.0,) * 6, description="process noise std added to each car's state after every plant step, same order")
     ego: MPCConfig = Field(default_factory=ego_mpc)
     opponent: MPCConfig = Field(default_factory=opponent_mpc)
+
+    @field_validator("sensor_std", "process_std")
+    @classmethod
+    def _non_negative(cls, v: tuple[float, ...]) -> tuple[float, ...]:
+        if not all(x >= 0 for x in v):  # also rejects NaN
+            raise ValueError(f"noise standard deviations must be >= 0, got {list(v)}")
+        return v

@@ -85,9 +85,34 @@ def loop_track(width: float | None = None):
     return build_track(spec, LOOP_NAME, str(path))
 
 
+TRAINING_SHAPES = ("curve", "chicane")
+
+
+CHICANE_EXIT = 5.0  # m of straight after a training chicane (the curve's own exit straight)
+
+
+@functools.lru_cache(maxsize=64)
+def training_track(seed: int, width: float = 0.75):
+    """A short training track of Zhu et al. 2022 (REFERENCE.md): the random-track generator's 2 m
+    lead-in and one ``curve`` (even seeds) or ``chicane`` (odd seeds) stretch; a chicane is
+    followed by a :data:`CHICANE_EXIT` straight (the source gives none; without it the race
+    would end 2 m after the start grid)."""
+    from gprace.tracks.random import random_track_spec
+    from gprace.tracks.segments import build_track
+
+    shape = TRAINING_SHAPES[int(seed) % 2]
+    spec = random_track_spec(int(seed), n_stretches=1, width=width, kinds=(shape,))
+    if shape == "chicane":
+        d = spec.model_dump()
+        d["segments"].append({"type": "straight", "length": CHICANE_EXIT})
+        spec = type(spec).model_validate(d)
+    name = f"training-{shape}-{seed}"
+    return build_track(spec.model_copy(update={"name": name}), name, f"training track (seed {seed})")
+
+
 def make_track(spec: dict):
-    """Track from a task's spec: ``{"kind": "random", "seed", "stretches", "width"}`` or
-    ``{"kind": "loop", "width": optional}``."""
+    """Track from a task's spec: ``{"kind": "random", "seed", "stretches", "width"}``,
+    ``{"kind": "training", "seed", "width"}`` or ``{"kind": "loop", "width": optional}``."""
     kind = spec.get("kind")
     if kind == "loop":
         w = spec.get("width")
@@ -96,4 +121,6 @@ def make_track(spec: dict):
         from gprace.tracks.random import random_track
 
         return random_track(int(spec["seed"]), n_stretches=int(spec.get("stretches", 5)), width=float(spec.get("width", 0.75)))
-    raise InputError(f"track spec: unknown kind {kind!r} (valid: random, loop)")
+    if kind == "training":
+        return training_track(int(spec["seed"]), float(spec.get("width", 0.75)))
+    raise InputError(f"track spec: unknown kind {kind!r} (valid: random, training, loop)")

@@ -63,7 +63,17 @@ def training_pairs(track, ego: np.ndarray, opp: np.ndarray) -> tuple[np.ndarray,
 @dataclass
 class Prediction:
     mean: np.ndarray  # (K, 6)
-    std: np.ndarray  # (K, 2): s, e_y
+    std: np.ndarray  # (K, 2): s, e_y (calibrated when the predictor carries a calibration)
+    raw_std: np.ndarray | None = None  # (K, 2) the predictor's own spread before the calibration
+
+
+def calibrated_std(std: np.ndarray, calibration: dict | None) -> np.ndarray:
+    """``scale * std + floor`` per step and output (``calibration``: ``{"scale", "floor"}``, each
+    (K, 2), see :func:`gprace.h2h.spread.fit_calibration`); ``std`` itself without one."""
+    if not calibration:
+        return std
+    K = std.shape[-2]  # std (..., K, 2)
+    return np.asarray(calibration["scale"], float)[:K] * std + np.asarray(calibration["floor"], float)[:K]
 
 
 @dataclass
@@ -76,6 +86,7 @@ class Context:
 
 class Predictor:
     name = "predictor"
+    calibration: dict | None = None  # set by make_predictor: the spread that covers the real error
 
     def __init__(self, steps: int) -> None:
         self.steps = steps
@@ -96,22 +107,28 @@ class OraclePredictor(Predictor):
         return Prediction(np.array(ctx.opp_plan[1:K + 1], float), np.zeros((K, 2)))
 
 
+def cv_positions(track, x: np.ndarray, K: int, dt: float) -> np.ndarray:
+    """(2, K, n): ``s`` and ``e_y`` at steps 1..K of states x (n, 6) with their Frenet rates held."""
+    kap = track.kappa(track.wrap(x[:, 5]))
+    sdot = (x[:, 0] * np.cos(x[:, 3]) - x[:, 1] * np.sin(x[:, 3])) / (1.0 - kap * x[:, 4])
+    eydot = x[:, 0] * np.sin(x[:, 3]) + x[:, 1] * np.cos(x[:, 3])
+    k = dt * np.arange(1, K + 1)[:, None]
+    return np.stack([x[None, :, 5] + k * sdot, x[None, :, 4] + k * eydot])
+
+
 class ConstantVelocityPredictor(Predictor):
     """Frenet rates ``ds/dt`` and ``de_y/dt`` held at their current values."""
 
     name = "cv"
 
     def predict(self, ctx: Context) -> Prediction:
+        """Without a calibration the spread is zero; with one it is the calibration's per-step
+        floor (the typical error of this predictor, measured on held-out races)."""
         K, x = self.steps, np.asarray(ctx.opp, float)
-        dt = self.dt
-        kap = ctx.track.kappa(ctx.track.wrap(x[5]))
-        sdot = (x[0] * np.cos(x[3]) - x[1] * np.sin(x[3])) / (1.0 - kap * x[4])
-        eydot = x[0] * np.sin(x[3]) + x[1] * np.cos(x[3])
-        k = np.arange(1, K + 1)[:, None]
         mean = np.tile(x, (K, 1))
-        mean[:, 5:6] = x[5] + k * dt * sdot
-        mean[:, 4:5] = x[4] + k * dt * eydot
-        return Prediction(mean, np.zeros((K, 2)))
+        mean[:, 5], mean[:, 4] = cv_positions(ctx.track, x[None], K, self.dt)[:, 0]
+        raw = np.zeros((K, 2))
+        return Prediction(mean, calibrated_std(raw, self.calibration), raw)
 
     def __init__(self, steps: int, dt: float = 0.1) -> None:
         super().__init__(steps)
@@ -151,7 +168,7 @@ class GPPredictor(Predictor):
         # s stays unwrapped (continuous) on closed tracks, as in the simulation
         mean = paths.mean(axis=0)
         std = np.column_stack([paths[:, :, 5].std(axis=0), paths[:, :, 4].std(axis=0)])
-        return Prediction(mean, std)
+        return Prediction(mean, calibrated_std(std, self.calibration), std)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -187,16 +204,27 @@ def load_opponent_gp(path: str | Path):
 
 
 def make_predictor(kind: str, steps: int, dt: float = 0.1, model: str | Path | None = None, samples: int = 50,
-                   seed: int = 0, label: str | None = None) -> Predictor:
+                   seed: int = 0, label: str | None = None, calibration: dict | None = None) -> Predictor:
+    """A predictor; ``calibration`` (``{"scale", "floor"}``, (K, 2) each) maps its spread to one
+    that covers the real error (gp and cv; the oracle's plan is the truth of the collection)."""
     if kind == "oracle":
         return OraclePredictor(steps)
     if kind == "cv":
-        return ConstantVelocityPredictor(steps, dt)
-    if kind == "gp":
+        pred: Predictor = ConstantVelocityPredictor(steps, dt)
+    elif kind == "gp":
         if model is None:
             raise InputError("gp predictor: needs a GP model file")
-        return GPPredictor(_cached_gp(str(model)), steps, samples, seed, label or "gp")
-    raise UnknownBackendError(f"unknown predictor {kind!r}; available: {', '.join(sorted(PREDICTORS))}")
+        pred = GPPredictor(_cached_gp(str(model)), steps, samples, seed, label or "gp")
+    else:
+        raise UnknownBackendError(f"unknown predictor {kind!r}; available: {', '.join(sorted(PREDICTORS))}")
+    if calibration:
+        for key in ("scale", "floor"):
+            a = np.asarray(calibration.get(key), float)
+            if a.ndim != 2 or a.shape[1] != 2 or len(a) < steps or not np.all(np.isfinite(a)) or np.any(a < 0):
+                raise InputError(f"{kind} predictor: calibration {key!r} must be >= 0 with shape (>= {steps}, 2), "
+                                 f"got {calibration.get(key)!r}")
+        pred.calibration = calibration
+    return pred
 
 
 _GP_CACHE: dict[tuple[str, int], object] = {}

@@ -11,6 +11,13 @@ Layout of ``--out DIR`` (every file an HDF5 artifact, written atomically)::
     models/{baseline,init,explore,select}.h5   GP models (kind gp_model)
     eval/<predictor>/run_<i>.h5   the races of every predictor on the same scenarios
     errors/<predictor>/run_<i>.h5 offline e_y errors of every offline predictor on those races
+                                  (and ``spread_<predictor>``: |s error|, raw std of s and e_y)
+    init/runs/run_<i>.h5          the exploration's start runs when the baseline collects on
+                                  the training tracks (``--baseline-tracks training``)
+    calib/runs/run_<i>.h5         held-out races (oracle predictor, evaluation-style tracks, own
+                                  seeds): the calibration of every predictor's spread
+    calib/errors/run_<i>.h5       offline errors and raw spreads of every predictor on them
+    calib/calibration.json        per predictor, step and output: scale and floor of the spread
     table.json                    the comparison table (all seeds)
     seed_<s>/...                  the same layout for chain seed s > 0 (``--seeds``)
 
@@ -28,6 +35,22 @@ Seeds (``--seeds``): chain s repeats collection, training and exploration with e
 by ``s * CHAIN_STRIDE`` (seed 0 is the single-seed protocol, same runs, same folder) and races the
 same evaluation scenarios; :mod:`gprace.h2h.spread` gives every figure's spread over seeds next to
 its bootstrap interval over tracks and judges the paper's claims against both.
+
+Conditions (each in the table's settings; a changed condition changes the task hashes of exactly
+the runs it affects, so ``--resume`` reruns those): ``sensor_noise`` and ``process_noise`` scale
+:data:`SENSOR_STD` and :data:`PROCESS_STD` (both cars, every race; 0 = noiseless, the task then
+carries no noise entry); ``baseline_tracks`` (``eval``: the random evaluation-style tracks;
+``training``: the short ``curve`` and ``chicane`` tracks of Zhu et al. 2022, alternating; only
+the baseline collection runs change, the exploration's start runs stay on evaluation-style tracks
+and run in ``init/runs``); ``blocking_weight`` (the opponent's, every race; the default adds
+nothing to the tasks); ``explore_minutes``.
+
+Calibrated spread: before the evaluation, ``calib_runs`` held-out races give every predictor's
+errors and raw spreads per step (offline rollouts as for the table's errors);
+:func:`gprace.h2h.spread.fit_calibration` turns them into a per-step scale (GP predictors) or
+floor (constant velocity), carried by the evaluation tasks and applied in the predictors, so the
+ellipses are inflated by a spread that covers the real error; the table gives the coverage of the
+2-sigma band on the evaluation races, raw and calibrated, per predictor.
 
 Decisions (the paper is silent): each collection run contributes ``points_per_run`` (10) evenly
 spaced steps, which gives the paper's "about 5000 points" from 500 runs (all points of the
@@ -51,6 +74,7 @@ import numpy as np
 
 from gprace.config import config_hash
 from gprace.errors import ConfigError, InputError
+from gprace.h2h.config import opponent_mpc
 from gprace.h2h.predictors import FEATURE_MAP, FEATURES, OUTPUTS
 
 if TYPE_CHECKING:
@@ -58,7 +82,17 @@ if TYPE_CHECKING:
 
 RUN_KIND = "h2h_run"
 DATASET_KIND = "h2h_dataset"
-SEED_EVAL, SEED_COLLECT, SEED_EXPLORE = 0, 100_000, 200_000
+SEED_EVAL, SEED_COLLECT, SEED_EXPLORE, SEED_CALIB = 0, 100_000, 200_000, 300_000
+# Noise of 1:10 cars, std per state [v_x m/s, v_y m/s, yaw_rate rad/s, e_psi rad, e_y m, s m]
+# (sources and reasoning: docs/notes_h2h_b.md). Sensor: what an estimator fusing indoor
+# positioning (cm-level) or motion capture (mm-level) with IMU and encoders gives a 1:10 car,
+# white per 0.1 s step. Process: unmodelled forces (surface, tyre, actuator) as a random change of
+# the velocities per 0.1 s step; positions follow through the dynamics.
+SENSOR_STD = (0.01, 0.01, 0.02, 0.005, 0.005, 0.005)
+PROCESS_STD = (0.01, 0.005, 0.02, 0.0, 0.0, 0.0)
+BLOCKING_WEIGHT = opponent_mpc().q_block
+BASELINE_TRACKS = ("eval", "training")
+ERRORS_VERSION = 2  # offline error records also carry the s errors and the raw spreads
 RACED = ("baseline", "explore")
 # Backend settings of the opponent GPs (measured on the 5000-point baseline data, docs/decisions.md):
 # one kernel for the five outputs (normalised) predicts as well as five kernels at a fifth of the
@@ -95,6 +129,12 @@ class Settings:
     optimize: bool = True
     samples: int = 50
     max_time: float = 60.0
+    # conditions of the comparison (issue 17)
+    sensor_noise: float = 1.0  # scale of SENSOR_STD (0: noiseless)
+    process_noise: float = 1.0  # scale of PROCESS_STD (0: noiseless)
+    baseline_tracks: str = "eval"  # eval | training
+    blocking_weight: float = BLOCKING_WEIGHT
+    calib_runs: int = 20
     config: dict = field(default_factory=dict)
     # execution (not part of any result)
     workers: int = 1
@@ -138,6 +178,14 @@ class Settings:
                 raise InputError(f"{name} must be >= 1, got {v}")
         if not self.max_time > 0:
             raise InputError(f"--max-time must be positive, got {self.max_time}")
+        for name, v in (("--sensor-noise", self.sensor_noise), ("--process-noise", self.process_noise),
+                        ("--blocking-weight", self.blocking_weight)):
+            if not (np.isfinite(v) and v >= 0):
+                raise InputError(f"{name} must be a finite number >= 0, got {v}")
+        if self.baseline_tracks not in BASELINE_TRACKS:
+            raise InputError(f"--baseline-tracks must be one of {', '.join(BASELINE_TRACKS)}, got {self.baseline_tracks!r}")
+        if self.calib_runs < 1:
+            raise InputError(f"--calib-runs must be >= 1, got {self.calib_runs}")
         if self.backend != "auto":
             from gprace.backends import gps
 
@@ -150,7 +198,23 @@ class Settings:
                 raise UnknownBackendError(f"unknown predictor {p!r}; available: {', '.join(sorted(known))}")
 
     def race_config(self) -> dict:
-        return dict(self.config, max_time=self.max_time, samples=self.samples)
+        """The races' :class:`H2HConfig` entries; a condition at its noiseless / default value adds
+        nothing (the tasks of such runs keep their hashes)."""
+        cfg = dict(self.config, max_time=self.max_time, samples=self.samples)
+        if self.sensor_noise > 0:
+            cfg["sensor_std"] = [self.sensor_noise * v for v in SENSOR_STD]
+        if self.process_noise > 0:
+            cfg["process_std"] = [self.process_noise * v for v in PROCESS_STD]
+        if self.blocking_weight != BLOCKING_WEIGHT:
+            cfg["opponent"] = opponent_mpc().model_copy(update={"q_block": float(self.blocking_weight)}).model_dump(mode="json")
+        return cfg
+
+    def conditions(self) -> dict:
+        """The conditions of the comparison as the table prints them."""
+        return {"sensor_std": [self.sensor_noise * v for v in SENSOR_STD],
+                "process_std": [self.process_noise * v for v in PROCESS_STD],
+                "baseline_tracks": self.baseline_tracks, "blocking_weight": self.blocking_weight,
+                "explore_minutes": self.explore_minutes}
 
 
 PATH_KEYS = ("model", "explore_data", "record", "models")
@@ -201,7 +265,8 @@ def race_with_data(task: dict) -> dict:
     t0 = time.perf_counter()
     out = run_race(task)
     out["attrs"]["wall_s"] = time.perf_counter() - t0
-    Z, Y = training_pairs(make_track(task["track"]), out["arrays"]["ego"], out["arrays"]["opp"])
+    a = out["arrays"]
+    Z, Y = training_pairs(make_track(task["track"]), a.get("ego_meas", a["ego"]), a.get("opp_meas", a["opp"]))
     out["arrays"]["Z"], out["arrays"]["Y"] = Z, Y
     return out
 
@@ -293,11 +358,25 @@ def dataset_from_records(records: list[dict], per_run: int | None = None,
     return np.vstack(Zs), np.vstack(Ys), np.concatenate(R)
 
 
-def collect_tasks(st: Settings, n: int) -> list[dict]:
+def _track_spec(st: Settings, seed: int, kind: str = "eval") -> dict:
+    if kind == "training":
+        return {"kind": "training", "seed": seed, "width": st.width}
+    return {"kind": "random", "seed": seed, "stretches": st.stretches, "width": st.width}
+
+
+def collect_tasks(st: Settings, n: int, tracks: str | None = None) -> list[dict]:
+    """Oracle races of the collection on ``tracks`` (default ``st.baseline_tracks``)."""
     base = SEED_COLLECT + CHAIN_STRIDE * st.seed
-    return [{"id": f"collect-{i}", "track": {"kind": "random", "seed": base + i, "stretches": st.stretches,
-             "width": st.width}, "seed": base + i, "predictor": "oracle", "config": st.race_config()}
-            for i in range(n)]
+    kind = tracks or st.baseline_tracks
+    return [{"id": f"collect-{i}", "track": _track_spec(st, base + i, kind), "seed": base + i,
+             "predictor": "oracle", "config": st.race_config()} for i in range(n)]
+
+
+def calib_tasks(st: Settings) -> list[dict]:
+    """Held-out oracle races on evaluation-style tracks (seeds no other stage uses)."""
+    base = SEED_CALIB + CHAIN_STRIDE * st.seed
+    return [{"id": f"calib-{i}", "track": _track_spec(st, base + i), "seed": base + i, "predictor": "oracle",
+             "config": st.race_config()} for i in range(st.calib_runs)]
 
 
 def collect(st: Settings, out: Path) -> dict[str, Path]:
@@ -305,10 +384,12 @@ def collect(st: Settings, out: Path) -> dict[str, Path]:
     validation set (:data:`VALIDATION_POINTS` random steps of the collection runs that no dataset
     keeps; the held-out points of every fit's quality report)."""
     tasks = collect_tasks(st, st.runs)
+    own_init = st.baseline_tracks != "eval"  # the exploration starts from evaluation-style runs
+    init_tasks = collect_tasks(st, st.init_runs, "eval") if own_init else tasks[: st.init_runs]
     paths = {"collect": out / "collect" / "dataset.h5", "init": out / "init" / "dataset.h5",
              "validation": out / "collect" / "validation.h5"}
     key = {"tasks": [_task_hash(t) for t in tasks], "per_run": st.points_per_run}
-    key_init = {"tasks": key["tasks"][: st.init_runs], "per_run": st.points_per_run}
+    key_init = {"tasks": [_task_hash(t) for t in init_tasks], "per_run": st.points_per_run}
     key_val = {**key, "validation": VALIDATION_POINTS}
     if _cached(paths["collect"], key) and _cached(paths["init"], key_init) and _cached(paths["validation"], key_val):
         return paths
@@ -318,10 +399,16 @@ def collect(st: Settings, out: Path) -> dict[str, Path]:
     Z, Y, R = dataset_from_records(recs, st.points_per_run)
     n_failed = sum(not r["attrs"].get("ok") for r in recs)
     _write_dataset(paths["collect"], Z, Y, R, key, {"runs": len(recs), "failed": n_failed, "source": "collect"})
-    m = R < st.init_runs
-    if not m.any():
-        raise InputError(f"none of the first {st.init_runs} collection runs succeeded")
-    _write_dataset(paths["init"], Z[m], Y[m], R[m], key_init, {"runs": st.init_runs, "source": "init"})
+    if own_init:
+        init_reuse = replace(st, resume=True) if _cached(paths["init"], key_init) else st
+        Zi, Yi, Ri = dataset_from_records(run_tasks(init_tasks, out / "init" / "runs", init_reuse, "collect init"),
+                                          st.points_per_run)
+    else:
+        m = R < st.init_runs
+        if not m.any():
+            raise InputError(f"none of the first {st.init_runs} collection runs succeeded")
+        Zi, Yi, Ri = Z[m], Y[m], R[m]
+    _write_dataset(paths["init"], Zi, Yi, Ri, key_init, {"runs": st.init_runs, "source": "init"})
     Zv, Yv, Rv = dataset_from_records(recs, st.points_per_run, held_out=True)
     pick = np.sort(np.random.default_rng(SEED_COLLECT + st.seed).permutation(len(Zv))[:VALIDATION_POINTS])
     _write_dataset(paths["validation"], Zv[pick], Yv[pick], Rv[pick], key_val, {"runs": len(recs), "source": "validation"})
@@ -462,18 +549,19 @@ def report_fits(paths: dict[str, Path], seed: int = 0) -> dict[str, Any]:
 
 # ----------------------------------------------------------------------------------------------
 # evaluation
-def eval_tasks(st: Settings, predictor: str, model: Path | None) -> list[dict]:
+def eval_tasks(st: Settings, predictor: str, model: Path | None, calibration: dict | None = None) -> list[dict]:
     kind = predictor if predictor in ("cv", "oracle") else "gp"
     gp = {} if model is None else {"model": str(model), "model_hash": _hash_file(model)}  # read once
-    return [{"id": f"eval-{predictor}-{i}", "track": {"kind": "random", "seed": SEED_EVAL + i, "stretches": st.stretches,
-             "width": st.width}, "seed": SEED_EVAL + i, "predictor": kind, "label": predictor,
-             "config": st.race_config(), **gp} for i in range(st.tracks)]
+    cal = {"calibration": {k: calibration[k] for k in ("scale", "floor")}} if calibration else {}
+    return [{"id": f"eval-{predictor}-{i}", "track": _track_spec(st, SEED_EVAL + i), "seed": SEED_EVAL + i,
+             "predictor": kind, "label": predictor, "config": st.race_config(), **gp, **cal} for i in range(st.tracks)]
 
 
-def race_predictors(st: Settings, out: Path, model_paths: dict[str, Path]) -> dict[str, list[dict]]:
+def race_predictors(st: Settings, out: Path, model_paths: dict[str, Path],
+                    calibration: dict[str, dict] | None = None) -> dict[str, list[dict]]:
     res = {}
     for p in st.raced:
-        tasks = eval_tasks(st, p, model_paths.get(p))
+        tasks = eval_tasks(st, p, model_paths.get(p), (calibration or {}).get(p))
         res[p] = run_tasks(tasks, out / "eval" / p, st, f"race {p}")
     return res
 
@@ -487,37 +575,42 @@ def offline_errors_task(task: dict) -> dict:
 def _offline_errors(task: dict) -> dict:
     """Prediction errors of every offline predictor on one closed-loop opponent trajectory.
 
-    Rollouts start at every step t of the record, from the true opponent state, with the ego's
-    true closed-loop trajectory as the ego part of the input; all start times and samples go
-    through one GP call per step. Returns ``{"arrays": {name: (K, n_t) |mean e_y - true e_y|}}``.
+    Rollouts start at every step t of the record, from the opponent state the ego saw (the
+    measured one under sensor noise), with the ego's closed-loop trajectory as seen by the ego as
+    the ego part of the input; all start times and samples go through one GP call per step; the
+    errors are against the true opponent states. Returns ``{"arrays": {name: (K, n_t) |mean e_y -
+    true e_y|, "spread_<name>": (3, K, n_t) |mean s - true s|, raw std of s, raw std of e_y}}``
+    (the spread of the constant-velocity predictor is zero).
     """
     from gprace.h2h.config import H2HConfig
     from gprace.h2h.geometry import make_track
-    from gprace.h2h.predictors import make_predictor
+    from gprace.h2h.predictors import cv_positions, make_predictor
 
     cfg = H2HConfig(**task.get("config", {}))
     K = cfg.pred_steps
     track = make_track(task["track"])
-    rec = _read_record(Path(task["record"]))
-    E, O = rec["arrays"]["ego"], rec["arrays"]["opp"]
+    a = _read_record(Path(task["record"]))["arrays"]
+    O = a["opp"]
+    E, Om = a.get("ego_meas", a["ego"]), a.get("opp_meas", O)
     T = len(O) - K
     out = {}
     if T <= 0:
-        return {"arrays": {name: np.zeros((K, 0)) for name in task["models"]}, "attrs": {}}
+        return {"arrays": {**{name: np.zeros((K, 0)) for name in task["models"]},
+                           **{f"spread_{name}": np.zeros((3, K, 0)) for name in task["models"]}}, "attrs": {}}
     truth = np.stack([O[k + 1:k + 1 + T, 4] for k in range(K)])  # (K, T)
+    truth_s = np.stack([O[k + 1:k + 1 + T, 5] for k in range(K)])
     for name, path in task["models"].items():
         if name == "cv":  # ConstantVelocityPredictor for every start time at once
-            x = O[:T]
-            eyd = x[:, 0] * np.sin(x[:, 3]) + x[:, 1] * np.cos(x[:, 3])
-            mean = x[None, :, 4] + cfg.dt * np.arange(1, K + 1)[:, None] * eyd[None, :]
+            mean_s, mean = cv_positions(track, Om[:T], K, cfg.dt)
+            std_s = std_ey = np.zeros((K, T))
         else:  # GPPredictor.rollout for every start time at once (n samples each)
             gp = make_predictor("gp", K, cfg.dt, path, cfg.samples, seed=int(task["seed"]))
             n = cfg.samples
             # ego part per sample: the true ego states from each start time t
             starts = np.repeat(np.arange(T), n)
             rng = np.random.default_rng(int(task["seed"]))
-            S = np.repeat(O[:T], n, axis=0)
-            ey = np.empty((K, T))
+            S = np.repeat(Om[:T], n, axis=0)
+            ey, sk, std_ey, std_s = (np.empty((K, T)) for _ in range(4))
             from gprace.h2h.predictors import OUT_STATE, features
 
             for k in range(K):
@@ -525,8 +618,12 @@ def _offline_errors(task: dict) -> dict:
                 mu, var = gp.gp.predict(Zk)
                 S[:, list(OUT_STATE)] += mu + np.sqrt(np.maximum(var, 0)) * rng.standard_normal(mu.shape)
                 ey[k] = S[:, 4].reshape(T, n).mean(axis=1)
-            mean = ey
+                sk[k] = S[:, 5].reshape(T, n).mean(axis=1)
+                std_ey[k] = S[:, 4].reshape(T, n).std(axis=1)
+                std_s[k] = S[:, 5].reshape(T, n).std(axis=1)
+            mean, mean_s = ey, sk
         out[name] = np.abs(mean - truth)
+        out[f"spread_{name}"] = np.stack([np.abs(mean_s - truth_s), std_s, std_ey])
     return {"arrays": out, "attrs": {}}
 
 
@@ -539,28 +636,92 @@ def offline_errors(st: Settings, out: Path, raced: dict[str, list[dict]], model_
 def offline_error_columns(st: Settings, out: Path, raced: dict[str, list[dict]],
                           model_paths: dict[str, Path]) -> tuple[dict, np.ndarray]:
     """:func:`offline_errors` and the evaluation track of every column (start time)."""
-    names = {p: (str(model_paths[p]) if p != "cv" else None) for p in st.offline}
-    hashes = {p: _hash_file(Path(v)) for p, v in names.items() if v is not None}
-    errs: dict[str, list[np.ndarray]] = {p: [] for p in st.offline}
+    return offline_error_data(st, out, raced, model_paths)[:2]
+
+
+def _rollout_errors(st: Settings, records: list[dict], rec_dir: Path, err_dir: Path, names: list[str],
+                    model_paths: dict[str, Path], what: str) -> tuple[list[int], list[dict]]:
+    """Offline errors of the predictors ``names`` on every successful record (one recorded task
+    per record, reused like the races): the indices of those records and their error arrays."""
+    models = {p: (str(model_paths[p]) if p != "cv" else None) for p in names}
+    hashes = {p: _hash_file(Path(v)) for p, v in models.items() if v is not None}
+    tasks, index = [], []
+    for i, rec in enumerate(records):
+        if rec["attrs"].get("ok"):
+            t = json.loads(rec["attrs"]["task"])
+            tasks.append({"id": f"errors-{rec_dir.name}-{i}", "record": str(_record_path(rec_dir, i)),
+                          "record_hash": rec["attrs"]["task_hash"], "track": t["track"], "seed": t["seed"],
+                          "config": t["config"], "models": models, "model_hashes": hashes,
+                          "version": ERRORS_VERSION})
+            index.append(i)
+    recs = run_tasks(tasks, err_dir, st, what, fn=offline_errors_task)
+    ok = [(i, r["arrays"]) for i, r in zip(index, recs) if r["attrs"].get("ok")]
+    return [i for i, _ in ok], [a for _, a in ok]
+
+
+def _stack(arrays: list[dict], key: str, empty: tuple[int, ...]) -> np.ndarray:
+    got = [a[key] for a in arrays if key in a]
+    return np.concatenate(got, axis=-1) if got else np.zeros(empty)
+
+
+def offline_error_data(st: Settings, out: Path, raced: dict[str, list[dict]],
+                       model_paths: dict[str, Path]) -> tuple[dict, np.ndarray, dict]:
+    """:func:`offline_errors`, the evaluation track of every column (start time) and the spread
+    data ``{offline predictor: (3, K, columns)}`` (|s error|, raw std of s and of e_y)."""
+    K = H2H_K(st)
+    arrays: list[dict] = []
     tracks: list[np.ndarray] = []
     for p in st.raced:
-        tasks, track_of = [], []
-        for i, rec in enumerate(raced[p]):
-            if rec["attrs"].get("ok"):
-                t = json.loads(rec["attrs"]["task"])
-                tasks.append({"id": f"errors-{p}-{i}", "record": str(_record_path(out / "eval" / p, i)),
-                              "record_hash": rec["attrs"]["task_hash"], "track": t["track"], "seed": t["seed"],
-                              "config": t["config"], "models": names, "model_hashes": hashes})
-                track_of.append(i)
-        recs = run_tasks(tasks, out / "errors" / p, st, f"offline errors {p}", fn=offline_errors_task)
-        for i, r in zip(track_of, recs):
-            if r["attrs"].get("ok"):
-                for q in st.offline:
-                    errs[q].append(r["arrays"][q])
-                tracks.append(np.full(r["arrays"][st.offline[0]].shape[1] if st.offline else 0, i))
+        index, arr = _rollout_errors(st, raced[p], out / "eval" / p, out / "errors" / p, list(st.offline),
+                                     model_paths, f"offline errors {p}")
+        arrays += arr
+        tracks += [np.full(a[st.offline[0]].shape[1] if st.offline else 0, i) for i, a in zip(index, arr)]
+    return ({p: _stack(arrays, p, (K, 0)) for p in st.offline},
+            np.concatenate(tracks) if tracks else np.zeros(0, int),
+            {p: _stack(arrays, f"spread_{p}", (3, K, 0)) for p in st.offline})
+
+
+def calibrated_names(st: Settings, model_paths: dict[str, Path]) -> list[str]:
+    """The predictors whose spread is calibrated: every raced or offline one but the oracle."""
+    return [p for p in dict.fromkeys((*st.raced, *st.offline)) if p == "cv" or p in model_paths]
+
+
+def calibrate(st: Settings, out: Path, model_paths: dict[str, Path]) -> dict[str, dict]:
+    """Calibration of every predictor's spread on ``calib_runs`` held-out races (oracle predictor,
+    evaluation-style tracks, seeds of their own; no model is trained on them and the evaluation
+    does not use them): ``{predictor: fit_calibration(...)}``, also written to
+    ``calib/calibration.json``."""
+    from gprace.h2h.spread import fit_calibration
+
+    names = calibrated_names(st, model_paths)
+    if not names:
+        return {}
+    recs = run_tasks(calib_tasks(st), out / "calib" / "runs", st, "calibration races")
+    _, arrays = _rollout_errors(st, recs, out / "calib" / "runs", out / "calib" / "errors", names, model_paths,
+                                "calibration errors")
+    if not arrays:
+        raise InputError("calibration: no calibration race succeeded; see the records in calib/runs")
     K = H2H_K(st)
-    return ({p: (np.hstack(v) if v else np.zeros((K, 0))) for p, v in errs.items()},
-            np.concatenate(tracks) if tracks else np.zeros(0, int))
+    cal = {}
+    for p in names:
+        ey, sp = _stack(arrays, p, (K, 0)), _stack(arrays, f"spread_{p}", (3, K, 0))
+        cal[p] = fit_calibration(np.stack([sp[0], ey]), sp[1:])
+    (out / "calib" / "calibration.json").write_text(json.dumps(cal, indent=1))
+    return cal
+
+
+def coverage(spread: dict[str, np.ndarray], errors: dict[str, np.ndarray], calibration: dict[str, dict]) -> dict:
+    """Per offline predictor: the share of its errors on the evaluation races inside the 2-sigma
+    band, per step, of e_y and s, with the calibrated and with the raw spread."""
+    from gprace.h2h.spread import band_coverage
+
+    res = {}
+    for p, sp in spread.items():
+        err, std = np.stack([sp[0], errors[p]]), sp[1:]
+        cal, raw = band_coverage(err, std, calibration.get(p)), band_coverage(err, std)
+        res[p] = {"s": cal[0].tolist(), "ey": cal[1].tolist(), "s_raw": raw[0].tolist(), "ey_raw": raw[1].tolist(),
+                  "points": int(err.shape[2]), "calibrated": p in calibration}
+    return res
 
 
 def H2H_K(st: Settings) -> int:
@@ -603,7 +764,7 @@ def table(st: Settings, raced: dict[str, list[dict]], errors: dict[str, np.ndarr
         err[p] = {"mean": E.mean(axis=1).tolist() if E.shape[1] else [], "std": E.std(axis=1).tolist() if E.shape[1] else [],
                   "points": int(E.shape[1])}
     return {"settings": {k: v for k, v in asdict(st).items() if k not in ("workers", "executor", "scheduler", "resume")},
-            "common_inside": int(inside.sum()), "racing": rows, "ey_error": err}
+            "conditions": st.conditions(), "common_inside": int(inside.sum()), "racing": rows, "ey_error": err}
 
 
 def failed_races_text(row: dict, most: int = 5) -> str:
@@ -627,10 +788,13 @@ def run_chain(st: Settings, out: Path) -> tuple[dict, "TrackData", dict]:
     from gprace.h2h.spread import track_data
 
     paths = models(st, out)
-    raced = race_predictors(st, out, paths)
-    errors, tracks = offline_error_columns(st, out, raced, paths)
+    cal = calibrate(st, out, paths)
+    raced = race_predictors(st, out, paths, cal)
+    errors, tracks, spread = offline_error_data(st, out, raced, paths)
     fits = report_fits(paths, st.seed)
-    return table(st, raced, errors), track_data(raced, errors, tracks, st.tracks), fits
+    tab = table(st, raced, errors)
+    tab["coverage"], tab["calibration"] = coverage(spread, errors, cal), cal
+    return tab, track_data(raced, errors, tracks, st.tracks), fits
 
 
 def head2head(st: Settings, out: Path) -> dict:

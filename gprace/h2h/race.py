@@ -24,12 +24,21 @@ prediction): a blocker steers across the ego's path but does not drive into it.
 Per step the opponent solves first (it sees the ego's current state), then the ego's predictor
 forecasts the opponent (the oracle reads the opponent's fresh plan), then the ego solves, then both
 inputs are applied together.
+
+Noise (``config.sensor_std``, ``config.process_std``, both zero by default): every step both
+controllers, the predictor and the exploration see measured states, the true states plus white
+Gaussian noise; after every plant step each car's true state gets white Gaussian process noise.
+Each kind draws from its own generator seeded by ``(seed, stream)``, so the start grid and the
+GP samples are those of the noiseless race and a zero std draws nothing (the noiseless race is
+unchanged to the bit). Border hits, collisions, overtakes and the race's end use the true states;
+the record keeps the measured ones as ``ego_meas`` / ``opp_meas`` (the GP data are built from them).
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -41,6 +50,17 @@ from gprace.h2h.predictors import Context, gap_s, make_predictor
 from gprace.plants.frenet import compiled_step
 
 _CACHE: dict = {}
+SENSOR_STREAM, PROCESS_STREAM = 1, 2
+
+
+def state_noise(seed: int, stream: int, std) -> Callable[[], np.ndarray] | None:
+    """A function drawing (2, 6) noise (both cars, std per state) from its own seeded generator;
+    None when every std is zero (nothing is drawn)."""
+    std = np.asarray(std, float)
+    if not std.any():
+        return None
+    rng = np.random.default_rng([int(seed), int(stream)])
+    return lambda: rng.standard_normal((2, len(std))) * std
 
 
 def _model():
@@ -133,6 +153,10 @@ def run_race(task: dict) -> dict:
     max_time = float(duration) if duration else cfg.max_time
 
     X = np.vstack([ego, opp])
+    measure = state_noise(int(task["seed"]), SENSOR_STREAM, cfg.sensor_std)
+    disturb = state_noise(int(task["seed"]), PROCESS_STREAM, cfg.process_std)
+    Xm = X + measure() if measure else X  # what the controllers and the predictor see
+    hist_m = [Xm.copy()]
     Uprev = np.zeros((2, 2))
     plant = compiled_step(model, track, dt, cfg.plant_substeps).map(2)  # both cars in one call
     kfun = lambda s: track.kappa(track.wrap(s))  # noqa: E731
@@ -140,7 +164,7 @@ def run_race(task: dict) -> dict:
     t_overtake, end_reason = np.nan, "time"
     n_steps = int(round(max_time / dt))
     for step in range(n_steps):
-        ego, opp = X[0], X[1]
+        ego, opp = Xm[0], Xm[1]
         # ---- opponent: contouring MPC with the blocking term while the ego is behind
         gap = float(gap_s(track, opp[5], ego[5]))
         # blocking while the ego is behind (its centre more than a car length back); alongside,
@@ -173,8 +197,12 @@ def run_race(task: dict) -> dict:
         sol_e = ego_mpc.solve(ego, Uprev[0], alpha, st_e)
         U = np.vstack([sol_e.U[0], sol_o.U[0]])
         X = np.asarray(plant(X.T, U.T)).T
+        if disturb:
+            X = X + disturb()
+        Xm = X + measure() if measure else X
         Uprev = U
         hist_x.append(X.copy())
+        hist_m.append(Xm.copy())
         hist_u.append(U.copy())
         ego_ms.append(1e3 * sol_e.seconds)
         fb.append((sol_e.fallback, sol_o.fallback))
@@ -206,6 +234,9 @@ def run_race(task: dict) -> dict:
         "ego_solve_ms": np.array(ego_ms), "fallback_ego": fb[:, 0], "fallback_opp": fb[:, 1],
         "border_ego": be, "border_opp": bo, "collision": col,
     }
+    if measure:
+        M = np.array(hist_m)
+        arrays["ego_meas"], arrays["opp_meas"] = M[:, 0], M[:, 1]
     if targets:
         arrays["targets"] = np.array(targets)
     attrs = {

@@ -165,3 +165,43 @@ def verdict(seed_ci: list[list[float | None]], claimed: int = -1) -> str:
     if 1 in side and -1 in side:
         return "seeds disagree"
     return "not resolved"
+
+
+# ----------------------------------------------------------------------------------------------
+# calibrated spread of the predictions
+CALIB_LEVEL = 0.94
+"""Share of the calibration errors the calibrated 2-sigma band covers (per step and output); a
+little below 0.95 so that fresh errors of the same distribution land in 90 to 95 %."""
+
+
+def fit_calibration(err: np.ndarray, std: np.ndarray, level: float = CALIB_LEVEL) -> dict:
+    """The calibration ``{"scale", "floor"}`` ((K, 2) each, columns s and e_y) of one predictor from
+    its absolute errors ``err`` and raw predicted standard deviations ``std`` (2, K, n) (outputs s,
+    e_y; K steps; n start times of held-out races): the calibrated std is ``scale * std + floor``.
+
+    Where the predictor has a spread (most start times std > 0), ``scale`` is the ``level``
+    quantile of ``|err| / (2 std)``, so ``2 * scale * std`` covers that share of the errors (an
+    over-confident predictor gets a large scale, an honest one about 1); where it has none (the
+    constant-velocity predictor), ``floor`` is half the ``level`` quantile of ``|err|``, a band of
+    the predictor's typical error."""
+    err, std = np.abs(np.asarray(err, float)), np.asarray(std, float)
+    if err.shape != std.shape or err.ndim != 3 or err.shape[0] != 2 or err.shape[2] < 1:
+        raise ValueError(f"calibration: errors and spreads must both be (2, K, n >= 1), got {err.shape} and {std.shape}")
+    has = (std > 0).mean(axis=2) > 0.5  # (2, K)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(std > 0, err / (2.0 * std), np.nan)
+    scale = np.where(has, np.nan_to_num(np.nanquantile(np.where(has[..., None], ratio, 0.0), level, axis=2)), 0.0)
+    floor = np.where(has, 0.0, 0.5 * np.quantile(err, level, axis=2))
+    return {"scale": scale.T.tolist(), "floor": floor.T.tolist(), "level": level, "points": int(err.shape[2])}
+
+
+def band_coverage(err: np.ndarray, std: np.ndarray, calibration: dict | None = None) -> np.ndarray:
+    """(2, K): share of the absolute errors ``err`` (2, K, n) inside the 2-sigma band of the
+    (calibrated) standard deviations ``std`` (2, K, n); NaN without points."""
+    from gprace.h2h.predictors import calibrated_std
+
+    err, std = np.abs(np.asarray(err, float)), np.asarray(std, float)
+    if err.shape[2] == 0:
+        return np.full(err.shape[:2], np.nan)
+    sig = calibrated_std(std.transpose(2, 1, 0), calibration).transpose(2, 1, 0)
+    return np.mean(err <= 2.0 * sig, axis=2)

@@ -1,0 +1,186 @@
+"""Head-to-head conditions (noise, baseline tracks, blocking weight, exploration time) and the
+calibrated spread of the opponent predictions (issue 17, items 1 and 3)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gprace.cli import main
+from gprace.errors import InputError
+from gprace.h2h import protocol as P
+from gprace.h2h.config import H2HConfig, opponent_mpc
+from gprace.h2h.predictors import Context, make_predictor
+from gprace.h2h.race import PROCESS_STREAM, SENSOR_STREAM, state_noise
+from gprace.h2h.spread import CALIB_LEVEL, band_coverage, fit_calibration
+
+
+def _hashes(tasks: list[dict]) -> list[str]:
+    return [P._task_hash(t) for t in tasks]
+
+
+def _all_tasks(st: P.Settings) -> dict[str, list[str]]:
+    return {"collect": _hashes(P.collect_tasks(st, 4)), "init": _hashes(P.collect_tasks(st, 2, "eval")),
+            "calib": _hashes(P.calib_tasks(st)), "eval": _hashes(P.eval_tasks(st, "cv", None))}
+
+
+def test_each_condition_changes_exactly_the_tasks_it_affects():
+    base = P.Settings(tracks=3, calib_runs=2)
+    ref = _all_tasks(base)
+    # noiseless: the tasks carry no noise entry, as before the noise existed
+    quiet = P.Settings(tracks=3, calib_runs=2, sensor_noise=0.0, process_noise=0.0)
+    assert all("sensor_std" not in t["config"] and "process_std" not in t["config"] for t in P.collect_tasks(quiet, 3))
+    assert P.collect_tasks(quiet, 1)[0]["config"] == {"max_time": quiet.max_time, "samples": quiet.samples}
+    for kw in ({"sensor_noise": 0.5}, {"process_noise": 2.0}, {"blocking_weight": 100.0}):
+        other = _all_tasks(P.Settings(tracks=3, calib_runs=2, **kw))
+        for stage in ref:  # noise and blocking act in every race
+            assert not set(ref[stage]) & set(other[stage]), (kw, stage)
+    # the baseline's tracks change its collection runs only; the exploration starts on eval-style runs
+    train = P.Settings(tracks=3, calib_runs=2, baseline_tracks="training")
+    other = _all_tasks(train)
+    assert not set(ref["collect"]) & set(other["collect"])
+    assert ref["init"] == other["init"] == ref["collect"][:2]
+    assert ref["calib"] == other["calib"] and ref["eval"] == other["eval"]
+    assert {t["track"]["kind"] for t in P.collect_tasks(train, 4)} == {"training"}
+    # exploration time: only the exploration episodes (their number) change
+    assert _all_tasks(P.Settings(tracks=3, calib_runs=2, explore_minutes=3.0)) == ref
+
+
+def test_conditions_reach_the_race_config_and_the_table_settings():
+    st = P.Settings(tracks=2, raced=(), offline=(), sensor_noise=2.0, process_noise=0.0, blocking_weight=120.0,
+                    baseline_tracks="training", explore_minutes=4.0)
+    cfg = H2HConfig(**st.race_config())
+    np.testing.assert_allclose(cfg.sensor_std, 2.0 * np.array(P.SENSOR_STD))
+    assert cfg.process_std == (0.0,) * 6
+    assert cfg.opponent.q_block == 120.0
+    assert cfg.opponent.model_copy(update={"q_block": opponent_mpc().q_block}) == opponent_mpc()
+    assert "opponent" not in P.Settings().race_config()  # the default weight adds nothing
+    tab = P.table(st, {}, {})
+    for key, value in (("sensor_noise", 2.0), ("process_noise", 0.0), ("blocking_weight", 120.0),
+                       ("baseline_tracks", "training"), ("explore_minutes", 4.0)):
+        assert tab["settings"][key] == value
+    assert tab["conditions"]["sensor_std"] == [2.0 * v for v in P.SENSOR_STD]
+    assert tab["conditions"]["baseline_tracks"] == "training" and tab["conditions"]["explore_minutes"] == 4.0
+
+
+def test_training_tracks_are_the_short_curve_and_chicane_tracks():
+    from gprace.h2h.geometry import make_track
+
+    tracks = [make_track({"kind": "training", "seed": s, "width": 0.75}) for s in range(6)]
+    kinds = [t.name.split("-")[1] for t in tracks]
+    assert kinds == ["curve", "chicane"] * 3
+    assert all(6.0 < t.length < 16.0 for t in tracks)  # one stretch, not a 30 m evaluation track
+    again = make_track({"kind": "training", "seed": 3, "width": 0.75})
+    assert again.length == tracks[3].length
+
+
+def test_injected_noise_has_the_stated_statistics_and_is_seeded():
+    std = np.array([0.01, 0.02, 0.03, 0.0, 0.005, 0.5])
+    draw = state_noise(7, SENSOR_STREAM, std)
+    X = np.stack([draw() for _ in range(20000)])  # (n, 2 cars, 6)
+    n = len(X) * 2
+    flat = X.reshape(-1, 6)
+    np.testing.assert_array_less(np.abs(flat.mean(axis=0)), 5 * std / np.sqrt(n) + 1e-15)
+    np.testing.assert_allclose(flat.std(axis=0), std, rtol=0.02)
+    assert np.all(flat[:, 3] == 0)
+    again = state_noise(7, SENSOR_STREAM, std)
+    np.testing.assert_array_equal(np.stack([again() for _ in range(20000)]), X)
+    other = state_noise(7, PROCESS_STREAM, std)()
+    assert not np.allclose(other, X[0])  # the two kinds draw from their own generators
+    assert state_noise(7, SENSOR_STREAM, np.zeros(6)) is None
+
+
+def test_a_noisy_race_sees_the_measured_states_and_is_deterministic():
+    from gprace.h2h.race import run_race
+
+    sensor = [0.01, 0.01, 0.02, 0.005, 0.005, 0.005]
+    task = {"track": {"kind": "random", "seed": 3, "stretches": 1, "width": 0.75}, "seed": 11, "predictor": "cv",
+            "config": {"max_time": 0.5, "sensor_std": sensor, "process_std": [0.01, 0.005, 0.02, 0, 0, 0]}}
+    a, b = run_race(task), run_race(task)
+    for key in ("ego", "opp", "ego_meas", "opp_meas"):
+        np.testing.assert_array_equal(a["arrays"][key], b["arrays"][key])
+    # the measurement is the true state plus the sensor stream's draws, step after step
+    draw = state_noise(11, SENSOR_STREAM, sensor)
+    for t in range(len(a["arrays"]["ego"])):
+        d = draw()
+        np.testing.assert_allclose(a["arrays"]["ego_meas"][t] - a["arrays"]["ego"][t], d[0], atol=1e-12)
+        np.testing.assert_allclose(a["arrays"]["opp_meas"][t] - a["arrays"]["opp"][t], d[1], atol=1e-12)
+    quiet = run_race({**task, "config": {"max_time": 0.5}})
+    assert "ego_meas" not in quiet["arrays"]
+    assert not np.allclose(quiet["arrays"]["opp"], a["arrays"]["opp"])  # process noise moved the cars
+
+
+def _synthetic(rng, n: int, K: int = 3):
+    """Errors whose true std is 3 x the predicted one (an over-confident predictor)."""
+    std = rng.uniform(0.01, 0.05, size=(2, K, n))
+    return np.abs(3.0 * std * rng.standard_normal((2, K, n))), std
+
+
+def test_calibrated_band_covers_90_to_95_percent_of_fresh_errors():
+    rng = np.random.default_rng(0)
+    err, std = _synthetic(rng, 20000)
+    cal = fit_calibration(err, std)
+    np.testing.assert_allclose(cal["scale"], 1.5 * 1.88, rtol=0.05)  # 3 x the 94 % two-sided z / 2
+    fresh_err, fresh_std = _synthetic(rng, 20000)
+    cov = band_coverage(fresh_err, fresh_std, cal)
+    assert np.all((cov >= 0.90) & (cov <= 0.95)), cov
+    raw = band_coverage(fresh_err, fresh_std)
+    assert np.all(raw < 0.6)  # 2 predicted std cover |z| < 2/3 only
+    assert abs(float(cov.mean()) - CALIB_LEVEL) < 0.01
+
+
+def test_a_predictor_without_spread_gets_a_floor_of_its_typical_error():
+    rng = np.random.default_rng(1)
+    K, n = 4, 20000
+    scale = np.linspace(0.01, 0.04, K)[None, :, None]
+    err = np.abs(scale * rng.standard_normal((2, K, n)))
+    cal = fit_calibration(err, np.zeros_like(err))
+    assert np.all(np.asarray(cal["scale"]) == 0)
+    fresh = np.abs(scale * rng.standard_normal((2, K, n)))
+    cov = band_coverage(fresh, np.zeros_like(fresh), cal)
+    assert np.all((cov >= 0.90) & (cov <= 0.95)), cov
+    # the constant-velocity predictor carries that floor as its spread
+    from gprace.h2h.geometry import make_track
+
+    cv = make_predictor("cv", K, 0.1, calibration=cal)
+    track = make_track({"kind": "random", "seed": 1, "stretches": 1, "width": 0.75})
+    pred = cv.predict(Context(track, np.zeros((K + 1, 6)), np.array([1.0, 0, 0, 0, 0.1, 2.0])))
+    np.testing.assert_allclose(pred.std, np.asarray(cal["floor"]))
+    np.testing.assert_array_equal(pred.raw_std, np.zeros((K, 2)))
+    assert np.all(make_predictor("cv", K, 0.1).predict(Context(track, np.zeros((K + 1, 6)), np.ones(6))).std == 0)
+
+
+def test_bad_calibration_is_refused():
+    with pytest.raises(InputError, match="calibration"):
+        make_predictor("cv", 3, calibration={"scale": [[1, 1]], "floor": [[0, 0]]})
+    with pytest.raises(InputError, match="calibration"):
+        make_predictor("cv", 1, calibration={"scale": [[1, -1]], "floor": [[0, 0]]})
+
+
+@pytest.mark.parametrize("args, text", [
+    (["--baseline-tracks", "curve"], "--baseline-tracks"),
+    (["--blocking-weight", "-1"], "--blocking-weight"),
+    (["--sensor-noise", "nan"], "--sensor-noise"),
+    (["--process-noise", "-0.5"], "--process-noise"),
+    (["--calib-runs", "0"], "--calib-runs"),
+])
+def test_bad_conditions_exit_2_with_one_line(tmp_path, capsys, args, text):
+    code = main(["eval", "head2head", "--out", str(tmp_path / "out"), *args])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and text in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_calibration_reaches_the_races_and_the_coverage_table(tmp_path):
+    st = P.Settings(tracks=2, raced=("cv",), offline=("cv",), max_time=1.5, samples=5, calib_runs=2, workers=1)
+    cal = P.calibrate(st, tmp_path, {})
+    assert set(cal) == {"cv"} and (tmp_path / "calib" / "calibration.json").exists()
+    floor = np.asarray(cal["cv"]["floor"])
+    assert floor.shape == (H2HConfig().pred_steps, 2) and np.all(floor > 0) and np.all(np.diff(floor[:, 1]) >= 0)
+    raced = P.race_predictors(st, tmp_path, {}, cal)
+    assert all(P.json.loads(r["attrs"]["task"])["calibration"]["floor"] == cal["cv"]["floor"] for r in raced["cv"])
+    errors, _, spread = P.offline_error_data(st, tmp_path, raced, {})
+    cov = P.coverage(spread, errors, cal)["cv"]
+    assert cov["points"] == errors["cv"].shape[1] > 0
+    assert all(c == 0 for c in cov["ey_raw"][1:])  # no spread: the raw band covers nothing
+    assert all(0 <= c <= 1 for c in cov["ey"]) and cov["calibrated"]
