@@ -25,7 +25,7 @@ import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
 
 from gprace.gp.base import BOUNDS, GPBackend, best_start
-from gprace.gp.kernels import from_sqdist, kernel
+from gprace.gp.kernels import kernel, scaled_block
 from gprace.gp.linalg import cholesky, pack_lower, unpack_lower
 
 _CHUNK = 2048
@@ -101,18 +101,7 @@ class ExactGP(GPBackend):
     # -- posterior -------------------------------------------------------------------------------
     def _groups(self) -> list[list[int]]:
         """Outputs that share identical hyperparameters (and so one factor)."""
-        h = self.hyper_
-        groups: list[list[int]] = []
-        for o in range(h.p):
-            for g in groups:
-                q = g[0]
-                if (np.array_equal(h.log_ls[q], h.log_ls[o]) and h.log_sf2[q] == h.log_sf2[o]
-                        and h.log_sn2[q] == h.log_sn2[o]):
-                    g.append(o)
-                    break
-            else:
-                groups.append([o])
-        return groups
+        return self.hyper_.groups()
 
     def _fit_posterior(self, Zn, Yn):
         h = self.hyper_
@@ -149,11 +138,7 @@ class ExactGP(GPBackend):
         h = self.hyper_
         o = self._group_list[gi][0]
         a, a2 = self._scaled[gi]
-        b = Zn / h.ls(o)
-        d2 = np.einsum("ij,ij->i", b, b)[:, None] + a2[None, :]
-        d2 -= 2.0 * (b @ a.T)
-        np.maximum(d2, 0.0, out=d2)
-        return from_sqdist(h.kernel, d2, h.sf2(o))
+        return scaled_block(h.kernel, Zn / h.ls(o), a, a2, h.sf2(o))
 
     def _predict_normalised(self, Zn):
         h = self.hyper_

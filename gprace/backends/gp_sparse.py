@@ -7,13 +7,18 @@
 - Hyperparameters: per output, the collapsed VFE bound (:func:`gprace.gp.objectives.vfe_bound`)
   is maximised with scipy's L-BFGS-B on its analytic gradient, in log space within the bounds of
   :data:`gprace.gp.base.BOUNDS`. One evaluation costs O(n m^2).
+- ``shared_kernel``: one kernel and one noise for all (normalised) outputs, fitted on the sum of
+  their VFE bounds; a query then costs one kernel block and one product for every output
+  instead of one each (the opponent rollouts, docs/notes_h2h_a.md).
 - ``min_noise`` raises the lower bound of the (normalised) noise variance. On nearly noiseless
   data (simulated opponents: exact-GP noise at its 1e-6 floor) the VFE matrices become so badly
   conditioned that the fit degenerates to the prior mean; a floor of 1e-3 (the noise also absorbs
   the inducing-point approximation error) restored a one-step error equal to the exact GP's.
 - Prediction from cached arrays: mean ``K*u w`` and latent variance
   ``sf2 - rowsum((K*u Q) * K*u)`` with ``w = Lu^-T LB^-T c`` and ``Q = Kuu^-1 - (Kuu +
-  Kuf Kfu / sn2)^-1`` (computed as ``Lu^-T (I - B^-1) Lu^-1``), O(m^2) per query point.
+  Kuf Kfu / sn2)^-1`` (computed as ``Lu^-T (I - B^-1) Lu^-1``), O(m^2) per query point; outputs
+  with identical hyperparameters share one ``Q`` (stored once per group; files with one ``Q`` per
+  output load as before).
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from scipy.optimize import minimize
 
 from gprace.gp.base import GPBackend, best_start, optimisation_bounds
 from gprace.gp.inducing import kmeanspp_indices
-from gprace.gp.kernels import kernel
+from gprace.gp.kernels import scaled_block
 from gprace.gp.linalg import cholesky
 from gprace.gp.objectives import vfe_bound
 
@@ -51,6 +56,7 @@ class SparseGP(GPBackend):
         jitter: float = 1e-8,
         init_points: int = 500,
         min_noise: float = 1e-6,
+        shared_kernel: bool = False,
     ) -> None:
         super().__init__(kernel, noise, optimize, seed, length_scale, signal_variance)
         self.n_inducing = n_inducing
@@ -58,6 +64,7 @@ class SparseGP(GPBackend):
         self.jitter = jitter
         self.init_points = init_points
         self.min_noise = min_noise
+        self.shared_kernel = shared_kernel
 
     def _prepare(self, Zn, Yn):
         self.Zu_ = np.ascontiguousarray(Zn[kmeanspp_indices(Zn, int(self.n_inducing), int(self.seed))])
@@ -69,57 +76,91 @@ class SparseGP(GPBackend):
         log_ls, log_sf2, log_sn2 = log_ls.copy(), log_sf2.copy(), log_sn2.copy()
         rng = np.random.default_rng(self.seed)
         sub = np.sort(rng.choice(n, min(n, int(self.init_points)), replace=False))
-        for o in range(Yn.shape[1]):
-            y = np.ascontiguousarray(Yn[:, o])
+        p = Yn.shape[1]
+        for g in ([list(range(p))] if self.shared_kernel else [[o] for o in range(p)]):
+            y = np.ascontiguousarray(Yn[:, g])  # (n, q): the q outputs share theta, bounds summed
+            o = g[0]
             theta0 = np.concatenate([log_ls[o], [log_sf2[o], log_sn2[o]]])
             theta0 = best_start(self.kernel, theta0, Zn[sub], y[sub])
             theta0 = _exact_init(self.kernel, theta0, Zn[sub], y[sub], bounds)
 
             def neg(theta: np.ndarray) -> tuple[float, np.ndarray]:
-                v, g = vfe_bound(self.kernel, theta, Zn, y, self.Zu_, self.jitter)
-                return -v, -g
+                v, grad = vfe_bound(self.kernel, theta, Zn, y, self.Zu_, self.jitter)
+                return -v, -grad
 
             res = minimize(neg, theta0, jac=True, method="L-BFGS-B", bounds=bounds,
                            options={"maxiter": int(self.max_iter)})
             theta = res.x if np.all(np.isfinite(res.x)) else theta0
-            log_ls[o], log_sf2[o], log_sn2[o] = theta[:d], theta[d], theta[d + 1]
+            log_ls[g], log_sf2[g], log_sn2[g] = theta[:d], theta[d], theta[d + 1]
         return log_ls, log_sf2, log_sn2
 
     def _fit_posterior(self, Zn, Yn):
         h = self.hyper_
         m = self.Zu_.shape[0]
+        groups = h.groups()
         self.w_ = np.empty((h.p, m))
-        self.Q_ = np.empty((h.p, m, m))
-        for o in range(h.p):
+        self.Q_ = np.empty((len(groups), m, m))
+        for gi, g in enumerate(groups):
+            o = g[0]
             sf2, sn = h.sf2(o), np.sqrt(h.sn2(o))
             Kuu = h.k(o, self.Zu_, self.Zu_)
             Kuu[np.diag_indices(m)] += self.jitter * sf2
             Lu = cholesky(Kuu, "inducing-point kernel matrix")
             B = np.eye(m)
-            Ay = np.zeros(m)
+            Ay = np.zeros((m, len(g)))
             for s in range(0, Zn.shape[0], _CHUNK):  # accumulate A A^T and A y without storing A
                 A = solve_triangular(Lu, h.k(o, self.Zu_, Zn[s:s + _CHUNK]), lower=True, check_finite=False)
                 A /= sn
                 B += A @ A.T
-                Ay += A @ Yn[s:s + _CHUNK, o]
+                Ay += A @ Yn[s:s + _CHUNK][:, g]
             LB = cholesky(B, "VFE matrix B")
             c = solve_triangular(LB, Ay, lower=True, check_finite=False) / sn
             t = solve_triangular(LB, c, lower=True, trans="T", check_finite=False)
-            self.w_[o] = solve_triangular(Lu, t, lower=True, trans="T", check_finite=False)
+            self.w_[g] = solve_triangular(Lu, t, lower=True, trans="T", check_finite=False).T
             X = np.eye(m) - cho_solve((LB, True), np.eye(m), check_finite=False)
             S = solve_triangular(Lu, X, lower=True, trans="T", check_finite=False)
             S = solve_triangular(Lu, S.T, lower=True, trans="T", check_finite=False)
-            self.Q_[o] = 0.5 * (S + S.T)
+            self.Q_[gi] = 0.5 * (S + S.T)
+        self._cache()
+
+    def _cache(self) -> None:
+        """Derived, not stored: per group of outputs with one kernel, its outputs, the inducing
+        inputs divided by its length scales (and their squared norms) and ``[w_g^T, Q_g]`` (one
+        product gives the means and the variance's ``K*u Q``)."""
+        h = self.hyper_
+        groups = h.groups()
+        if self.Q_.shape[0] not in (h.p, len(groups)):
+            from gprace.errors import ArtifactError
+
+            raise ArtifactError(f"sparse GP model: {self.Q_.shape[0]} Q matrices for {len(groups)} kernels")
+        # files from before the groups hold one Q per output
+        qi = [g[0] for g in groups] if self.Q_.shape[0] == h.p else range(len(groups))
+        self._groups = []
+        for g, i in zip(groups, qi):
+            a = self.Zu_ / h.ls(g[0])
+            self._groups.append((g, a, np.einsum("ij,ij->i", a, a), np.hstack([self.w_[g].T, self.Q_[i]])))
 
     def _predict_normalised(self, Zn):
         h = self.hyper_
         mm = Zn.shape[0]
         mean = np.empty((mm, h.p))
         var = np.empty((mm, h.p))
-        for o in range(h.p):
-            Ks = kernel(h.kernel, Zn, self.Zu_, h.ls(o), h.sf2(o))
-            mean[:, o] = Ks @ self.w_[o]
-            var[:, o] = h.sf2(o) - np.einsum("ij,ij->i", Ks @ self.Q_[o], Ks)
+        for s in range(0, mm, _CHUNK):
+            mean[s:s + _CHUNK], var[s:s + _CHUNK] = self._predict_chunk(Zn[s:s + _CHUNK])
+        return mean, var
+
+    def _predict_chunk(self, Zn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and latent variance ``(m, p)`` of normalised queries: per kernel one block ``K*u``
+        and one product ``K*u [w, Q]``."""
+        h = self.hyper_
+        mean = np.empty((Zn.shape[0], h.p))
+        var = np.empty((Zn.shape[0], h.p))
+        for g, a, a2, WQ in self._groups:
+            o = g[0]
+            Ks = scaled_block(h.kernel, Zn / h.ls(o), a, a2, h.sf2(o))
+            P = Ks @ WQ
+            mean[:, g] = P[:, :len(g)]
+            var[:, g] = (h.sf2(o) - np.einsum("ij,ij->i", P[:, len(g):], Ks))[:, None]
         return mean, var
 
     def _state_arrays(self):
@@ -134,6 +175,7 @@ class SparseGP(GPBackend):
             from gprace.errors import ArtifactError
 
             raise ArtifactError(f"sparse GP model: missing array {exc.args[0]!r}") from None
+        self._cache()
 
 
 def _exact_init(kernel_name: str, theta0: np.ndarray, Z: np.ndarray, y: np.ndarray, bounds) -> np.ndarray:

@@ -125,6 +125,20 @@ class GPHyper:
         """Kernel of output ``o`` between normalised inputs."""
         return kernel(self.kernel, A, B, self.ls(o), self.sf2(o))
 
+    def groups(self) -> list[list[int]]:
+        """Outputs with identical hyperparameters (one kernel, so one set of factors), in order."""
+        groups: list[list[int]] = []
+        for o in range(self.p):
+            for g in groups:
+                q = g[0]
+                if (np.array_equal(self.log_ls[q], self.log_ls[o]) and self.log_sf2[q] == self.log_sf2[o]
+                        and self.log_sn2[q] == self.log_sn2[o]):
+                    g.append(o)
+                    break
+            else:
+                groups.append([o])
+        return groups
+
     def theta(self, o: int) -> np.ndarray:
         """``[log ls..., log sf2, log sn2]`` of output ``o``."""
         return np.concatenate([self.log_ls[o], [self.log_sf2[o], self.log_sn2[o]]])
@@ -245,7 +259,18 @@ class GPBackend(ABC):
         if Z.ndim != 2 or Z.shape[1] != h.d:
             raise InputError(f"GP predict: expected inputs (m, {h.d}), got {Z.shape}")
         _check_finite(Z, "GP predict: input Z")
-        mean_n, var_n = self._predict_normalised((Z - h.z_mean) / h.z_scale)
+        return self._in_units(self._predict_normalised, Z)
+
+    def fast_predict(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`predict` for many small queries of trusted inputs (finite ``(m, d)`` floats, not
+        checked): the same mean; a variance never below the latent variance of :meth:`predict`
+        (a backend's ``_fast_normalised`` documents how far above it may be). Used by the
+        opponent rollouts."""
+        return self._in_units(self._fast_normalised, np.asarray(Z, dtype=float))
+
+    def _in_units(self, predict_normalised, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        h = self.hyper_
+        mean_n, var_n = predict_normalised((Z - h.z_mean) / h.z_scale)
         np.maximum(var_n, 0.0, out=var_n)
         return mean_n * h.y_scale + h.y_mean, var_n * h.y_scale**2
 
@@ -311,6 +336,10 @@ class GPBackend(ABC):
     @abstractmethod
     def _predict_normalised(self, Zn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Mean and latent variance ``(m, p)`` in normalised units."""
+
+    def _fast_normalised(self, Zn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`fast_predict` in normalised units; default: :meth:`_predict_normalised`."""
+        return self._predict_normalised(Zn)
 
     @abstractmethod
     def _state_arrays(self) -> dict[str, np.ndarray]:

@@ -2,7 +2,9 @@
 
 Hyperparameter vector for one output: ``theta = [log ls_1..log ls_d, log sf2, log sn2]`` (length
 scales, signal variance, noise variance). Both functions return ``(value, gradient)`` of the
-quantity to *maximise*.
+quantity to *maximise*. Outputs ``y (n,)``, or ``(n, q)`` for ``q`` outputs that share one kernel
+and noise: the value is then the sum of the ``q`` single-output values (one factorisation serves
+all columns).
 
 - :func:`exact_lml`: ``log N(y | 0, K + sn2 I)``; O(n^3), used by tests and small fits.
 - :func:`vfe_bound`: Titsias' (2009) variational lower bound for inducing inputs ``Zu``,
@@ -35,16 +37,18 @@ def _unpack(theta: np.ndarray, d: int) -> tuple[np.ndarray, float, float]:
 
 
 def exact_lml(kernel_name: str, theta: np.ndarray, Z: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
-    """Exact log marginal likelihood of ``y (n,)`` at inputs ``Z (n, d)`` and its gradient."""
+    """Exact log marginal likelihood of ``y (n,)`` or ``(n, q)`` at inputs ``Z (n, d)`` and its gradient."""
     n, d = Z.shape
+    y = np.asarray(y, dtype=float).reshape(n, -1)
+    q = y.shape[1]
     ls, sf2, sn2 = _unpack(theta, d)
     K, F = kernel_and_grad_factor(kernel_name, Z, Z, ls, sf2)
     Ky = K.copy()
     Ky[np.diag_indices(n)] += sn2
     L = cholesky(Ky, "exact GP kernel matrix")
     alpha = cho_solve((L, True), y, check_finite=False)
-    value = -0.5 * float(y @ alpha) - float(np.log(np.diag(L)).sum()) - 0.5 * n * _LOG2PI
-    W = np.outer(alpha, alpha) - cho_solve((L, True), np.eye(n), check_finite=False)  # dF/dKy * 2
+    value = -0.5 * float(np.sum(y * alpha)) - q * (float(np.log(np.diag(L)).sum()) + 0.5 * n * _LOG2PI)
+    W = alpha @ alpha.T - q * cho_solve((L, True), np.eye(n), check_finite=False)  # dF/dKy * 2
     grad = np.empty(d + 2)
     for j in range(d):
         grad[j] = 0.5 * float(np.sum(W * F * scaled_sqdiff(Z, Z, ls, j)))
@@ -63,10 +67,12 @@ def vfe_bound(
 ) -> tuple[float, np.ndarray]:
     """Titsias' collapsed VFE bound and its gradient.
 
-    ``Z (n, d)`` data inputs, ``y (n,)`` outputs, ``Zu (m, d)`` inducing inputs (fixed).
-    ``jitter`` is relative to the signal variance: ``Kuu + jitter * sf2 * I``.
+    ``Z (n, d)`` data inputs, ``y (n,)`` or ``(n, q)`` outputs, ``Zu (m, d)`` inducing inputs
+    (fixed). ``jitter`` is relative to the signal variance: ``Kuu + jitter * sf2 * I``.
     """
     n, d = Z.shape
+    y = np.asarray(y, dtype=float).reshape(n, -1)
+    q = y.shape[1]
     m = Zu.shape[0]
     ls, sf2, sn2 = _unpack(theta, d)
     sn = np.sqrt(sn2)
@@ -83,13 +89,10 @@ def vfe_bound(
     c = solve_triangular(LB, Ay, lower=True, check_finite=False) / sn
     trAAT = float(np.trace(AAT))
     value = (
-        -0.5 * n * _LOG2PI
-        - float(np.log(np.diag(LB)).sum())
-        - 0.5 * n * np.log(sn2)
-        - 0.5 * float(y @ y) / sn2
-        + 0.5 * float(c @ c)
-        - 0.5 * n * sf2 / sn2
-        + 0.5 * trAAT
+        q * (-0.5 * n * _LOG2PI - float(np.log(np.diag(LB)).sum()) - 0.5 * n * np.log(sn2)
+             - 0.5 * n * sf2 / sn2 + 0.5 * trAAT)
+        - 0.5 * float(np.sum(y * y)) / sn2
+        + 0.5 * float(np.sum(c * c))
     )
 
     Binv = cho_solve((LB, True), np.eye(m), check_finite=False)
@@ -98,23 +101,23 @@ def vfe_bound(
     Hb = solve_triangular(Lu, v1, lower=True, trans="T", check_finite=False) / sn
     R = A - Binv @ A
     Duf = solve_triangular(Lu, R, lower=True, trans="T", check_finite=False)
-    Duf /= sn
-    Duf += np.outer(Hb, beta)
+    Duf *= q / sn
+    Duf += Hb @ beta.T
     X = 2.0 * np.eye(m) - Binv - B
     S = solve_triangular(Lu, X, lower=True, trans="T", check_finite=False)  # Lu^-T X
     S = solve_triangular(Lu, S.T, lower=True, trans="T", check_finite=False)  # Lu^-T X Lu^-1
-    Duu = 0.25 * (S + S.T) - 0.5 * np.outer(Hb, Hb)
+    Duu = 0.25 * q * (S + S.T) - 0.5 * (Hb @ Hb.T)
 
     grad = np.empty(d + 2)
     DufF = Duf * Fuf
     DuuF = Duu * Fuu
     for j in range(d):
         grad[j] = float(np.sum(DufF * scaled_sqdiff(Zu, Z, ls, j))) + float(np.sum(DuuF * scaled_sqdiff(Zu, Zu, ls, j)))
-    grad[d] = float(np.sum(Duf * Kuf)) + float(np.sum(Duu * Kuu)) - 0.5 * n * sf2 / sn2
+    grad[d] = float(np.sum(Duf * Kuf)) + float(np.sum(Duu * Kuu)) - 0.5 * q * n * sf2 / sn2
     dsn2 = (
-        0.5 * float(beta @ beta)
-        - 0.5 * (n - m + float(np.trace(Binv))) / sn2
-        + 0.5 * (n * sf2 - sn2 * trAAT) / sn2**2
+        0.5 * float(np.sum(beta * beta))
+        - 0.5 * q * (n - m + float(np.trace(Binv))) / sn2
+        + 0.5 * q * (n * sf2 - sn2 * trAAT) / sn2**2
     )
     grad[d + 1] = sn2 * dsn2
     return float(value), grad

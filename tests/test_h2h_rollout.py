@@ -1,0 +1,120 @@
+"""Opponent rollout fast path (issue 17, item 4): shared-kernel objectives and sparse GP, the
+unchecked prediction path, and the rollout against a plain loop over ``GPBackend.predict``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from gp_contract import smooth_data
+
+from gprace.gp import load_model, make_gp, save_model
+from gprace.gp.objectives import exact_lml, vfe_bound
+from gprace.h2h.geometry import make_track
+from gprace.h2h.predictors import FEATURES, LOOKAHEAD, OUT_STATE, OUTPUTS, GPPredictor, features
+
+KERNELS = ["se", "matern15"]
+
+
+def _fd(f, theta, h=1e-6):
+    return np.array([(f(theta + h * e) - f(theta - h * e)) / (2 * h) for e in np.eye(len(theta))])
+
+
+@pytest.mark.parametrize("name", KERNELS)
+def test_shared_objectives_are_sums_over_outputs_with_their_gradients(name):
+    Z, Y = smooth_data(n=50)
+    Y = Y - Y.mean(axis=0)
+    Zu = Z[::3]
+    theta = np.array([0.3, -0.2, 0.1, 0.2, np.log(0.05)])
+    for f, extra in ((exact_lml, ()), (vfe_bound, (Zu,))):
+        value, grad = f(name, theta, Z, Y, *extra)
+        singles = [f(name, theta, Z, Y[:, i], *extra) for i in range(Y.shape[1])]
+        assert value == pytest.approx(sum(v for v, _ in singles), rel=1e-12)
+        np.testing.assert_allclose(grad, sum(g for _, g in singles), rtol=1e-10, atol=1e-10)
+        np.testing.assert_allclose(grad, _fd(lambda t: f(name, t, Z, Y, *extra)[0], theta), rtol=1e-5, atol=1e-5)
+
+
+def test_shared_sparse_fit_has_one_kernel_and_equals_exact_at_the_data():
+    Z, Y = smooth_data(n=60)
+    fixed = dict(kernel="matern15", optimize=False, length_scale=[0.9, 1.4, 2.5], signal_variance=1.2, noise=3e-3)
+    sparse = make_gp("sparse", n_inducing=100, jitter=1e-12, shared_kernel=True, **fixed).fit(Z, Y)
+    exact = make_gp("exact", shared_kernel=True, **fixed).fit(Z, Y)
+    assert sparse.Q_.shape == (1, 60, 60)  # one Q for both outputs
+    Zq = np.random.default_rng(3).uniform(-2, 2, (25, 3))
+    for a, b in zip(sparse.predict(Zq), exact.predict(Zq)):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+    fitted = make_gp("sparse", n_inducing=20, max_iter=20, shared_kernel=True).fit(Z, Y)
+    h = fitted.hyper_
+    assert len(h.groups()) == 1 and np.all(h.log_ls == h.log_ls[0]) and np.all(h.log_sn2 == h.log_sn2[0])
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_sparse_fast_predict_and_files_with_one_q_per_output(tmp_path, shared):
+    Z, Y = smooth_data(n=80)
+    gp = make_gp("sparse", n_inducing=25, max_iter=15, shared_kernel=shared).fit(Z, Y)
+    Zq = np.random.default_rng(4).uniform(-2, 2, (30, 3))
+    mean, var = gp.predict(Zq)
+    fm, fv = gp.fast_predict(Zq)
+    np.testing.assert_allclose(fm, mean, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(fv, var, rtol=1e-12, atol=1e-14)
+    loaded = load_model(save_model(tmp_path / "m.h5", gp)).gp
+    np.testing.assert_array_equal(loaded.predict(Zq)[1], var)
+    # a file from before the groups: one Q per output, even where the outputs share a kernel
+    arrays = gp.to_arrays()
+    arrays["state/Q"] = np.stack([gp.Q_[0 if shared else o] for o in range(gp.hyper_.p)])
+    old = type(gp).from_arrays(arrays, gp.get_params())
+    np.testing.assert_allclose(old.predict(Zq)[1], var, rtol=1e-12, atol=1e-14)
+
+
+def test_features_one_spline_call_equals_one_per_lookahead():
+    track = make_track({"kind": "random", "seed": 2, "width": 0.75})
+    rng = np.random.default_rng(0)
+    opp = np.column_stack([rng.uniform(0.5, 1.5, 20), np.zeros((20, 3)), rng.uniform(-0.2, 0.2, 20),
+                           rng.uniform(0, 2 * track.length, 20)])
+    Z = features(track, opp[0] + 0.1, opp)
+    for j, d in enumerate(LOOKAHEAD):
+        np.testing.assert_array_equal(Z[:, len(FEATURES) - 3 + j], track.kappa(track.wrap(opp[:, 5] + d)))
+
+
+def _opponent_gp(backend: str, **kw):
+    """A GP on opponent features of random states (a real fit: the shapes and scales of the protocol)."""
+    track = make_track({"kind": "random", "seed": 5, "width": 0.75})
+    rng = np.random.default_rng(1)
+    n = 120
+    opp = np.column_stack([rng.uniform(0.6, 1.4, n), rng.normal(0, 0.05, n), rng.normal(0, 0.3, n),
+                           rng.normal(0, 0.05, n), rng.uniform(-0.2, 0.2, n), rng.uniform(0, track.length, n)])
+    ego = opp + rng.normal(0, 0.1, opp.shape)
+    Z = features(track, ego, opp)
+    Y = 0.1 * np.column_stack([opp[:, 0], -0.3 * opp[:, 4], Z[:, 8], -0.1 * opp[:, 0], Z[:, 9]])
+    Y = Y + 1e-3 * rng.standard_normal(Y.shape)
+    return track, make_gp(backend, kernel="matern15", shared_kernel=True, **kw).fit(Z, Y)
+
+
+@pytest.mark.parametrize("backend, kw", [("exact", {}), ("sparse", {"n_inducing": 40, "max_iter": 15})])
+def test_rollout_equals_a_plain_loop_over_predict(backend, kw):
+    track, gp = _opponent_gp(backend, **kw)
+    pred = GPPredictor(gp, steps=9, samples=50, seed=0)
+    ego_plan = np.tile([1.1, 0, 0, 0.05, 0.1, 3.0], (10, 1))
+    ego_plan[:, 5] += 0.11 * np.arange(10)
+    opp = np.array([1.0, 0.0, 0.1, 0.0, -0.05, 3.3])
+    eps = np.random.default_rng(7).standard_normal((9, 50, len(OUTPUTS)))
+    paths = pred.rollout(track, ego_plan, opp, eps)
+    S, idx = np.tile(opp, (50, 1)), list(OUT_STATE)
+    for k in range(9):  # the plain path: checked predict of every sample at every step
+        Z = np.column_stack([features(track, ego_plan[k], S[:, :])[:, :8]]
+                            + [track.kappa(track.wrap(S[:, 5] + d)) for d in LOOKAHEAD])
+        mu, var = gp.predict(Z)
+        S[:, idx] += mu + np.sqrt(var) * eps[k]
+        np.testing.assert_allclose(paths[:, k], S, rtol=1e-7, atol=1e-9)  # BLAS rounding (1 vs 50 rows)
+
+
+def test_rollout_samples_have_the_gp_mean_and_variance_at_the_first_step():
+    track, gp = _opponent_gp("exact")
+    pred = GPPredictor(gp, steps=1, samples=20000, seed=3)
+    ego_plan = np.tile([1.1, 0, 0, 0.05, 0.1, 3.0], (2, 1))
+    opp = np.array([1.0, 0.0, 0.1, 0.0, -0.05, 3.3])
+    step = pred.rollout(track, ego_plan, opp)[:, 0, list(OUT_STATE)] - opp[list(OUT_STATE)]
+    mu, var = gp.predict(features(track, ego_plan[0], opp[None, :]))
+    assert var.min() > 0
+    se = np.sqrt(var[0] / 20000)  # standard error of the sample mean
+    assert np.all(np.abs(step.mean(axis=0) - mu[0]) < 5 * se)
+    np.testing.assert_allclose(step.var(axis=0), var[0], rtol=0.05)  # chi2 with 20000 dof: 1 % sd
