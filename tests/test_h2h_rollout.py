@@ -102,7 +102,8 @@ def test_rollout_equals_a_plain_loop_over_predict(backend, kw):
     for k in range(9):  # the plain path: checked predict of every sample at every step
         Z = np.column_stack([features(track, ego_plan[k], S[:, :])[:, :8]]
                             + [track.kappa(track.wrap(S[:, 5] + d)) for d in LOOKAHEAD])
-        mu, var = gp.predict(Z)
+        mu = gp.predict(Z)[0]
+        var = gp.predict(Z.mean(axis=0, keepdims=True))[1]  # one variance per step: at the samples' mean input
         S[:, idx] += mu + np.sqrt(var) * eps[k]
         np.testing.assert_allclose(paths[:, k], S, rtol=1e-7, atol=1e-9)  # BLAS rounding (1 vs 50 rows)
 
@@ -118,3 +119,12 @@ def test_rollout_samples_have_the_gp_mean_and_variance_at_the_first_step():
     se = np.sqrt(var[0] / 20000)  # standard error of the sample mean
     assert np.all(np.abs(step.mean(axis=0) - mu[0]) < 5 * se)
     np.testing.assert_allclose(step.var(axis=0), var[0], rtol=0.05)  # chi2 with 20000 dof: 1 % sd
+
+
+@pytest.mark.parametrize("backend, kw", [("exact", {}), ("sparse", {"n_inducing": 40, "max_iter": 15})])
+def test_fast_mean_is_the_mean_of_predict(backend, kw):
+    track, gp = _opponent_gp(backend, **kw)
+    Z = features(track, np.tile([1.1, 0, 0, 0.05, 0.1, 3.0], (30, 1)),
+                 np.column_stack([np.linspace(0.8, 1.2, 30), np.zeros((30, 3)), np.linspace(-0.1, 0.1, 30),
+                                  np.linspace(3.0, 4.0, 30)]))
+    np.testing.assert_allclose(gp.fast_mean(Z), gp.predict(Z)[0], rtol=1e-10, atol=1e-12)

@@ -268,6 +268,11 @@ class GPBackend(ABC):
         opponent rollouts."""
         return self._in_units(self._fast_normalised, np.asarray(Z, dtype=float))
 
+    def fast_mean(self, Z: np.ndarray) -> np.ndarray:
+        """The mean of :meth:`fast_predict` alone (a backend may skip the variance's work)."""
+        h = self.hyper_
+        return self._fast_mean_normalised((np.asarray(Z, dtype=float) - h.z_mean) / h.z_scale) * h.y_scale + h.y_mean
+
     def _in_units(self, predict_normalised, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h = self.hyper_
         mean_n, var_n = predict_normalised((Z - h.z_mean) / h.z_scale)
@@ -340,6 +345,10 @@ class GPBackend(ABC):
     def _fast_normalised(self, Zn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`fast_predict` in normalised units; default: :meth:`_predict_normalised`."""
         return self._predict_normalised(Zn)
+
+    def _fast_mean_normalised(self, Zn: np.ndarray) -> np.ndarray:
+        """:meth:`fast_mean` in normalised units; default: the mean of :meth:`_fast_normalised`."""
+        return self._fast_normalised(Zn)[0]
 
     @abstractmethod
     def _state_arrays(self) -> dict[str, np.ndarray]:

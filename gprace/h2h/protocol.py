@@ -433,7 +433,8 @@ def train(dataset: Path, model: Path, st: Settings, size: int | None = None, hyp
     key = {"data": _hash_file(dataset), "size": size, "backend": st.backend, "exact_max": st.exact_max,
            "inducing": st.inducing, "seed": seed, "optimize": st.optimize,
            "hyper": _hash_file(hyper_model) if hyper_model else None, "initial": _hash_file(initial) if initial else None,
-           "validation": _hash_file(validation) if validation else None, "quality": QUALITY_VERSION}
+           "validation": _hash_file(validation) if validation else None, "quality": QUALITY_VERSION,
+           "gp_settings": GP_SETTINGS}
     if _cached(model, key):
         return model
     Z, Y = read_dataset(dataset)
