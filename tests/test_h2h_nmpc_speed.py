@@ -1,0 +1,88 @@
+"""Speed settings of the head-to-head NMPC keep its solution: warm-start shift, IPOPT/MUMPS options."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import gprace.h2h.nmpc as nmpc
+from gprace.h2h.config import H2HConfig
+from gprace.h2h.geometry import make_track
+from gprace.h2h.nmpc import NMPC, NS, NU, NX, StageData, shift_plan
+from gprace.h2h.race import _model, ellipse_data, usable_widths
+
+CFG = H2HConfig()
+# the reference: IPOPT's own MUMPS scaling, a tight tolerance and no early "acceptable" exit
+REFERENCE = {k: v for k, v in nmpc.IPOPT_OPTIONS.items() if not k.startswith("mumps_")}
+REFERENCE.update(tol=1e-10, acceptable_iter=0)
+
+
+def _plan(N: int, v: float = 1.2, dt: float = 0.1) -> np.ndarray:
+    """Stage-wise decision vector of a straight run at constant speed (inputs and slacks per stage)."""
+    w = np.zeros((N, NU + NX + NS))
+    k = np.arange(1, N + 1)
+    w[:, :NU] = np.column_stack([0.01 * k, -0.02 * k])
+    w[:, NU:NU + NX] = np.array([v, 0.0, 0.0, 0.0, 0.1, 0.0])
+    w[:, NU + 5] = 2.0 + v * dt * k
+    w[:, NU + 4] = 0.1 + 0.01 * k  # drifting left at a constant rate
+    w[:, NU + NX:] = 0.001 * k[:, None]
+    return w
+
+
+def test_shift_plan_extrapolates_the_last_states():
+    N, width = 10, NU + NX + NS
+    w = _plan(N + 1)  # one stage longer: its last row is the exact next state of the motion
+    got = shift_plan(w[:N].ravel(), width).reshape(N, width)
+    np.testing.assert_allclose(got[:, NU:NU + NX], w[1:, NU:NU + NX], atol=1e-12)
+    np.testing.assert_array_equal(got[:-1], w[1:N])  # the shifted part is a plain shift
+    np.testing.assert_array_equal(got[-1, :NU], w[N - 1, :NU])  # inputs and slacks repeated
+    np.testing.assert_array_equal(got[-1, NU + NX:], w[N - 1, NU + NX:])
+    # too short to extrapolate: the last stage is repeated
+    two = shift_plan(w[:2].ravel(), width).reshape(2, width)
+    np.testing.assert_array_equal(two, w[[1, 1]])
+
+
+def _problem(mpc: NMPC, track, x0, opp):
+    N = CFG.horizon
+    G = mpc.guess_states(x0)
+    sig = G[1:, 5]
+    cx, cy = track.to_global(sig, np.zeros(N))
+    mean = np.tile(opp, (N, 1))
+    mean[:, 5] = opp[5] + CFG.dt * opp[0] * np.arange(1, N + 1)
+    wl, wr = usable_widths(track, sig)
+    return StageData(kappa=track.kappa(G[:-1, 5]), wl=wl, wr=wr,
+                     lin=np.column_stack([cx, cy, track.heading(sig), sig, track.kappa(sig)]),
+                     opp=ellipse_data(track, CFG, mean, np.full((N, 2), 0.02)))
+
+
+def _solves(mpc: NMPC, track, states=None, steps: int = 4):
+    """Ego closing on a slower opponent: a cold start, then warm starts at the states the first
+    plans reach (``states``: the (x, u) of each solve, taken from another run)."""
+    mpc.reset()
+    x, u = np.array([1.3, 0.0, 0.0, 0.0, 0.05, 0.5]), np.zeros(2)
+    opp = np.array([0.6, 0.0, 0.0, 0.0, -0.05, 1.3])
+    out, used = [], []
+    for k in range(steps):
+        if states is not None:
+            x, u = states[k]
+        used.append((x, u))
+        sol = mpc.solve(x, u, 0.0, _problem(mpc, track, x, opp))
+        assert sol.ok
+        out.append(sol)
+        x, u = sol.X[1], sol.U[0]
+        opp = opp + np.array([0, 0, 0, 0, 0, CFG.dt * opp[0]])
+    return out, used
+
+
+@pytest.fixture(scope="module")
+def curvy():
+    return make_track({"kind": "random", "seed": 4, "width": 0.75, "stretches": 4})
+
+
+def test_tuned_solve_agrees_with_a_tight_reference(curvy, monkeypatch):
+    tuned, states = _solves(NMPC(_model(), CFG.ego, CFG, collision=True), curvy)
+    monkeypatch.setattr(nmpc, "IPOPT_OPTIONS", REFERENCE)
+    ref, _ = _solves(NMPC(_model(), CFG.ego, CFG, collision=True), curvy, states)
+    for a, b in zip(tuned, ref):  # measured: at most 1.4e-3 m (the first, cold solve), then < 6e-4
+        assert np.max(np.abs(a.U - b.U)) < 5e-3
+        assert np.max(np.abs(a.X - b.X)) < 5e-3
