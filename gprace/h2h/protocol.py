@@ -92,7 +92,7 @@ SENSOR_STD = (0.01, 0.01, 0.02, 0.005, 0.005, 0.005)
 PROCESS_STD = (0.01, 0.005, 0.02, 0.0, 0.0, 0.0)
 BLOCKING_WEIGHT = opponent_mpc().q_block
 BASELINE_TRACKS = ("eval", "training")
-ERRORS_VERSION = 2  # offline error records also carry the s errors and the raw spreads
+ERRORS_VERSION = 3  # 2: the s errors and the raw spreads; 3: one variance per start time (as the rollout)
 RACED = ("baseline", "explore")
 # Backend settings of the opponent GPs (measured on the 5000-point baseline data, docs/decisions.md):
 # one kernel for the five outputs (normalised) predicts as well as five kernels at a fifth of the
@@ -617,7 +617,10 @@ def _offline_errors(task: dict) -> dict:
 
             for k in range(K):
                 Zk = features(track, E[starts + k], S)
-                mu, var = gp.gp.predict(Zk)
+                # as GPPredictor.rollout: each sample's own mean, one variance per start time at its
+                # samples' mean input
+                mu = gp.gp.fast_mean(Zk)
+                var = np.repeat(gp.gp.fast_predict(Zk.reshape(T, n, -1).mean(axis=1))[1], n, axis=0)
                 S[:, list(OUT_STATE)] += mu + np.sqrt(np.maximum(var, 0)) * rng.standard_normal(mu.shape)
                 ey[k] = S[:, 4].reshape(T, n).mean(axis=1)
                 sk[k] = S[:, 5].reshape(T, n).mean(axis=1)
