@@ -9,7 +9,7 @@
   :data:`gprace.gp.base.BOUNDS`. One evaluation costs O(n m^2).
 - ``shared_kernel``: one kernel and one noise for all (normalised) outputs, fitted on the sum of
   their VFE bounds; a query then costs one kernel block and one product for every output
-  instead of one each (the opponent rollouts, docs/notes_h2h_a.md).
+  instead of one each (the opponent rollouts, docs/decisions.md).
 - ``min_noise`` raises the lower bound of the (normalised) noise variance. On nearly noiseless
   data (simulated opponents: exact-GP noise at its 1e-6 floor) the VFE matrices become so badly
   conditioned that the fit degenerates to the prior mean; a floor of 1e-3 (the noise also absorbs

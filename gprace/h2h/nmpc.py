@@ -43,7 +43,7 @@ IPOPT_OPTIONS = {
     "mu_strategy": "adaptive", "linear_solver": "mumps",
     # without MUMPS's scaling and permuting of the KKT matrix: solutions agree to 1e-11, and the
     # solve took 5 to 13 % less CPU in two of three replays of 566 to 650 race solves (no
-    # difference in the third, under heavy load; docs/notes_h2h_c.md)
+    # difference in the third, under heavy load; docs/decisions.md)
     "mumps_permuting_scaling": 0, "mumps_scaling": 0,
 }
 
@@ -274,7 +274,7 @@ def shift_plan(w: np.ndarray, width: int) -> np.ndarray:
     Repeating the last states (as :func:`_shift` does) leaves the last stage's dynamics violated by
     about ``v dt`` (0.1 m of ``s``), and IPOPT spent its first iterations on that; the linear
     extrapolation is off by the second difference only: 11 % fewer iterations per solve
-    (docs/notes_h2h_c.md). Needs at least three stages (N >= 3); with fewer, repeats.
+    (docs/decisions.md). Needs at least three stages (N >= 3); with fewer, repeats.
     """
     v = _shift(w, width).reshape(-1, width)
     if len(v) >= 3:

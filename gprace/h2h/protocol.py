@@ -84,7 +84,7 @@ RUN_KIND = "h2h_run"
 DATASET_KIND = "h2h_dataset"
 SEED_EVAL, SEED_COLLECT, SEED_EXPLORE, SEED_CALIB = 0, 100_000, 200_000, 300_000
 # Noise of 1:10 cars, std per state [v_x m/s, v_y m/s, yaw_rate rad/s, e_psi rad, e_y m, s m]
-# (sources and reasoning: docs/notes_h2h_b.md). Sensor: what an estimator fusing indoor
+# (sources and reasoning: docs/decisions.md). Sensor: what an estimator fusing indoor
 # positioning (cm-level) or motion capture (mm-level) with IMU and encoders gives a 1:10 car,
 # white per 0.1 s step. Process: unmodelled forces (surface, tyre, actuator) as a random change of
 # the velocities per 0.1 s step; positions follow through the dynamics.
@@ -98,7 +98,7 @@ RACED = ("baseline", "explore")
 # one kernel for the five outputs (normalised) predicts as well as five kernels at a fifth of the
 # rollout cost; the sparse fit starts from the exact optimum on 800 points, polishes it for 50
 # iterations and keeps a noise floor (nearly noiseless data made the VFE fit degenerate); its five
-# outputs share one kernel too (rollout 3.6 times faster, docs/notes_h2h_a.md).
+# outputs share one kernel too (rollout 3.6 times faster, docs/decisions.md).
 GP_SETTINGS: dict[str, dict[str, Any]] = {
     "exact": {"shared_kernel": True},
     "sparse": {"min_noise": 1e-3, "jitter": 1e-6, "max_iter": 50, "init_points": 800, "shared_kernel": True},
