@@ -24,8 +24,8 @@ diagnostics behind a verdict:
   evaluation races) lie to each model's training inputs: median nearest-neighbour distance and the
   share within one standard deviation of the evaluation features (Euclidean, features scaled by
   their spread over the evaluation steps);
-* ``spread_vs_error``: the predicted 9-step spread against the 9-step error, as far as the table
-  reports it (band coverage per predictor).
+* ``spread_vs_error``: per predictor the share of the 9-step e_y and s errors inside the predicted
+  2-sigma band, with the predictor's own spread and with the calibrated one (the ellipses').
 """
 
 from __future__ import annotations
@@ -41,8 +41,9 @@ import numpy as np
 
 CONDITIONS: dict[str, list[str]] = {
     # name: options of `gprace eval head2head` that define the condition (besides --tracks/--seeds)
-    "default": [],
+    "default": [],  # realistic sensor and process noise of 1:10 cars (docs/decisions.md)
     "noiseless": ["--sensor-noise", "0", "--process-noise", "0"],
+    "noise_x3": ["--sensor-noise", "3", "--process-noise", "3"],
     "baseline_training_tracks": ["--baseline-tracks", "training"],
     "no_blocking": ["--blocking-weight", "0"],
     "strong_blocking": ["--blocking-weight", "2000"],
@@ -143,15 +144,15 @@ def summary(tab: dict, folder: Path) -> dict:
         for k in (1, 2, 8, 9):
             if len(e.get("mean", [])) >= k:
                 row[f"ey_error_{k}"] = {"value": e["mean"][k - 1], "ci": spread.get(f"{p}.ey_error_{k}", {}).get("ci")}
-        if "coverage" in e:
-            row["band_coverage"] = e["coverage"]
     verdicts = {text: {"verdict": claims.get(key, {}).get("verdict", "not measured"),
                        "explore_minus_baseline": claims.get(key, {}).get("mean"),
                        "ci": claims.get(key, {}).get("ci")} for key, text in CLAIMS.items()}
     raced = list(tab.get("racing", {}))
     return {"settings": tab.get("settings", {}), "seeds": tab.get("seeds", [0]), "table": rows, "claims": verdicts,
             "data_coverage": data_coverage(folder, raced),
-            "spread_vs_error": {p: r.get("band_coverage") for p, r in rows.items() if "band_coverage" in r}}
+            "spread_vs_error": {p: {"ey_9_raw": c["ey_raw"][-1], "ey_9_calibrated": c["ey"][-1],
+                                    "s_9_raw": c["s_raw"][-1], "s_9_calibrated": c["s"][-1]}
+                                for p, c in tab.get("coverage", {}).items() if c.get("ey")}}
 
 
 def main(argv: list[str] | None = None) -> None:
