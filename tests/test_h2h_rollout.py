@@ -128,3 +128,21 @@ def test_fast_mean_is_the_mean_of_predict(backend, kw):
                  np.column_stack([np.linspace(0.8, 1.2, 30), np.zeros((30, 3)), np.linspace(-0.1, 0.1, 30),
                                   np.linspace(3.0, 4.0, 30)]))
     np.testing.assert_allclose(gp.fast_mean(Z), gp.predict(Z)[0], rtol=1e-10, atol=1e-12)
+
+
+def test_batched_paths_equal_one_rollout_per_start():
+    """The offline errors' batch of start states gives each start the paths of its own rollout."""
+    from gprace.h2h.predictors import sample_paths
+
+    track, gp = _opponent_gp("exact")
+    rng = np.random.default_rng(5)
+    G, n, K = 3, 20, 9
+    opp = np.column_stack([rng.uniform(0.9, 1.1, G), np.zeros((G, 3)), rng.uniform(-0.1, 0.1, G), 3.0 + 0.2 * np.arange(G)])
+    ego = np.tile([1.1, 0, 0, 0.05, 0.1, 2.5], (K, G, 1))
+    ego[..., 5] += 0.11 * np.arange(K)[:, None] + 0.2 * np.arange(G)[None, :]
+    eps = rng.standard_normal((K, G * n, len(OUTPUTS)))
+    paths = sample_paths(gp, track, ego, opp, n, eps)
+    pred = GPPredictor(gp, steps=K, samples=n)
+    for g in range(G):
+        own = pred.rollout(track, ego[:, g], opp[g], eps[:, g * n:(g + 1) * n])
+        np.testing.assert_allclose(paths[g * n:(g + 1) * n], own, rtol=1e-9, atol=1e-12)

@@ -156,20 +156,7 @@ class GPPredictor(Predictor):
         K, n = self.steps, self.samples
         if eps is None:
             eps = self.rng.standard_normal((K, n, len(OUTPUTS)))
-        S = np.tile(np.asarray(opp, float)[:6], (n, 1))
-        out = np.empty((n, K, 6))
-        idx = list(OUT_STATE)
-        for k in range(K):
-            # every sample starts from the same state: at the first step one prediction serves all
-            Z = features(track, ego_plan[k], S[:1] if k == 0 else S)
-            if k == 0:
-                mu, var = self.gp.fast_predict(Z)
-            else:  # each sample's own mean; the variance at the samples' mean input (see module doc)
-                mu = self.gp.fast_mean(Z)
-                var = self.gp.fast_predict(Z.mean(axis=0, keepdims=True))[1]
-            S[:, idx] += mu + np.sqrt(np.maximum(var, 0.0)) * eps[k]
-            out[:, k] = S
-        return out
+        return sample_paths(self.gp, track, np.asarray(ego_plan, float)[:K, None, :], np.asarray(opp, float)[None, :6], n, eps)
 
     def predict(self, ctx: Context) -> Prediction:
         paths = self.rollout(ctx.track, ctx.ego_plan, ctx.opp)
@@ -177,6 +164,30 @@ class GPPredictor(Predictor):
         mean = paths.mean(axis=0)
         std = np.column_stack([paths[:, :, 5].std(axis=0), paths[:, :, 4].std(axis=0)])
         return Prediction(mean, calibrated_std(std, self.calibration), std)
+
+
+def sample_paths(gp, track, ego: np.ndarray, opp: np.ndarray, n: int, eps: np.ndarray) -> np.ndarray:
+    """Sampled rollouts of ``G`` start states at once: ``n`` samples from each opponent state
+    ``opp (G, 6)``, with the ego part of the input ``ego (K, G, 6)`` at steps 0..K-1 and standard
+    normal draws ``eps (K, G n, 5)``; returns paths ``(G n, K, 6)``, the samples of start g in rows
+    ``g n .. g n + n - 1``. Each sample's mean is its own; the variance of a step is the GP's at
+    the mean input of the start's samples (see the module doc). At step 0 a start's samples share
+    their state, so one prediction per start serves them all."""
+    K, G = ego.shape[0], opp.shape[0]
+    S = np.repeat(opp, n, axis=0)
+    out = np.empty((G * n, K, 6))
+    idx = list(OUT_STATE)
+    for k in range(K):
+        if k == 0:
+            mu, var = gp.fast_predict(features(track, ego[0], opp))
+            mu = np.repeat(mu, n, axis=0)
+        else:
+            Z = features(track, np.repeat(ego[k], n, axis=0), S)
+            mu = gp.fast_mean(Z)
+            var = gp.fast_predict(Z.reshape(G, n, -1).mean(axis=1))[1]
+        S[:, idx] += mu + np.sqrt(np.maximum(np.repeat(var, n, axis=0), 0.0)) * eps[k]
+        out[:, k] = S
+    return out
 
 
 # ----------------------------------------------------------------------------------------------

@@ -92,7 +92,7 @@ SENSOR_STD = (0.01, 0.01, 0.02, 0.005, 0.005, 0.005)
 PROCESS_STD = (0.01, 0.005, 0.02, 0.0, 0.0, 0.0)
 BLOCKING_WEIGHT = opponent_mpc().q_block
 BASELINE_TRACKS = ("eval", "training")
-ERRORS_VERSION = 3  # 2: the s errors and the raw spreads; 3: one variance per start time (as the rollout)
+ERRORS_VERSION = 4  # 2: s errors and raw spreads; 3: one variance per start time; 4: sample_paths (step-0 rounding)
 RACED = ("baseline", "explore")
 # Backend settings of the opponent GPs (measured on the 5000-point baseline data, docs/decisions.md):
 # one kernel for the five outputs (normalised) predicts as well as five kernels at a fifth of the
@@ -586,7 +586,7 @@ def _offline_errors(task: dict) -> dict:
     """
     from gprace.h2h.config import H2HConfig
     from gprace.h2h.geometry import make_track
-    from gprace.h2h.predictors import cv_positions, make_predictor
+    from gprace.h2h.predictors import cv_positions, make_predictor, sample_paths
 
     cfg = H2HConfig(**task.get("config", {}))
     K = cfg.pred_steps
@@ -605,28 +605,16 @@ def _offline_errors(task: dict) -> dict:
         if name == "cv":  # ConstantVelocityPredictor for every start time at once
             mean_s, mean = cv_positions(track, Om[:T], K, cfg.dt)
             std_s = std_ey = np.zeros((K, T))
-        else:  # GPPredictor.rollout for every start time at once (n samples each)
-            gp = make_predictor("gp", K, cfg.dt, path, cfg.samples, seed=int(task["seed"]))
+        else:  # the GP rollout for every start time at once (n samples each)
+            gp = make_predictor("gp", K, cfg.dt, path, cfg.samples).gp
             n = cfg.samples
-            # ego part per sample: the true ego states from each start time t
-            starts = np.repeat(np.arange(T), n)
-            rng = np.random.default_rng(int(task["seed"]))
-            S = np.repeat(Om[:T], n, axis=0)
-            ey, sk, std_ey, std_s = (np.empty((K, T)) for _ in range(4))
-            from gprace.h2h.predictors import OUT_STATE, features
-
-            for k in range(K):
-                Zk = features(track, E[starts + k], S)
-                # as GPPredictor.rollout: each sample's own mean, one variance per start time at its
-                # samples' mean input
-                mu = gp.gp.fast_mean(Zk)
-                var = np.repeat(gp.gp.fast_predict(Zk.reshape(T, n, -1).mean(axis=1))[1], n, axis=0)
-                S[:, list(OUT_STATE)] += mu + np.sqrt(np.maximum(var, 0)) * rng.standard_normal(mu.shape)
-                ey[k] = S[:, 4].reshape(T, n).mean(axis=1)
-                sk[k] = S[:, 5].reshape(T, n).mean(axis=1)
-                std_ey[k] = S[:, 4].reshape(T, n).std(axis=1)
-                std_s[k] = S[:, 5].reshape(T, n).std(axis=1)
-            mean, mean_s = ey, sk
+            # ego part: the closed-loop ego states from each start time t; draws in the order of
+            # one (T n, 5) block per step
+            eps = np.random.default_rng(int(task["seed"])).standard_normal((K, T * n, len(OUTPUTS)))
+            ego = np.stack([E[k:k + T] for k in range(K)])
+            paths = sample_paths(gp, track, ego, Om[:T, :6], n, eps).reshape(T, n, K, 6)
+            mean, mean_s = paths[..., 4].mean(axis=1).T, paths[..., 5].mean(axis=1).T
+            std_ey, std_s = paths[..., 4].std(axis=1).T, paths[..., 5].std(axis=1).T
         out[name] = np.abs(mean - truth)
         out[f"spread_{name}"] = np.stack([np.abs(mean_s - truth_s), std_s, std_ey])
     return {"arrays": out, "attrs": {}}
