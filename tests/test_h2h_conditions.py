@@ -175,6 +175,17 @@ def test_calibration_reaches_the_races_and_the_coverage_table(tmp_path):
     st = P.Settings(tracks=2, raced=("cv",), offline=("cv",), max_time=1.5, samples=5, calib_runs=2, workers=1)
     cal = P.calibrate(st, tmp_path, {})
     assert set(cal) == {"cv"} and (tmp_path / "calib" / "calibration.json").exists()
+    # second pass: the raced predictor drives calib_runs more races with the first (oracle) calibration,
+    # on tracks of their own, and the final calibration is fitted on those races alone
+    first = P.json.loads((tmp_path / "calib" / "calibration_oracle.json").read_text())["cv"]
+    own = P.run_tasks(P.calib_tasks(st, "cv", None, first, st.calib_runs, st.calib_runs), tmp_path / "calib" / "cv" / "runs",
+                      P.replace(st, resume=True), "check")
+    tasks = [P.json.loads(r["attrs"]["task"]) for r in own]
+    assert len(own) == 2 and all(t["calibration"]["floor"] == first["floor"] and t["predictor"] == "cv" for t in tasks)
+    assert {t["seed"] for t in tasks}.isdisjoint(t["seed"] for t in P.calib_tasks(st))
+    _, arrays = P._rollout_errors(st, own, tmp_path / "calib" / "cv" / "runs", tmp_path / "calib" / "cv" / "errors",
+                                  ["cv"], {}, "check")
+    assert cal == P._fit_calibration(st, arrays, ["cv"])
     floor = np.asarray(cal["cv"]["floor"])
     assert floor.shape == (H2HConfig().pred_steps, 2) and np.all(floor > 0) and np.all(np.diff(floor[:, 1]) >= 0)
     raced = P.race_predictors(st, tmp_path, {}, cal)
@@ -184,3 +195,28 @@ def test_calibration_reaches_the_races_and_the_coverage_table(tmp_path):
     assert cov["points"] == errors["cv"].shape[1] > 0
     assert all(c == 0 for c in cov["ey_raw"][1:])  # no spread: the raw band covers nothing
     assert all(0 <= c <= 1 for c in cov["ey"]) and cov["calibrated"]
+
+
+def test_race_inflates_the_ellipses_by_the_calibration(monkeypatch):
+    """The calibration a task carries reaches the ego's collision ellipses: the constant-velocity
+    predictor has no spread of its own, so its ellipses grow by exactly its calibrated floor."""
+    import gprace.h2h.race as R
+
+    seen = []
+    real = R.ellipse_data
+
+    def spy(track, cfg, mean, std):
+        seen.append(np.asarray(std, float).copy())
+        return real(track, cfg, mean, std)
+
+    monkeypatch.setattr(R, "ellipse_data", spy)
+    K = H2HConfig().pred_steps
+    floor = np.column_stack([np.linspace(0.01, 0.05, K), np.linspace(0.02, 0.1, K)])
+    task = {"track": {"kind": "random", "seed": 3, "stretches": 5, "width": 0.75}, "seed": 3, "predictor": "cv",
+            "config": {"max_time": 0.5}}
+    R.run_race(task)
+    plain, seen[:] = list(seen), []
+    R.run_race({**task, "calibration": {"scale": np.zeros((K, 2)).tolist(), "floor": floor.tolist()}})
+    assert plain and all(np.all(s == 0) for s in plain)
+    ego = seen[1::2]  # per step: the opponent's ellipses around the ego (no spread), then the ego's
+    assert ego and all(np.allclose(s, R.extend(floor, len(s))) for s in ego) and all(np.all(s == 0) for s in seen[::2])

@@ -99,6 +99,32 @@ def test_coverage_and_calibration_on_known_noise():
     assert np.all(calibrate(honest) < 1.5)
 
 
+def test_calibration_run_reveals_a_shift_the_own_data_cannot():
+    """Fitted where the error is small, tested where it is three times larger: the leave-one-out
+    scale stays near 1, a calibration run from the shifted region gives the variance ratio (~9
+    on the noise, analytic) and restores the coverage of fresh shifted errors; a run of fewer than
+    MIN_CALIB samples is ignored and the scale never falls below the leave-one-out one."""
+    from gprace.gp import make_gp
+    from gprace.timetrial.learning import MIN_CALIB, GPPredictor, calibrate, coverage
+
+    rng = np.random.default_rng(5)
+    f = lambda Z: np.column_stack([np.sin(Z[:, 0]), 0.5 * Z[:, 1]])  # noqa: E731
+    Z = rng.uniform(-2, 2, (500, 2))
+    gp = make_gp("exact", optimize=True, max_fit_points=300, seed=0).fit(Z, f(Z) + rng.normal(0, 0.05, (500, 2)))
+    shifted = lambda n: (lambda Zs: (Zs, f(Zs) + rng.normal(0, 0.15, (n, 2))))(rng.uniform(-2, 2, (n, 2)))  # noqa: E731
+    loo = calibrate(gp)
+    cal = calibrate(gp, calib=shifted(800))
+    inputs = ("v_y", "yaw_rate")
+    test = shifted(4000)
+    before = coverage(GPPredictor(gp, "tracking", inputs=inputs, var_scale=loo), *test)
+    after = coverage(GPPredictor(gp, "tracking", inputs=inputs, var_scale=cal), *test)
+    assert np.all(loo < 1.5) and np.all(np.abs(cal / 9.0 - 1) < 0.25), (loo, cal)
+    assert np.all(before < 0.6) and np.all(np.abs(after - 0.95) < 0.02), (before, after)
+    np.testing.assert_array_equal(calibrate(gp, calib=shifted(MIN_CALIB - 1)), loo)
+    Zq = rng.uniform(-2, 2, (200, 2))
+    assert np.all(calibrate(gp, calib=(Zq, gp.predict(Zq)[0])) >= loo)  # errors of zero: the LOO scale stays
+
+
 def test_spin_samples_and_the_loss_of_control_are_left_out():
     from gprace.config import load_vehicle
     from gprace.model import NominalModel

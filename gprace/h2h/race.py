@@ -134,7 +134,7 @@ def run_race(task: dict) -> dict:
     rng = np.random.default_rng(int(task["seed"]))
     N, dt = cfg.horizon, cfg.dt
     predictor = make_predictor(task.get("predictor", "gp"), cfg.pred_steps, dt, task.get("model"), cfg.samples,
-                               seed=int(task["seed"]) + 7919)
+                               seed=int(task["seed"]) + 7919, calibration=task.get("calibration"))
     alpha = float(task.get("alpha", 0.0))
     explorer = None
     if alpha > 0:

@@ -20,9 +20,12 @@ spin in progress) are left out: the diverse selection otherwise fills the dictio
 completed.
 
 Variance that tells the truth (:func:`calibrate`): after every (re)fit the predicted variances
-are scaled per output so that the leave-one-out 95 % band of the GP's own data covers 95 % of its
-leave-one-out errors (closed form for the exact GP). Where data conflict (same inputs, different
-targets) the LOO errors are large and the scale grows; it never shrinks the GP's own variance.
+are scaled per output so that the 95 % band covers 95 % of the errors, on two sets: the
+leave-one-out errors of the GP's own data (closed form for the exact GP; where data conflict the
+scale grows) and the errors on a calibration run, a weaving run of another design than the
+held-out test run (split-conformal calibration; the GP's own data cannot show a covariate shift
+such as lateral excitation at top speed after one smooth lap, docs/decisions.md). The larger
+scale wins; it never shrinks the GP's own variance.
 
 Training (project decision, to fit the 10-minute budget of ``gprace iterate``): hyperparameters
 are fitted once, by marginal likelihood on at most ``max_fit_points`` points of the first data
@@ -158,31 +161,56 @@ def load_predictor(path, kind: str) -> GPPredictor:
     return GPPredictor(saved.gp, kind, str(path), saved.input_names, scale)
 
 
-def calibrate(gp, level: float = 0.95) -> np.ndarray:
-    """Variance scale (p,) >= 1 per output from the exact GP's leave-one-out errors.
+def calibrate(gp, level: float = 0.95, calib: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Variance scale (p,) >= 1 per output: the larger of the leave-one-out and the calibration-run scale.
 
-    With ``K = K_f + s_n^2 I`` on the (normalised) training data, the LOO residual of point i is
-    ``[K^-1 y]_i / [K^-1]_ii`` and its predictive variance ``1 / [K^-1]_ii`` (Rasmussen & Williams
-    eq. 5.12), so the LOO z-score is ``[K^-1 y]_i / sqrt([K^-1]_ii)``. The scale is the squared
-    ratio of the ``level`` quantile of |z| to the Gaussian one, floored at 1. Backends without a
-    cached Cholesky factor get 1.
+    Leave-one-out: with ``K = K_f + s_n^2 I`` on the (normalised) training data, the LOO residual
+    of point i is ``[K^-1 y]_i / [K^-1]_ii`` and its predictive variance ``1 / [K^-1]_ii``
+    (Rasmussen & Williams eq. 5.12), so the LOO z-score is ``[K^-1 y]_i / sqrt([K^-1]_ii)``
+    (backends without a cached Cholesky factor: none). Calibration run ``calib = (Z, Y)``: the
+    z-scores of its errors under the GP's predictive variance (latent plus noise); fewer than
+    ``MIN_CALIB`` samples are ignored. Each scale is the squared ratio of the ``level`` quantile
+    of |z| to the Gaussian one.
     """
-    from scipy.linalg import solve_triangular
+    p = gp.n_outputs_
+    scale = np.ones(p)
+    for z in (_loo_z(gp), _calib_z(gp, calib)):
+        if z is not None:
+            scale = np.maximum(scale, _z_scale(z, level))
+    return scale
+
+
+MIN_CALIB = 50  # samples of a calibration run below which it is not used
+
+
+def _z_scale(z: np.ndarray, level: float) -> np.ndarray:
     from scipy.stats import norm
 
+    q = np.quantile(np.abs(z), level, axis=0)
+    return (q / norm.ppf(0.5 + level / 2)) ** 2
+
+
+def _loo_z(gp) -> np.ndarray | None:
+    """Leave-one-out z-scores (n, p) of the exact GP's training outputs, or None."""
+    from scipy.linalg import solve_triangular
+
     L, alpha = getattr(gp, "L_", None), getattr(gp, "alpha_", None)
-    p = gp.n_outputs_
     if L is None or alpha is None:
-        return np.ones(p)
-    scale = np.ones(p)
+        return None
+    z = np.empty_like(alpha)
     for gi, g in enumerate(gp._groups()):
         Linv = solve_triangular(L[gi], np.eye(L.shape[1]), lower=True, check_finite=False)
         kinv_diag = np.einsum("ij,ij->j", Linv, Linv)
-        for o in g:
-            z = alpha[:, o] / np.sqrt(kinv_diag)
-            q = float(np.quantile(np.abs(z), level))
-            scale[o] = max(1.0, (q / norm.ppf(0.5 + level / 2)) ** 2)
-    return scale
+        z[:, g] = alpha[:, g] / np.sqrt(kinv_diag)[:, None]
+    return z
+
+
+def _calib_z(gp, calib) -> np.ndarray | None:
+    """z-scores (n, p) of a calibration run's errors under the GP's predictive spread, or None."""
+    if calib is None or len(calib[0]) < MIN_CALIB:
+        return None
+    mean, var = gp.predict(calib[0])
+    return (calib[1] - mean) / np.sqrt(var + gp.noise_)
 
 
 def coverage(pred: GPPredictor, Z: np.ndarray, Y: np.ndarray, level: float = 0.95) -> np.ndarray:
