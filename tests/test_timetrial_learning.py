@@ -152,6 +152,7 @@ def test_grip_limits_widen_hold_and_back_off():
     prev, cap = np.array([10.0, 4.0, 9.0]), np.array([14.0, 6.0, 14.0])
     np.testing.assert_allclose(next_limits(prev, [10.2, 4.0, 8.8], True, 0.4, cap, 0.05), [10.5, 4.2, 9.24])
     np.testing.assert_allclose(next_limits(prev, [10.0, 4.0, 9.0], True, 0.9, cap, 0.05), prev)       # near the peak slip: hold
+    np.testing.assert_allclose(next_limits(prev, [10.0, 4.0, 9.0], True, 0.4, cap, 0.05, border_hits=1), prev)  # a border touched: hold
     np.testing.assert_allclose(next_limits(prev, [10.0, 1.0, 9.0], True, 0.4, cap, 0.05), [10.5, 4.2, 9.45])  # unused axis
     np.testing.assert_allclose(next_limits(prev, [np.nan] * 3, False, np.nan, cap, 0.05), 0.9 * prev)   # failed lap
     np.testing.assert_allclose(next_limits(prev * 2, prev * 2, True, 0.1, cap, 0.05), cap)

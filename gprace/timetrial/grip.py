@@ -63,9 +63,13 @@ def nominal_cap(model, share: float) -> np.ndarray:
 
 
 def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, util: float, cap: np.ndarray,
-                widen: float = 0.05, hold: float = 0.8, failed=()) -> np.ndarray:
+                widen: float = 0.05, hold: float = 0.8, failed=(), border_hits: int = 0) -> np.ndarray:
     """Limits of the next plan from the last plan's ``previous`` limits and the lap it gave.
 
+    A completed lap widens them by ``widen``, unless it came near the peak slip (``util >=
+    hold``) or touched a border (``border_hits > 0``): then they are held. Measured on
+    bmw_commonroad (2026-11-24): a lap that completes with border hits is the last warning; one
+    Double-GP trial widened past two such laps and lost the car in the hairpin at s = 1607 m.
     ``failed`` are the limits of earlier plans whose laps failed: the next limits stay below
     each of them by ``widen`` (a level that lost the car is not tried again).
     """
@@ -77,7 +81,7 @@ def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, uti
         # the plan's limits are transients (a yaw oscillation in a fast chicane), not grip shown;
         # an axis the lap hardly used (a partial lap that never braked) tells nothing: keep its limit
         base = np.where(measured >= 0.5 * previous, np.minimum(measured, previous), previous)
-        out = base if np.isfinite(util) and util >= hold else base * (1.0 + widen)
+        out = base if (np.isfinite(util) and util >= hold) or border_hits > 0 else base * (1.0 + widen)
     for f in failed:
         f = np.asarray(f, dtype=float)
         if np.all(out >= f * (1.0 - widen)):

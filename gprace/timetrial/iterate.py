@@ -449,7 +449,7 @@ def _run_chain(task: dict) -> list[dict]:
             rec = record(i - 1)
             failed = [record(k)["limits"] for k in range(i) if not record(k)["completed"]]
             limits = G.next_limits(last.meta.get("limits", cap), rec["envelope"], rec["completed"], rec["utilisation"],
-                                   cap, st.widen, failed=failed)
+                                   cap, st.widen, failed=failed, border_hits=rec["border_hits"])
             good = [k for k in range(i - 1, -1, -1) if record(k)["completed"]]
             warm = read_plan(tdir / f"iter_{good[0]:02d}" / "plan.h5", track) if good else None
             gp_plan = L.load_predictor(di / "gp_planning.h5", "planning")
