@@ -18,6 +18,8 @@ per-sample one (5 to 95 %: 0.94 to 1.00) and the same error (docs/decisions.md).
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -246,14 +248,14 @@ def make_predictor(kind: str, steps: int, dt: float = 0.1, model: str | Path | N
     return pred
 
 
-_GP_CACHE: dict[tuple[str, int], object] = {}
-
-
 def _cached_gp(path: str):
+    """The opponent GP of a model file, loaded once per file version (the last 8 files kept)."""
     p = Path(path)
     if not p.exists():
         raise InputError(f"{path}: no such GP model file")
-    key = (str(p.resolve()), p.stat().st_mtime_ns)
-    if key not in _GP_CACHE:
-        _GP_CACHE[key] = load_opponent_gp(p)
-    return _GP_CACHE[key]
+    return _load_gp(str(p.resolve()), p.stat().st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=8)
+def _load_gp(path: str, mtime_ns: int):
+    return load_opponent_gp(path)

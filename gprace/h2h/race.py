@@ -36,6 +36,7 @@ the record keeps the measured ones as ``ego_meas`` / ``opp_meas`` (the GP data a
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 from typing import Callable
@@ -49,7 +50,8 @@ from gprace.h2h.nmpc import NMPC, StageData
 from gprace.h2h.predictors import Context, gap_s, make_predictor
 from gprace.plants.frenet import compiled_step
 
-_CACHE: dict = {}
+_LOCAL = threading.local()  # per thread (Dask threads): NMPCs hold solver state
+MAX_CONTROLLERS = 4  # configurations kept per thread (a study switches between a few)
 SENSOR_STREAM, PROCESS_STREAM = 1, 2
 
 
@@ -63,22 +65,27 @@ def state_noise(seed: int, stream: int, std) -> Callable[[], np.ndarray] | None:
     return lambda: rng.standard_normal((2, len(std))) * std
 
 
-def _model():
-    if "model" not in _CACHE:
-        from gprace.config import load_vehicle
-        from gprace.model import NominalModel
+@functools.lru_cache(maxsize=2)
+def _model(vehicle: str = "barc_1_10"):
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
 
-        _CACHE["model"] = NominalModel(load_vehicle("barc_1_10"))
-    return _CACHE["model"]
+    return NominalModel(load_vehicle(vehicle))
 
 
 def controllers(cfg: H2HConfig) -> tuple[NMPC, NMPC]:
-    """(ego, opponent) NMPCs, built once per process and configuration."""
-    key = ("mpc", cfg.model_dump_json(), threading.get_ident())  # one per thread (Dask threads)
-    if key not in _CACHE:
+    """(ego, opponent) NMPCs, built once per thread and configuration (the last
+    :data:`MAX_CONTROLLERS` configurations are kept)."""
+    cache = getattr(_LOCAL, "controllers", None)
+    if cache is None:
+        cache = _LOCAL.controllers = {}
+    key = cfg.model_dump_json()
+    if key not in cache:
         m = _model()
-        _CACHE[key] = (NMPC(m, cfg.ego, cfg, collision=True), NMPC(m, cfg.opponent, cfg, collision=True))
-    ego, opp = _CACHE[key]
+        if len(cache) >= MAX_CONTROLLERS:
+            cache.pop(next(iter(cache)))  # the oldest
+        cache[key] = (NMPC(m, cfg.ego, cfg, collision=True), NMPC(m, cfg.opponent, cfg, collision=True))
+    ego, opp = cache[key]
     ego.reset(), opp.reset()
     ego.failures = ego.solves = opp.failures = opp.solves = 0
     return ego, opp
