@@ -19,7 +19,6 @@ per-sample one (5 to 95 %: 0.94 to 1.00) and the same error (docs/decisions.md).
 from __future__ import annotations
 
 import functools
-
 from dataclasses import dataclass
 from pathlib import Path
 
