@@ -18,20 +18,13 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Summarise FILE: kind, schema, provenance, attributes, arrays and its key results."""
         from gprace.console import console
-        from gprace.errors import InputError
         from gprace.report.inspect import describe, summary_lines
 
         info = describe(file)
         if plot is not None:
             from gprace.report.single import figures_for, save_figures
 
-            feats = None
-            if features:
-                parts = [p.strip() for p in features.split(",") if p.strip()]
-                if len(parts) != 2:
-                    raise InputError(f"--features: give two names separated by a comma, got {features!r}")
-                feats = (parts[0], parts[1])
-            info["plots"] = [str(p) for p in save_figures(figures_for(file, feats, against), plot)]
+            info["plots"] = [str(p) for p in save_figures(figures_for(file, _two_features(features), against), plot)]
         if as_json:
             console.json(info)
             return
@@ -50,16 +43,9 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Build one self-contained HTML page (figures embedded) from every result under FOLDER."""
         from gprace.console import console
-        from gprace.errors import InputError
         from gprace.report.html import build_report
 
-        feats = None
-        if features:
-            parts = [p.strip() for p in features.split(",") if p.strip()]
-            if len(parts) != 2:
-                raise InputError(f"--features: give two names separated by a comma, got {features!r}")
-            feats = (parts[0], parts[1])
-        rep = build_report(folder, out, png_dir=png, track=track, features=feats)
+        rep = build_report(folder, out, png_dir=png, track=track, features=_two_features(features))
         console.result(f"report      {rep.path}")
         console.result(f"sections    {', '.join(s.title for s in rep.sections) or 'none'}")
         console.result(f"figures     {rep.n_figures}")
@@ -67,3 +53,15 @@ def register(app: typer.Typer) -> None:
             console.result(f"png         {png} ({rep.n_figures} files)")
         for note in rep.missing:
             console.warn(note)
+
+
+def _two_features(text: str | None) -> tuple[str, str] | None:
+    """``--features a,b``: the two GP inputs of the posterior plots (None: the default pair)."""
+    if not text:
+        return None
+    from gprace.errors import InputError
+
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    if len(parts) != 2:
+        raise InputError(f"--features: give two names separated by a comma, got {text!r}")
+    return parts[0], parts[1]
