@@ -178,8 +178,7 @@ def test_calibration_reaches_the_races_and_the_coverage_table(tmp_path):
     # second pass: the raced predictor drives calib_runs more races with the first (oracle) calibration,
     # on tracks of their own, and the final calibration is fitted on those races alone
     first = P.json.loads((tmp_path / "calib" / "calibration_oracle.json").read_text())["cv"]
-    own = P.run_tasks(P.calib_tasks(st, "cv", None, first, st.calib_runs, st.calib_runs), tmp_path / "calib" / "cv" / "runs",
-                      P.replace(st, resume=True), "check")
+    own = [P._read_record(f) for f in sorted((tmp_path / "calib" / "cv" / "runs").glob("*.h5"))]
     tasks = [P.json.loads(r["attrs"]["task"]) for r in own]
     assert len(own) == 2 and all(t["calibration"]["floor"] == first["floor"] and t["predictor"] == "cv" for t in tasks)
     assert {t["seed"] for t in tasks}.isdisjoint(t["seed"] for t in P.calib_tasks(st))

@@ -383,7 +383,7 @@ def calib_tasks(st: Settings, predictor: str = "oracle", model: Path | None = No
     with a raced ``predictor``, its ``model`` and ``calibration`` as in :func:`eval_tasks`."""
     base = SEED_CALIB + CHAIN_STRIDE * st.seed
     seeds = [base + first + i for i in range(st.calib_runs if n is None else n)]
-    if predictor == "oracle":
+    if predictor == "oracle":  # the first pass's tasks as before (no label): their hashes, and so their runs, are kept
         return [{"id": f"calib-{sd - base}", "track": _track_spec(st, sd), "seed": sd, "predictor": "oracle",
                  "config": st.race_config()} for sd in seeds]
     return [{**t, "id": f"calib-{predictor}-{sd - base}", "track": _track_spec(st, sd), "seed": sd}

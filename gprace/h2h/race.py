@@ -65,12 +65,13 @@ def state_noise(seed: int, stream: int, std) -> Callable[[], np.ndarray] | None:
     return lambda: rng.standard_normal((2, len(std))) * std
 
 
-@functools.lru_cache(maxsize=2)
-def _model(vehicle: str = "barc_1_10"):
+@functools.cache
+def _model():
+    """The 1:10 car of both NMPCs (the race configuration names no vehicle)."""
     from gprace.config import load_vehicle
     from gprace.model import NominalModel
 
-    return NominalModel(load_vehicle(vehicle))
+    return NominalModel(load_vehicle("barc_1_10"))
 
 
 def controllers(cfg: H2HConfig) -> tuple[NMPC, NMPC]:
