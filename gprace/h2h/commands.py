@@ -197,7 +197,10 @@ def register(app: typer.Typer) -> None:
             "eval", "--baseline-tracks", help="Tracks of the baseline's collection: eval (random evaluation-style "
             "tracks) or training (the short curve and chicane tracks of Zhu et al. 2022)."),
         blocking_weight: float = typer.Option(500.0, "--blocking-weight", help="The opponent's blocking weight."),
-        calib_runs: int = typer.Option(20, "--calib-runs", help="Held-out races calibrating every predictor's spread."),
+        calib_runs: int = typer.Option(20, "--calib-runs", help="Held-out races per calibration pass of every "
+                                       "predictor's spread."),
+        calib_passes: int = typer.Option(3, "--calib-passes", help="At most this many calibration passes driven by "
+                                         "the raced predictors (they stop when the races confirm the calibration)."),
         seeds: str = typer.Option("1", "--seeds", help="Seeds of the whole chain (collection, training, exploration, "
                                   "evaluation): a count N (seeds 0..N-1) or a list such as 0,4,7. Seed 0 writes to "
                                   "--out, seed s to --out/seed_<s>; the evaluation scenarios are shared."),
@@ -213,7 +216,7 @@ def register(app: typer.Typer) -> None:
                        stretches=stretches, predictors=predictors, backend=backend, exact_max=exact_max,
                        inducing=inducing, samples=samples, max_time=max_time, sensor_noise=sensor_noise,
                        process_noise=process_noise, baseline_tracks=baseline_tracks, blocking_weight=blocking_weight,
-                       calib_runs=calib_runs, workers=workers, executor=executor,
+                       calib_runs=calib_runs, calib_passes=calib_passes, workers=workers, executor=executor,
                        scheduler=scheduler, resume=resume, seeds=parse_seeds(seeds))
         print_table(run(st, out), as_json)
 

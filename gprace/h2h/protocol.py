@@ -18,6 +18,8 @@ Layout of ``--out DIR`` (every file an HDF5 artifact, written atomically)::
                                   seeds): the first calibration of every predictor's spread
     calib/errors/run_<i>.h5       offline errors and raw spreads of every predictor on them
     calib/<raced>/runs, errors    the second pass: held-out races driven by the raced predictors
+    calib/pass<k>/<raced>/...     further passes until the calibration settles (``calib_passes``)
+    calib/passes.json             per driven pass: the calibration it drove with, the one fitted, settled
     calib/calibration_oracle.json the first calibration (the second pass drives with it)
     calib/calibration.json        per predictor, step and output: scale and floor of the spread
     table.json                    the comparison table (all seeds)
@@ -49,7 +51,8 @@ nothing to the tasks); ``explore_minutes``.
 
 Calibrated spread: before the evaluation, held-out races give every predictor's errors and raw
 spreads per step (offline rollouts as for the table's errors; ``calib_runs`` oracle races, then
-``calib_runs`` races driven in turn by the raced predictors, :func:`calibrate`);
+``calib_runs`` races per pass driven in turn by the raced predictors until the calibration settles,
+:func:`calibrate`);
 :func:`gprace.h2h.spread.fit_calibration` turns them into a per-step scale (GP predictors) or
 floor (constant velocity), carried by the evaluation tasks and applied in the predictors, so the
 ellipses are inflated by a spread that covers the real error; the table gives the coverage of the
@@ -139,6 +142,7 @@ class Settings:
     baseline_tracks: str = "eval"  # eval | training
     blocking_weight: float = BLOCKING_WEIGHT
     calib_runs: int = 20
+    calib_passes: int = 3  # at most this many driven calibration passes (:func:`calibrate`)
     config: dict = field(default_factory=dict)
     # execution (not part of any result)
     workers: int = 1
@@ -188,8 +192,8 @@ class Settings:
                 raise InputError(f"{name} must be a finite number >= 0, got {v}")
         if self.baseline_tracks not in BASELINE_TRACKS:
             raise InputError(f"--baseline-tracks must be one of {', '.join(BASELINE_TRACKS)}, got {self.baseline_tracks!r}")
-        if self.calib_runs < 1:
-            raise InputError(f"--calib-runs must be >= 1, got {self.calib_runs}")
+        if self.calib_runs < 1 or self.calib_passes < 1:
+            raise InputError(f"--calib-runs and --calib-passes must be >= 1, got {self.calib_runs} and {self.calib_passes}")
         if self.backend != "auto":
             from gprace.backends import gps
 
@@ -691,17 +695,25 @@ def calibrated_names(st: Settings, model_paths: dict[str, Path]) -> list[str]:
 
 def calibrate(st: Settings, out: Path, model_paths: dict[str, Path]) -> dict[str, dict]:
     """Calibration of every predictor's spread on held-out races (evaluation-style tracks, seeds of
-    their own; no model is trained on them and the evaluation does not use them), in two passes:
+    their own; no model is trained on them and the evaluation does not use them), in passes:
 
     1. ``calib_runs`` races with the oracle predictor (``calib/runs``) give a first calibration;
-    2. ``calib_runs`` more races, shared in turn by the raced predictors, each driving with its
-       first calibration (``calib/<predictor>/runs``), give the final one, fitted on them alone.
+    2. ``calib_runs`` more races, shared in turn by the raced predictors, each driving with the
+       calibration of the pass before (``calib/<predictor>/runs``, pass k > 2 in
+       ``calib/pass<k>/<predictor>``), give the next one, fitted on them alone; passes repeat, at
+       most ``calib_passes`` of them, until the races confirm the calibration they drove with
+       (:func:`gprace.h2h.spread.settled`). A raced predictor's final calibration is the larger of
+       the one its last pass drove with and the one fitted on it (:func:`gprace.h2h.spread.at_least`),
+       the others' the fit of the last pass.
 
-    Why two: the errors depend on who drives. Behind an oracle ego the opponent blocks less; the
+    Why: the errors depend on who drives. Behind an oracle ego the opponent blocks less; the
     baseline's 9-step e_y error there was half its error in the evaluation races (0.012 vs 0.021 m),
-    and a calibration from oracle races alone covered 83 % of its evaluation errors instead of 94 %
-    (docs/decisions.md). Returns ``{predictor: fit_calibration(...)}``, also written to
-    ``calib/calibration.json`` (the first pass to ``calib/calibration_oracle.json``)."""
+    and a calibration from oracle races alone covered 83 % of its evaluation errors instead of 94 %;
+    one driven pass with the oracle calibration still left exploration at 88.7 % (docs/decisions.md).
+    Returns ``{predictor: calibration}``, also written to ``calib/calibration.json`` (the first pass
+    to ``calib/calibration_oracle.json``, the history of the passes to ``calib/passes.json``)."""
+    from gprace.h2h.spread import at_least, settled
+
     names = calibrated_names(st, model_paths)
     if not names:
         return {}
@@ -710,13 +722,28 @@ def calibrate(st: Settings, out: Path, model_paths: dict[str, Path]) -> dict[str
     drivers = [p for p in st.raced if p in names][: st.calib_runs]
     if drivers:
         (folder / "calibration_oracle.json").write_text(json.dumps(cal, indent=1))
-        arrays, first = [], st.calib_runs
-        for k, p in enumerate(drivers):
-            n = len(range(k, st.calib_runs, len(drivers)))  # calib_runs shared out in turn
-            tasks = calib_tasks(st, p, model_paths.get(p), cal.get(p), first, n)
-            arrays += _calibration_errors(st, folder / p, tasks, names, model_paths, f"calibration {p}")
-            first += n
-        cal = _fit_calibration(st, arrays, names)
+        first, driving, history = st.calib_runs, cal, []
+        for k in range(2, 2 + st.calib_passes):
+            sub, arrays = folder if k == 2 else folder / f"pass{k}", []
+            for j, p in enumerate(drivers):
+                n = len(range(j, st.calib_runs, len(drivers)))  # calib_runs shared out in turn
+                tasks = calib_tasks(st, p, model_paths.get(p), driving.get(p), first, n)
+                arrays += _calibration_errors(st, sub / p, tasks, names, model_paths, f"calibration pass {k} {p}")
+                first += n
+            fitted = _fit_calibration(st, arrays, names)
+            done = all(settled(driving[p], fitted[p]) for p in drivers)
+            history.append({"pass": k, "settled": done, "drove_with": {p: driving[p] for p in drivers},
+                            "fitted": {p: fitted[p] for p in drivers}})
+            if done or k == 1 + st.calib_passes:
+                break
+            driving = fitted
+        if not done:
+            from gprace.console import console
+
+            console.warn(f"calibration: not settled after {st.calib_passes} driven passes; the raced predictors keep "
+                         f"the larger of the last two calibrations (see {folder / 'passes.json'})")
+        cal = {p: at_least(driving[p], fitted[p]) if p in drivers else fitted[p] for p in names}
+        (folder / "passes.json").write_text(json.dumps(history, indent=1))
     (folder / "calibration.json").write_text(json.dumps(cal, indent=1))
     return cal
 
