@@ -36,19 +36,13 @@ class ExactGP(GPBackend):
 
     NAME = "exact"
 
-    def __init__(
-        self,
-        kernel: str = "se",
-        noise: Any = 1e-2,
-        optimize: bool = True,
-        seed: int = 0,
-        length_scale: Any = 1.0,
-        signal_variance: Any = 1.0,
-        max_fit_points: int = 800,
-        n_restarts: int = 0,
-        shared_kernel: bool = False,
-    ) -> None:
-        super().__init__(kernel, noise, optimize, seed, length_scale, signal_variance)
+    def __init__(self, *args: Any, max_fit_points: int = 800, n_restarts: int = 0, shared_kernel: bool = False,
+                 **base: Any) -> None:
+        """``max_fit_points``: hyperparameters are fitted on at most this many random points (the
+        posterior uses all); ``n_restarts``: scikit-learn's optimiser restarts; ``shared_kernel``:
+        one kernel and noise for all (normalised) outputs. The base settings (``kernel``,
+        ``noise``, ...) as in :class:`~gprace.gp.base.GPBackend`."""
+        super().__init__(*args, **base)
         self.max_fit_points = max_fit_points
         self.n_restarts = n_restarts
         self.shared_kernel = shared_kernel

@@ -43,28 +43,16 @@ class SparseGP(GPBackend):
 
     NAME = "sparse"
 
-    def __init__(
-        self,
-        kernel: str = "se",
-        noise: Any = 1e-2,
-        optimize: bool = True,
-        seed: int = 0,
-        length_scale: Any = 1.0,
-        signal_variance: Any = 1.0,
-        n_inducing: int = 200,
-        max_iter: int = 200,
-        jitter: float = 1e-8,
-        init_points: int = 500,
-        min_noise: float = 1e-6,
-        shared_kernel: bool = False,
-    ) -> None:
-        super().__init__(kernel, noise, optimize, seed, length_scale, signal_variance)
-        self.n_inducing = n_inducing
-        self.max_iter = max_iter
-        self.jitter = jitter
-        self.init_points = init_points
-        self.min_noise = min_noise
-        self.shared_kernel = shared_kernel
+    def __init__(self, *args: Any, n_inducing: int = 200, max_iter: int = 200, jitter: float = 1e-8,
+                 init_points: int = 500, min_noise: float = 1e-6, shared_kernel: bool = False, **base: Any) -> None:
+        """``n_inducing``: inducing points (k-means++ on the inputs); ``max_iter``: L-BFGS
+        iterations of the bound; ``jitter``: added to the inducing covariance's diagonal;
+        ``init_points``: the bound is first maximised on this many random points; ``min_noise``:
+        floor of the noise variance (normalised); ``shared_kernel``: one kernel and noise for all
+        (normalised) outputs. The base settings as in :class:`~gprace.gp.base.GPBackend`."""
+        super().__init__(*args, **base)
+        self.n_inducing, self.max_iter, self.jitter = n_inducing, max_iter, jitter
+        self.init_points, self.min_noise, self.shared_kernel = init_points, min_noise, shared_kernel
 
     def _prepare(self, Zn, Yn):
         self.Zu_ = np.ascontiguousarray(Zn[kmeanspp_indices(Zn, int(self.n_inducing), int(self.seed))])

@@ -174,6 +174,14 @@ def _broadcast(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
     return a
 
 
+def _own_parameters(klass: type) -> list[inspect.Parameter]:
+    """The named constructor arguments ``klass`` itself declares (none if it has no ``__init__``)."""
+    if "__init__" not in klass.__dict__ or klass is object:
+        return []
+    return [p for p in inspect.signature(klass.__init__).parameters.values()
+            if p.name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+
+
 # --------------------------------------------------------------------------------------------
 # backend base class
 # --------------------------------------------------------------------------------------------
@@ -191,23 +199,25 @@ class GPBackend(ABC):
         length_scale: Any = 1.0,
         signal_variance: Any = 1.0,
     ) -> None:
-        self.kernel = kernel
-        self.noise = noise
-        self.optimize = optimize
-        self.seed = seed
-        self.length_scale = length_scale
-        self.signal_variance = signal_variance
+        self.kernel, self.noise, self.optimize = kernel, noise, optimize
+        self.seed, self.length_scale, self.signal_variance = seed, length_scale, signal_variance
 
     # -- settings ----------------------------------------------------------------------------
     @classmethod
-    def _param_names(cls) -> list[str]:
-        names: list[str] = []
+    def _parameters(cls) -> dict[str, inspect.Parameter]:
+        """The settings of a backend by name, the base class's first: a backend's ``__init__``
+        declares its own and passes the base settings on (``*args, **base``), so each is written
+        once; the most derived declaration gives the default."""
+        names = [p.name for klass in reversed(cls.__mro__) for p in _own_parameters(klass)]
+        found: dict[str, inspect.Parameter] = {}
         for klass in cls.__mro__:
-            if "__init__" in klass.__dict__ and klass is not object:
-                for p in inspect.signature(klass.__init__).parameters.values():
-                    if p.name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD) and p.name not in names:
-                        names.append(p.name)
-        return names
+            for p in _own_parameters(klass):
+                found.setdefault(p.name, p)
+        return {name: found[name] for name in dict.fromkeys(names)}
+
+    @classmethod
+    def _param_names(cls) -> list[str]:
+        return list(cls._parameters())
 
     def get_params(self) -> dict[str, Any]:
         """Settings as JSON-friendly values (arrays become lists)."""
@@ -421,11 +431,13 @@ def make_gp(backend: str, **settings: Any) -> GPBackend:
 def _check_types(backend: str, cls: type, settings: dict[str, Any]) -> None:
     """Text where the default is a number or a boolean (``--opt max_fit_points=abc``) is an error
     naming the option; arrays and numbers pass (``length_scale`` may be per input)."""
-    import inspect
-
-    params = inspect.signature(cls.__init__).parameters
-    known = [k for k, p in params.items() if k != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
-    takes_any = any(p.kind == p.VAR_KEYWORD for p in params.values())
+    if isinstance(cls, type) and issubclass(cls, GPBackend):
+        params, takes_any = cls._parameters(), False
+    else:  # a plugin class of its own: its constructor's signature
+        sig = inspect.signature(cls.__init__).parameters
+        params = {k: p for k, p in sig.items() if k != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+        takes_any = any(p.kind == p.VAR_KEYWORD for p in sig.values())
+    known = list(params)
     unknown = [k for k in settings if k not in known]
     if unknown and not takes_any:
         raise ConfigError(f"GP backend {backend!r}: unknown option {', '.join(unknown)}; available: {', '.join(known)}")

@@ -6,7 +6,7 @@ curvature at the measured ``s``, the lap counter and ``border_hit`` (1 when the 
 from the *true* state, crosses a track edge: :func:`gprace.sim.record.border_hits`).
 
 Stops after ``laps`` laps (closed tracks) or at the track end (open tracks). A car that leaves the
-track, spins or stalls (:func:`gprace.sim.stop.stop_reason`) ends the run early with a warning;
+track, spins or stalls (:func:`gprace.sim.stop.run_end`) ends the run early with a warning;
 the recording up to one second before that is kept (``meta["completed"]`` False).
 """
 
@@ -23,7 +23,7 @@ from gprace.io.runs import Run
 from gprace.plants import make_plant
 from gprace.sim.controller import ReferenceController
 from gprace.sim.record import border_hits, lap_times_of, run_columns
-from gprace.sim.stop import stop_reason
+from gprace.sim.stop import run_end
 
 
 def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Run:
@@ -38,8 +38,7 @@ def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Ru
     x0, u0 = ctrl.initial_state(0.0)
     y = plant.reset(x0, u0)
 
-    L = track.length
-    goal = sim_config.laps * L if track.closed else L
+    goal = sim_config.laps * track.length if track.closed else track.length
     v_mean = float(np.mean(ctrl.profile.v))
     n_max = int(math.ceil(goal / max(0.3 * v_mean, 1e-3) / dt)) + 10
     v_stall = 0.2 * min(v_mean, float(ctrl.profile.v.min()) + 1e-9)
@@ -54,15 +53,10 @@ def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Ru
         u = ctrl(y)
         x = plant.state
         Y[k], X[k], U[k], lap[k] = y, x, u, plant.lap
-        wl, wr = float(track.width_left(x[5])), float(track.width_right(x[5]))
         k += 1
-        progress = plant.lap * L + x[5] if track.closed else x[5]
-        if progress >= goal:
-            break
-        reason = stop_reason(x, wl, wr, vehicle.width, v_stall)
-        if not reason and k > n_max:
-            reason = f"no progress to the goal after {n_max} steps"
-        if reason:
+        end = run_end(track, plant, vehicle.width, v_stall, goal, k, n_max, "no progress to the goal")
+        if end is not None:
+            reason = end
             break
         y = plant.step(u)
 

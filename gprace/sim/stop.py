@@ -4,6 +4,7 @@ A run ends early when the car's centre is more than two car widths outside a bor
 spun (``|e_psi| > SPIN_EPSI`` or ``|v_y| > SPIN_SLIP |v_x| + SPIN_SLIP_OFFSET``) or when ``v_x``
 falls below the caller's stall speed (which depends on what is driven: a speed profile or a plan).
 The spin limits are the time-trial drive's: the MPC may catch a slide that is still inside them.
+:func:`run_end` adds the goal and the step budget: the end-of-step check of a driving loop.
 """
 
 from __future__ import annotations
@@ -24,3 +25,18 @@ def stop_reason(x: np.ndarray, width_left: float, width_right: float, car_width:
     if x[0] < v_stall:
         return f"the car stalled at s = {x[5]:.1f} m (v_x = {x[0]:.2f} m/s)"
     return ""
+
+
+def run_end(track, plant, car_width: float, v_stall: float, goal: float, steps: int, max_steps: int,
+            too_long: str) -> str | None:
+    """After ``steps`` steps of a run: None while it goes on, "" once the plant's progress
+    (laps on a closed track) reaches ``goal`` metres, otherwise why it stops (:func:`stop_reason`,
+    or ``too_long`` after more than ``max_steps`` steps)."""
+    x = plant.state
+    progress = plant.lap * track.length + x[5] if track.closed else x[5]
+    if progress >= goal:
+        return ""
+    reason = stop_reason(x, float(track.width_left(x[5])), float(track.width_right(x[5])), car_width, v_stall)
+    if not reason and steps > max_steps:
+        reason = f"{too_long} after {max_steps} steps"
+    return reason or None

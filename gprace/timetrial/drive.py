@@ -5,7 +5,7 @@ The car starts on the plan at ``s = 0`` with the plan's state (a flying lap), th
 applied input, curvature, lap counter, ``border_hit`` (footprint over an edge), ``solve_time``
 of the QP, ``fallback`` (the QP failed, the shifted previous solution was applied) and
 ``explore`` (Algorithm 1 changed the reference). A car that leaves the track, spins or stalls
-(:func:`gprace.sim.stop.stop_reason`) ends the run early (``meta.completed = False``).
+(:func:`gprace.sim.stop.run_end`) ends the run early (``meta.completed = False``).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 from gprace.errors import InputError
 from gprace.io.runs import Run
 from gprace.mpc.tracking import MPCSettings, TrackingMPC
-from gprace.sim.stop import stop_reason
+from gprace.sim.stop import run_end
 
 
 @dataclass(frozen=True)
@@ -58,8 +58,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     y = plant.reset(x0, u0)
     mpc.reset(delta_prev=float(u0[0]), a_prev=float(u0[1]))
 
-    L = track.length
-    goal = settings.laps * L
+    goal = settings.laps * track.length
     v_stall = min(1.0, 0.5 * float(plan.v_x.min()))  # 1 m/s, or half the plan's slowest corner (1:10 cars)
     n_max = int(math.ceil(settings.laps * plan.lap_time * 2.0 / dt)) + 40
     vehicle = model.vehicle
@@ -74,20 +73,15 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         u, info = mpc.step(y)
         x = plant.state
         Y[k], X[k], U[k] = y, x, u
-        wl, wr = float(track.width_left(x[5])), float(track.width_right(x[5]))
         cols["lap"][k] = plant.lap
         cols["solve_time"][k] = info["solve_time"]
         cols["fallback"][k] = float(info["fallback"])
         cols["explore"][k] = float(mpc.last_target is not None and info.get("explored", False))
         cols["gamma"][k] = float(info["gamma"][0]) if len(info["gamma"]) else 0.0
         k += 1
-        progress = plant.lap * L + x[5]
-        if progress >= goal:
-            break
-        reason = stop_reason(x, wl, wr, vehicle.width, v_stall)
-        if not reason and k > n_max:
-            reason = f"no lap after {n_max} steps"
-        if reason:
+        end = run_end(track, plant, vehicle.width, v_stall, goal, k, n_max, "no lap")
+        if end is not None:
+            reason = end
             break
         y = plant.step(u)
     data = {
