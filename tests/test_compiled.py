@@ -69,3 +69,33 @@ def test_compiled_function_is_bit_identical_and_falls_back(tmp_path, monkeypatch
     monkeypatch.setenv("CC", str(tmp_path / "no-such-compiler"))
     monkeypatch.setenv("GPRACE_CACHE", str(tmp_path / "other"))
     assert compiled.compiled_function(f) is f
+
+
+@pytest.mark.parametrize("name", ["se", "matern15"])
+@pytest.mark.parametrize("M", [1, 37, 600])  # fewer points than one vector block, a remainder, the rollouts' 600
+def test_compiled_kernel_product_equals_the_kernel_block_times_weights(name, M, tmp_path, monkeypatch):
+    """The rollouts' fused kernel product K(b, a) w agrees with the numpy kernel block times w to
+    rounding, for both kernels and any number of points; without a compiler it is that product."""
+    from gprace.gp import fastkernel
+    from gprace.gp.kernels import kernel
+
+    rng = np.random.default_rng(M)
+    b, a = rng.normal(size=(50, 11)), rng.normal(size=(M, 11))
+    ls = rng.uniform(0.5, 3.0, 11)
+    w = rng.normal(size=(M, 5)) * 1e3  # large weights of nearly noiseless fits
+    ref = kernel(name, b, a, ls, 0.7) @ w
+    pts = fastkernel.Points(a / ls)
+    wT = np.ascontiguousarray(w.T)
+    for cc in (None, str(tmp_path / "no-such-compiler")):
+        fastkernel._library.cache_clear()
+        monkeypatch.setenv("GPRACE_CACHE", str(tmp_path / str(cc is None)))
+        if cc:
+            monkeypatch.setenv("CC", cc)
+        elif compiled.compiler() is None:
+            continue
+        got = fastkernel.kernel_dot(name, b / ls, pts, wT, 0.7)
+        np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * np.abs(w).sum())
+        assert bool(list((tmp_path / "True").glob("gp_kernel_dot_*.so"))) == (compiled.compiler() is not None)
+        # loading it leaves the process's floating point alone: subnormals are not flushed to zero
+        assert (np.array([5e-324]) * 1.0)[0] > 0
+    fastkernel._library.cache_clear()

@@ -61,20 +61,35 @@ def compiled_function(f):
     return f if lib is None else ca.external(f.name(), str(lib))
 
 
-def _compiled(generate, name: str, what: str) -> Path | None:
+def compiled_source(name: str, source: str, flags: tuple[str, ...], what: str) -> Path | None:
+    """The cached shared library of the C ``source`` compiled with ``flags`` (part of its name),
+    or None. It is linked in a second step without them: linked with ``-ffast-math``, GCC adds a
+    start-up file that switches the whole process to flushing subnormal numbers to zero, which
+    changes every other computation (a k-d tree of scipy recursed until the stack overflowed)."""
+
+    def generate(file: str) -> str:
+        Path(file).write_text(source)
+        return file
+
+    return _compiled(generate, name, what, (*flags, "-fPIC"), ("-shared",))
+
+
+def _compiled(generate, name: str, what: str, flags: tuple[str, ...] = FLAGS,
+              link: tuple[str, ...] | None = None) -> Path | None:
     """The cached library of the C that ``generate(file)`` writes, or None (interpreted, warned)."""
     cc = compiler()
     if cc is None:
         console.warn(f"no C compiler found (set CC); the {what} {name!r} runs interpreted, 2 to 4 times slower")
         return None
     try:
-        return _build(generate, name, cc, what)
+        return _build(generate, name, cc, what, flags, link)
     except Exception as exc:  # noqa: BLE001 -- a failed build only costs speed
         console.warn(f"compiling the {what} {name!r} failed ({str(exc).splitlines()[0][:200]}); it runs interpreted")
         return None
 
 
-def _build(generate, name: str, cc: str, what: str) -> Path:
+def _build(generate, name: str, cc: str, what: str, flags: tuple[str, ...] = FLAGS,
+           link: tuple[str, ...] | None = None) -> Path:
     with tempfile.TemporaryDirectory(prefix="gprace_cc_") as tmp:
         with _CWD:  # CasADi's code generation writes into the working directory (no path allowed)
             here = os.getcwd()
@@ -84,7 +99,7 @@ def _build(generate, name: str, cc: str, what: str) -> Path:
             finally:
                 os.chdir(here)
         code = src.read_bytes()
-        digest = hashlib.sha256(code + " ".join((cc, *FLAGS)).encode()).hexdigest()[:20]
+        digest = hashlib.sha256(code + " ".join((cc, *flags, *(link or ()))).encode()).hexdigest()[:20]
         out = cache_dir() / f"{name}_{digest}.so"
         if out.exists():
             return out
@@ -93,10 +108,16 @@ def _build(generate, name: str, cc: str, what: str) -> Path:
             if not out.exists():
                 console.info(f"compiling the {what} {name!r} once for this machine (cached in {out.parent})")
                 part = out.with_suffix(f".{os.getpid()}.part")
-                proc = subprocess.run([cc, *FLAGS, str(src), "-o", str(part), "-lm"], capture_output=True, text=True)
-                if proc.returncode != 0:
-                    part.unlink(missing_ok=True)
-                    raise RuntimeError(proc.stderr.strip() or f"{cc} exited with {proc.returncode}")
+                if link is None:
+                    steps = [[cc, *flags, str(src), "-o", str(part), "-lm"]]
+                else:  # compile, then link without the compile flags (see compiled_source)
+                    obj = str(src.with_suffix(".o"))
+                    steps = [[cc, *flags, "-c", str(src), "-o", obj], [cc, *link, obj, "-o", str(part), "-lm"]]
+                for cmd in steps:
+                    proc = subprocess.run(cmd, capture_output=True, text=True)
+                    if proc.returncode != 0:
+                        part.unlink(missing_ok=True)
+                        raise RuntimeError(proc.stderr.strip() or f"{cc} exited with {proc.returncode}")
                 os.replace(part, out)
         return out
 

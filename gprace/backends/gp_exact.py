@@ -23,12 +23,15 @@ from typing import Any
 
 import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
+from scipy.linalg.blas import dtrsv
 
 from gprace.gp.base import BOUNDS, GPBackend, best_start
+from gprace.gp.fastkernel import Points, kernel_dot
 from gprace.gp.kernels import kernel, scaled_block
 from gprace.gp.linalg import cholesky, pack_lower, unpack_lower
 
 _CHUNK = 2048
+_FEW = 8  # queries answered by the fast path of the variance
 
 
 class ExactGP(GPBackend):
@@ -118,10 +121,9 @@ class ExactGP(GPBackend):
         """Derived, not stored: groups and the inputs divided by each group's length scales."""
         h = self.hyper_
         self._group_list = self._groups()
-        self._scaled = []
-        for g in self._group_list:
-            a = self.Z_ / h.ls(g[0])
-            self._scaled.append((a, np.einsum("ij,ij->i", a, a)))
+        self._scaled = [Points(self.Z_ / h.ls(g[0])) for g in self._group_list]
+        self._alpha_t = [np.ascontiguousarray(self.alpha_[:, g].T) for g in self._group_list]
+        self._L_f = [np.asfortranarray(L) for L in self.L_]  # BLAS's own order: dtrsv without a copy
         self._alpha_z = [np.hstack([self.alpha_[:, g]] + [self.alpha_[:, [q]] * self.Z_ for q in g])
                          for g in self._group_list]
         self._spectra: dict[int, np.ndarray | None] = {}
@@ -131,8 +133,8 @@ class ExactGP(GPBackend):
         """Kernel block ``K* (m, M)`` of factor group ``gi`` between normalised queries and the data."""
         h = self.hyper_
         o = self._group_list[gi][0]
-        a, a2 = self._scaled[gi]
-        return scaled_block(h.kernel, Zn / h.ls(o), a, a2, h.sf2(o))
+        pts = self._scaled[gi]
+        return scaled_block(h.kernel, Zn / h.ls(o), pts.a, pts.a2, h.sf2(o))
 
     def _predict_normalised(self, Zn):
         h = self.hyper_
@@ -149,11 +151,32 @@ class ExactGP(GPBackend):
                 var[s:s + _CHUNK, g] = (sf2 - np.einsum("ij,ij->j", V, V))[:, None]
         return mean, var
 
-    def _fast_mean_normalised(self, Zn: np.ndarray) -> np.ndarray:
-        """The posterior mean alone: one kernel block per factor group, no triangular solve."""
-        mean = np.empty((Zn.shape[0], self.hyper_.p))
+    def _fast_normalised(self, Zn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_predict_normalised` for up to :data:`_FEW` queries (the rollouts' variance at
+        the samples' mean input): one BLAS ``dtrsv`` per query against the Fortran-ordered
+        Cholesky factor (43 against 84 us for scipy's ``solve_triangular`` on the C-ordered one,
+        600 points); the same values to rounding."""
+        m = Zn.shape[0]
+        if m > _FEW:
+            return self._predict_normalised(Zn)
+        h = self.hyper_
+        mean, var = np.empty((m, h.p)), np.empty((m, h.p))
         for gi, g in enumerate(self._group_list):
-            mean[:, g] = self._block(gi, Zn) @ self.alpha_[:, g]
+            Ks = self._block(gi, Zn)
+            mean[:, g] = Ks @ self.alpha_[:, g]
+            for i in range(m):
+                v = dtrsv(self._L_f[gi], Ks[i], lower=1)
+                var[i, g] = h.sf2(g[0]) - v @ v
+        return mean, var
+
+    def _fast_mean_normalised(self, Zn: np.ndarray) -> np.ndarray:
+        """The posterior mean alone: one fused kernel product per factor group (no kernel block,
+        no triangular solve; :mod:`gprace.gp.fastkernel`)."""
+        h = self.hyper_
+        mean = np.empty((Zn.shape[0], h.p))
+        for gi, g in enumerate(self._group_list):
+            o = g[0]
+            mean[:, g] = kernel_dot(h.kernel, Zn / h.ls(o), self._scaled[gi], self._alpha_t[gi], h.sf2(o))
         return mean
 
     def mean_gradient(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

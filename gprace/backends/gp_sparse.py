@@ -30,6 +30,7 @@ from scipy.linalg import cho_solve, solve_triangular
 from scipy.optimize import minimize
 
 from gprace.gp.base import GPBackend, best_start, optimisation_bounds
+from gprace.gp.fastkernel import Points, kernel_dot
 from gprace.gp.inducing import kmeanspp_indices
 from gprace.gp.kernels import scaled_block
 from gprace.gp.linalg import cholesky
@@ -125,8 +126,8 @@ class SparseGP(GPBackend):
         qi = [g[0] for g in groups] if self.Q_.shape[0] == h.p else range(len(groups))
         self._groups = []
         for g, i in zip(groups, qi):
-            a = self.Zu_ / h.ls(g[0])
-            self._groups.append((g, a, np.einsum("ij,ij->i", a, a), np.hstack([self.w_[g].T, self.Q_[i]])))
+            self._groups.append((g, Points(self.Zu_ / h.ls(g[0])), np.hstack([self.w_[g].T, self.Q_[i]]),
+                                 np.ascontiguousarray(self.w_[g])))
 
     def _predict_normalised(self, Zn):
         h = self.hyper_
@@ -143,13 +144,21 @@ class SparseGP(GPBackend):
         h = self.hyper_
         mean = np.empty((Zn.shape[0], h.p))
         var = np.empty((Zn.shape[0], h.p))
-        for g, a, a2, WQ in self._groups:
+        for g, pts, WQ, _ in self._groups:
             o = g[0]
-            Ks = scaled_block(h.kernel, Zn / h.ls(o), a, a2, h.sf2(o))
+            Ks = scaled_block(h.kernel, Zn / h.ls(o), pts.a, pts.a2, h.sf2(o))
             P = Ks @ WQ
             mean[:, g] = P[:, :len(g)]
             var[:, g] = (h.sf2(o) - np.einsum("ij,ij->i", P[:, len(g):], Ks))[:, None]
         return mean, var
+
+    def _fast_mean_normalised(self, Zn: np.ndarray) -> np.ndarray:
+        """The mean alone: one fused kernel product ``K*u w`` per kernel (:mod:`gprace.gp.fastkernel`)."""
+        h = self.hyper_
+        mean = np.empty((Zn.shape[0], h.p))
+        for g, pts, _, wT in self._groups:
+            mean[:, g] = kernel_dot(h.kernel, Zn / h.ls(g[0]), pts, wT, h.sf2(g[0]))
+        return mean
 
     def _state_arrays(self):
         return {"Zu": self.Zu_, "w": self.w_, "Q": self.Q_}

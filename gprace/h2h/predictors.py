@@ -33,6 +33,7 @@ FEATURES = (
 OUTPUTS = ("ds_opp", "dey_opp", "depsi_opp", "dvx_opp", "dyaw_rate_opp")
 OUT_STATE = (5, 4, 3, 0, 2)  # state index of each output (s, e_y, e_psi, v_x, yaw_rate)
 LOOKAHEAD = (0.0, 0.5, 1.0)
+_LOOKAHEAD = np.asarray(LOOKAHEAD)
 CONTROLLABLE = (0, 3)  # gap in e_y and gap in s: the features the ego can steer
 FEATURE_MAP = "opponent"
 
@@ -50,11 +51,12 @@ def features(track, ego: np.ndarray, opp: np.ndarray) -> np.ndarray:
     opp = np.atleast_2d(opp)
     ego = np.broadcast_to(ego, opp.shape)
     s_o = opp[:, 5]
-    kap = track.kappa(track.wrap(s_o[None, :] + np.asarray(LOOKAHEAD)[:, None]))  # (3, n): one spline call
-    return np.column_stack([
-        ego[:, 4] - opp[:, 4], ego[:, 3], ego[:, 0], gap_s(track, s_o, ego[:, 5]), opp[:, 4], opp[:, 3],
-        opp[:, 0], opp[:, 2], *kap,
-    ])
+    Z = np.empty((opp.shape[0], len(FEATURES)))
+    np.subtract(ego[:, 4], opp[:, 4], out=Z[:, 0])
+    Z[:, 1], Z[:, 2], Z[:, 3] = ego[:, 3], ego[:, 0], gap_s(track, s_o, ego[:, 5])
+    Z[:, 4:8] = opp[:, [4, 3, 0, 2]]
+    Z[:, 8:] = track.kappa(s_o[:, None] + _LOOKAHEAD)  # (n, 3): one spline call (kappa wraps s itself)
+    return Z
 
 
 def training_pairs(track, ego: np.ndarray, opp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
