@@ -17,7 +17,8 @@ from typing import Any, Callable
 import numpy as np
 
 from gprace.report import figures as F
-from gprace.report.inspect import artifact_kind, json_kind, key_results, open_artifact
+from gprace.errors import GpraceError
+from gprace.report.inspect import UNREADABLE, artifact_kind, json_kind, key_results, open_artifact
 
 
 @dataclass
@@ -269,7 +270,7 @@ def timetrial_variants(found: Found) -> dict[Path, dict[str, Any]]:
                 rel = p.relative_to(root)
                 try:
                     art = open_artifact(p, "run")
-                except Exception:  # noqa: BLE001
+                except UNREADABLE:
                     continue
                 it = _iteration_of(rel, art.attrs)
                 if it is not None:  # runs outside iter_<i> (the held-out test run) are no laps of the loop
@@ -388,7 +389,7 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
     if pick is None and loose_runs:
         try:
             pick = (loose_runs[0], open_artifact(loose_runs[0], "run"), None, 0)
-        except Exception:  # noqa: BLE001
+        except UNREADABLE:
             pick = None
     if pick is not None:
         p, art, it, _ = pick
@@ -483,7 +484,7 @@ def h2h_section(found: Found, max_error_samples: int = 20) -> Section | None:
     for p in evals:
         try:
             art = open_artifact(p, "h2h_run")
-        except Exception:  # noqa: BLE001
+        except UNREADABLE:
             continue
         if art.attrs.get("ok", True) and "ego" in art.arrays:
             ok.append((p, art))
@@ -492,7 +493,7 @@ def h2h_section(found: Found, max_error_samples: int = 20) -> Section | None:
         for p in records[:20]:
             try:
                 art = open_artifact(p, "h2h_run")
-            except Exception:  # noqa: BLE001
+            except UNREADABLE:
                 continue
             if art.attrs.get("ok", True) and "ego" in art.arrays:
                 ok.append((p, art))
@@ -544,7 +545,7 @@ def _stored_errors(p: Path, art) -> dict[str, np.ndarray] | None:
         rec = open_artifact(q, "h2h_run")
         if _task_of(rec.attrs).get("record_hash") != art.attrs.get("task_hash"):
             return None
-    except Exception:  # noqa: BLE001 - unreadable or older record: recompute
+    except (*UNREADABLE, ValueError, KeyError):  # unreadable or older record: recompute
         return None
     return dict(rec.arrays)
 
@@ -558,7 +559,7 @@ def _errors_along(p: Path, art, found: Found, samples: int) -> tuple[np.ndarray,
         return _error_series(art, out)
     try:
         from gprace.h2h.protocol import offline_errors_task
-    except Exception:  # noqa: BLE001
+    except ImportError:
         return None
     root = next((a for a in p.parents if (a / "models").is_dir()), None)
     models: dict[str, Any] = {"cv": None}
@@ -675,7 +676,7 @@ def _recompute_residuals(report_path: Path, d: dict) -> tuple[Any, str]:
         from gprace.diagnose.locate import track_profile
         from gprace.io.runs import read_run
         from gprace.model import NominalModel
-    except Exception as exc:  # noqa: BLE001
+    except ImportError as exc:
         return None, f"diagnosis code unavailable: {exc}"
     folder = report_path.parent
     recs = sorted(p for p in folder.iterdir() if p.is_file() and (
@@ -684,7 +685,7 @@ def _recompute_residuals(report_path: Path, d: dict) -> tuple[Any, str]:
     for p in recs:
         try:
             runs.append(read_run(p))
-        except Exception:  # noqa: BLE001 - a CSV that is not a run
+        except UNREADABLE:  # a CSV that is not a run
             continue
     if not runs:
         return None, f"no recordings next to {report_path.name}"
@@ -695,12 +696,12 @@ def _recompute_residuals(report_path: Path, d: dict) -> tuple[Any, str]:
             if cand.exists():
                 try:
                     aug = load_vehicle(str(cand))
-                except Exception:  # noqa: BLE001
+                except UNREADABLE:
                     aug = None
                 break
     try:
         nom = runs[0].vehicle()
-    except Exception:  # noqa: BLE001
+    except UNREADABLE:
         nom = None
     if nom is None and aug is not None:
         k = len(d.get("effects") or [])
@@ -733,7 +734,7 @@ def _residual_data(report_path: Path, residuals: list[Path]):
     for p in sorted(residuals, key=lambda q: (q.parent != report_path.parent, str(q))):
         try:
             art = open_artifact(p)
-        except Exception:  # noqa: BLE001
+        except UNREADABLE:
             continue
         a = dict(art.arrays)
         for g in art.groups.values():
@@ -766,7 +767,7 @@ def gp_section(found: Found, features: tuple[str, str] | None = None, max_models
     for p in models:
         try:
             info = key_results(open_artifact(p, "gp_model"))
-        except Exception as exc:  # noqa: BLE001
+        except UNREADABLE as exc:
             sec.missing.append(f"{p}: unreadable model ({exc})")
             continue
         rows.append([str(p.relative_to(found.root)), info.get("backend"), info.get("kernel"), info.get("dictionary_size"),
@@ -789,7 +790,7 @@ def gp_section(found: Found, features: tuple[str, str] | None = None, max_models
                 raise ValueError("the model stores no dictionary points")
             try:
                 i, j = pick_features(names_in, features)
-            except Exception:  # noqa: BLE001 - features of another GP
+            except GpraceError:  # features of another GP
                 i, j = pick_features(names_in)
             return F.fig_gp_posterior(gp.predict, Zd, names_in, names_out, i, j, title=str(p.relative_to(found.root)))
 

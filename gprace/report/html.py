@@ -21,7 +21,7 @@ from gprace.io.artifacts import check_folder
 from gprace.report import collect
 from gprace.report.collect import Section, _table
 from gprace.report.figures import png_bytes
-from gprace.report.inspect import key_results, open_artifact
+from gprace.report.inspect import ODD_PAYLOAD, key_results, open_artifact
 
 CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0;color:#1d2330;background:#f6f7f9}
@@ -113,7 +113,7 @@ def _section_html(sec: Section, rep: Report, png_dir: Path | None, prog) -> str:
     for it in sec.items:
         if it.figure is not None:
             png = png_bytes(it.figure)
-            _close(it.figure)
+            it.figure.clear()
             rep.n_figures += 1
             if png_dir is not None:
                 p = png_dir / f"{sec.key}_{it.name or rep.n_figures}.png"
@@ -130,13 +130,6 @@ def _section_html(sec: Section, rep: Report, png_dir: Path | None, prog) -> str:
     return "".join(parts)
 
 
-def _close(fig: Any) -> None:
-    try:
-        fig.clear()
-    except Exception:  # noqa: BLE001
-        pass
-
-
 def _index_html(found: collect.Found) -> str:
     rows = []
     for kind, paths in sorted(found.files.items()):
@@ -145,7 +138,7 @@ def _index_html(found: collect.Found) -> str:
             if p.suffix.lower() in (".h5", ".hdf5"):
                 try:
                     res = key_results(open_artifact(p))
-                except Exception as exc:  # noqa: BLE001
+                except ODD_PAYLOAD as exc:
                     res = {"error": str(exc)}
             short = ", ".join(f"{k}={_fmt(v)}" for k, v in list(res.items())[:5])
             rows.append([str(p.relative_to(found.root)), kind, short])

@@ -15,10 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from gprace.errors import ArtifactError, InputError
+from gprace.errors import ArtifactError, GpraceError, InputError
 from gprace.io.artifacts import Artifact
 
 RESERVED = ("kind", "schema", "gprace_version", "config_hash", "seed", "created")
+UNREADABLE = (GpraceError, OSError)  # what reading a file the report found may raise: it is skipped
+ODD_PAYLOAD = (*UNREADABLE, KeyError, IndexError, TypeError, ValueError)  # an artifact of another layout
 
 
 # ----------------------------------------------------------------------------------------------
@@ -115,7 +117,7 @@ def artifact_kind(path: str | Path) -> str | None:
         with h5py.File(path, "r") as f:
             k = f.attrs.get("kind")
             return None if k is None else str(_decode(k))
-    except Exception:  # noqa: BLE001 - any unreadable file is simply not an artifact
+    except (OSError, ValueError):  # any unreadable file is simply not an artifact
         return None
 
 
@@ -182,7 +184,7 @@ def _describe_h5(path: Path) -> dict[str, Any]:
     art = open_artifact(path)
     try:
         info["results"] = key_results(art)
-    except Exception as exc:  # noqa: BLE001 - a summary must not fail on an odd payload
+    except ODD_PAYLOAD as exc:  # a summary must not fail on an odd payload
         info["results"] = {"error": f"could not summarise the {art.kind!r} payload: {exc}"}
     return info
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from gprace.errors import InputError
 from gprace.report import figures as F
-from gprace.report.inspect import artifact_kind, json_kind, open_artifact
+from gprace.report.inspect import UNREADABLE, artifact_kind, json_kind, open_artifact
 
 
 def try_track(name: Any):
@@ -30,7 +30,7 @@ def try_track(name: Any):
         from gprace.tracks import load_track
 
         return load_track(name)
-    except Exception:  # noqa: BLE001 - a missing track only removes the map
+    except UNREADABLE:  # a missing track only removes the map
         return None
 
 
@@ -42,7 +42,7 @@ def h2h_track(attrs: dict[str, Any]):
         from gprace.h2h.geometry import make_track
 
         return make_track(task["track"])
-    except Exception:  # noqa: BLE001
+    except (*UNREADABLE, ValueError, KeyError, TypeError):  # no task, or one of another layout: no map
         return None
 
 
