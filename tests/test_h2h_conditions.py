@@ -260,3 +260,21 @@ def test_race_inflates_the_ellipses_by_the_calibration(monkeypatch):
     assert plain and all(np.all(s == 0) for s in plain)
     ego = seen[1::2]  # per step: the opponent's ellipses around the ego (no spread), then the ego's
     assert ego and all(np.allclose(s, R.extend(floor, len(s))) for s in ego) and all(np.all(s == 0) for s in seen[::2])
+
+
+def test_constant_velocity_prediction_advances_every_step():
+    """Held Frenet rates move the car by ``k dt`` times them at step k (regression: from 06c19f4 on
+    every step held the first step's position, so the opponent saw the ego standing still)."""
+    from gprace.h2h.geometry import make_track
+
+    track = make_track({"kind": "random", "seed": 3, "stretches": 5, "width": 0.75})
+    K, dt = 9, 0.1
+    x = np.array([1.0, 0.05, 0.0, 0.02, 0.1, 2.0])
+    kap = float(track.kappa(2.0))
+    sdot = (x[0] * np.cos(x[3]) - x[1] * np.sin(x[3])) / (1.0 - kap * x[4])
+    eydot = x[0] * np.sin(x[3]) + x[1] * np.cos(x[3])
+    k = dt * np.arange(1, K + 1)
+    mean = make_predictor("cv", K, dt).predict(Context(track, np.zeros((K + 1, 6)), x)).mean
+    np.testing.assert_allclose(mean[:, 5], 2.0 + k * sdot, rtol=1e-12)
+    np.testing.assert_allclose(mean[:, 4], 0.1 + k * eydot, rtol=1e-12)
+    np.testing.assert_array_equal(mean[:, [0, 1, 2, 3]], np.tile(x[:4], (K, 1)))

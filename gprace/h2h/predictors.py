@@ -133,7 +133,7 @@ class ConstantVelocityPredictor(Predictor):
         floor (the typical error of this predictor, measured on held-out races)."""
         K, x = self.steps, np.asarray(ctx.opp, float)
         mean = np.tile(x, (K, 1))
-        mean[:, 5], mean[:, 4] = cv_positions(ctx.track, x[None], K, self.dt)[:, 0]
+        mean[:, 5], mean[:, 4] = cv_positions(ctx.track, x[None], K, self.dt)[:, :, 0]  # (2, K) of the one state
         raw = np.zeros((K, 2))
         return Prediction(mean, calibrated_std(raw, self.calibration), raw)
 

@@ -98,6 +98,7 @@ SENSOR_STD = (0.01, 0.01, 0.02, 0.005, 0.005, 0.005)
 PROCESS_STD = (0.01, 0.005, 0.02, 0.0, 0.0, 0.0)
 BLOCKING_WEIGHT = opponent_mpc().q_block
 BASELINE_TRACKS = ("eval", "training")
+RACE_VERSION = 2  # 2: the constant-velocity prediction advances every step; records of version 1 are rerun
 ERRORS_VERSION = 4  # 2: s errors and raw spreads; 3: one variance per start time; 4: sample_paths (step-0 rounding)
 RACED = ("baseline", "explore")
 # Backend settings of the opponent GPs (measured on the 5000-point baseline data, docs/decisions.md):
@@ -230,9 +231,9 @@ PATH_KEYS = ("model", "explore_data", "record", "models")
 
 
 def _task_hash(task: dict) -> str:
-    """Hash of what decides a run's result; file locations are left out, so a copied or moved
-    ``--out`` directory is still reused."""
-    return config_hash({k: v for k, v in task.items() if k not in ("id", *PATH_KEYS)})
+    """Hash of what decides a run's result, with :data:`RACE_VERSION`; file locations are left
+    out, so a copied or moved ``--out`` directory is still reused."""
+    return config_hash({"race_version": RACE_VERSION, **{k: v for k, v in task.items() if k not in ("id", *PATH_KEYS)}})
 
 
 # ----------------------------------------------------------------------------------------------
