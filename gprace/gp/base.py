@@ -215,14 +215,10 @@ class GPBackend(ABC):
                 found.setdefault(p.name, p)
         return {name: found[name] for name in dict.fromkeys(names)}
 
-    @classmethod
-    def _param_names(cls) -> list[str]:
-        return list(cls._parameters())
-
     def get_params(self) -> dict[str, Any]:
         """Settings as JSON-friendly values (arrays become lists)."""
         out = {}
-        for name in self._param_names():
+        for name in self._parameters():
             v = getattr(self, name)
             out[name] = np.asarray(v).tolist() if isinstance(v, np.ndarray) else v
         return out
