@@ -13,7 +13,8 @@ Prints one JSON object:
 * ``nmpc``: ego NMPC step times (median, p99 [ms]) over a closed-loop race (oracle predictor, so
   the times are the solver's alone), IPOPT (MUMPS) through ``nlpsol``, warm-started; targets
   10 / 30 ms;
-* ``rollout``: one 50-sample x 9-step GP rollout [ms], median and p99 over repetitions, for each
+* ``rollout``: one 50-sample x 9-step GP rollout [ms], median and p99 over repetitions (compiled,
+  and the numpy loop it replaces as ``numpy_*``), for each
   GP model of the protocol (the exact and the sparse backend), with one BLAS thread and with
   every core, target 3 ms;
 * ``protocol``: the table next to the paper's numbers (REFERENCE.md) and the wall time per stage.
@@ -65,25 +66,35 @@ def bench_rollout(models: dict[str, Path], reps: int = 200) -> dict:
 
 
 def _bench_rollout(models: dict[str, Path], reps: int = 200) -> dict:
-    from gprace.h2h.predictors import GPPredictor, read_opponent_gp
+    """Per model the compiled rollout (``median_ms``, ``p99_ms``; :mod:`gprace.h2h.fastroll`) and
+    the numpy loop it replaces (``numpy_*``), on the same draws."""
+    from gprace.h2h.fastroll import _library
     from gprace.h2h.geometry import make_track
+    from gprace.h2h.predictors import OUTPUTS, read_opponent_gp, sample_paths
 
     track = make_track({"kind": "random", "seed": 3, "width": 0.75})
-    ego_plan = np.tile([1.2, 0, 0, 0, 0.1, 1.0], (10, 1))
-    ego_plan[:, 5] += 0.12 * np.arange(10)
-    opp = np.array([1.0, 0, 0, 0.0, -0.05, 1.8])
+    ego = np.tile([1.2, 0, 0, 0, 0.1, 1.0], (9, 1, 1))
+    ego[:, 0, 5] += 0.12 * np.arange(9)
+    opp = np.array([[1.0, 0, 0, 0.0, -0.05, 1.8]])
+    eps = np.random.default_rng(0).standard_normal((9, 50, len(OUTPUTS)))
+
+    def times(gp, compiled: bool) -> np.ndarray:
+        sample_paths(gp, track, ego, opp, 50, eps, compiled)
+        t = np.empty(reps)
+        for i in range(reps):
+            t0 = time.perf_counter()
+            sample_paths(gp, track, ego, opp, 50, eps, compiled)
+            t[i] = time.perf_counter() - t0
+        return 1e3 * t
+
     res = {}
     for name, path in models.items():
         gp, attrs = read_opponent_gp(path)
-        pred = GPPredictor(gp, 9, samples=50, seed=0)
-        pred.rollout(track, ego_plan, opp)
-        t = []
-        for _ in range(reps):
-            t0 = time.perf_counter()
-            pred.rollout(track, ego_plan, opp)
-            t.append(time.perf_counter() - t0)
+        fast, slow = times(gp, True), times(gp, False)
         res[name] = {"backend": attrs["backend"], "points": int(attrs.get("n_points", 0)),
-                     "median_ms": 1e3 * float(np.median(t)), "p99_ms": 1e3 * float(np.percentile(t, 99)),
+                     "path": "compiled" if _library() is not None and gp.kernel_form() is not None else "numpy",
+                     "median_ms": float(np.median(fast)), "p99_ms": float(np.percentile(fast, 99)),
+                     "numpy_median_ms": float(np.median(slow)), "numpy_p99_ms": float(np.percentile(slow, 99)),
                      "target_ms": 3}
     return res
 

@@ -75,7 +75,7 @@ def test_features_one_spline_call_equals_one_per_lookahead():
         np.testing.assert_array_equal(Z[:, len(FEATURES) - 3 + j], track.kappa(track.wrap(opp[:, 5] + d)))
 
 
-def _opponent_gp(backend: str, **kw):
+def _opponent_gp(backend: str, kernel: str = "matern15", **kw):
     """A GP on opponent features of random states (a real fit: the shapes and scales of the protocol)."""
     track = make_track({"kind": "random", "seed": 5, "width": 0.75})
     rng = np.random.default_rng(1)
@@ -86,7 +86,7 @@ def _opponent_gp(backend: str, **kw):
     Z = features(track, ego, opp)
     Y = 0.1 * np.column_stack([opp[:, 0], -0.3 * opp[:, 4], Z[:, 8], -0.1 * opp[:, 0], Z[:, 9]])
     Y = Y + 1e-3 * rng.standard_normal(Y.shape)
-    return track, make_gp(backend, kernel="matern15", shared_kernel=True, **kw).fit(Z, Y)
+    return track, make_gp(backend, kernel=kernel, shared_kernel=True, **kw).fit(Z, Y)
 
 
 @pytest.mark.parametrize("backend, kw", [("exact", {}), ("sparse", {"n_inducing": 40, "max_iter": 15})])
@@ -146,3 +146,38 @@ def test_batched_paths_equal_one_rollout_per_start():
     for g in range(G):
         own = pred.rollout(track, ego[:, g], opp[g], eps[:, g * n:(g + 1) * n])
         np.testing.assert_allclose(paths[g * n:(g + 1) * n], own, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("backend, kw", [("exact", {}), ("sparse", {"n_inducing": 40, "max_iter": 15})])
+@pytest.mark.parametrize("kernel", KERNELS)
+@pytest.mark.parametrize("track_spec", [{"kind": "random", "seed": 5, "width": 0.75}, {"kind": "loop"}])
+def test_compiled_rollout_equals_the_numpy_loop(backend, kw, kernel, track_spec):
+    """One C call (features, mean, variance, update) gives the numpy loop's paths to rounding, on an
+    open and a closed track (the gap in s wraps, s passes the start line), several starts at once."""
+    from gprace.gp.fastkernel import KernelForm
+    from gprace.h2h.fastroll import _library
+    from gprace.h2h.predictors import sample_paths
+
+    if _library() is None:
+        pytest.skip("no C compiler: the rollout runs in numpy")
+    _, gp = _opponent_gp(backend, kernel, **kw)
+    track = make_track(track_spec)
+    assert isinstance(gp.kernel_form(), KernelForm)
+    rng = np.random.default_rng(9)
+    G, n, K = 3, 30, 9
+    s0 = track.length - 0.6 if track.closed else 2.0  # a closed track's samples cross s = L
+    opp = np.column_stack([rng.uniform(0.9, 1.1, G), rng.normal(0, 0.05, G), rng.normal(0, 0.2, G),
+                           rng.normal(0, 0.05, G), rng.uniform(-0.1, 0.1, G), s0 + 0.1 * np.arange(G)])
+    ego = np.tile([1.1, 0, 0, 0.05, 0.1, s0 - 0.3], (K, G, 1))
+    ego[..., 5] += 0.11 * np.arange(K)[:, None]
+    eps = rng.standard_normal((K, G * n, len(OUTPUTS)))
+    fast = sample_paths(gp, track, ego, opp, n, eps)
+    slow = sample_paths(gp, track, ego, opp, n, eps, compiled=False)
+    assert np.ptp(fast[:, -1, 5]) > 0.01  # the samples spread: the variance is not zero
+    np.testing.assert_allclose(fast, slow, rtol=1e-9, atol=1e-10)
+
+
+def test_kernel_form_only_for_one_kernel():
+    Z, Y = smooth_data(n=40)
+    assert make_gp("exact", shared_kernel=False).fit(Z, Y).kernel_form() is None
+    assert make_gp("exact", shared_kernel=True).fit(Z, Y).kernel_form().variance == "tri"

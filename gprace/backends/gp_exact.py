@@ -179,6 +179,9 @@ class ExactGP(GPBackend):
             mean[:, g] = kernel_dot(h.kernel, Zn / h.ls(o), self._scaled[gi], self._alpha_t[gi], h.sf2(o))
         return mean
 
+    def kernel_form(self):
+        return self._form(self._scaled[0], self._alpha_t[0], "tri", self.L_[0])
+
     def mean_gradient(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean ``(m, p)`` and its gradient ``(m, p, d)`` with respect to the inputs."""
         mean, _, grad = self.predict_with_gradient(Z, variance="none")

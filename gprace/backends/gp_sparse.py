@@ -160,6 +160,10 @@ class SparseGP(GPBackend):
             mean[:, g] = kernel_dot(h.kernel, Zn / h.ls(g[0]), pts, wT, h.sf2(g[0]))
         return mean
 
+    def kernel_form(self):
+        g, pts, WQ, wT = self._groups[0]
+        return self._form(pts, wT, "quad", WQ[:, len(g):])
+
     def _state_arrays(self):
         return {"Zu": self.Zu_, "w": self.w_, "Q": self.Q_}
 

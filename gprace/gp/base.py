@@ -279,6 +279,24 @@ class GPBackend(ABC):
         h = self.hyper_
         return self._fast_mean_normalised((np.asarray(Z, dtype=float) - h.z_mean) / h.z_scale) * h.y_scale + h.y_mean
 
+    def kernel_form(self):
+        """The posterior as a :class:`~gprace.gp.fastkernel.KernelForm` for compiled predictors,
+        or None: a backend without one, or outputs with more than one kernel."""
+        return None
+
+    def _form(self, pts, wT: np.ndarray, variance: str, V: np.ndarray):
+        """:meth:`kernel_form` of a fitted one-kernel backend from its points, weights and
+        variance matrix (None with more than one kernel)."""
+        from gprace.gp.fastkernel import KernelForm
+
+        h = self._fitted()
+        if len(h.groups()) != 1:
+            return None
+        return KernelForm(h.kernel, pts, np.ascontiguousarray(wT, dtype=float), float(h.sf2(0)), variance,
+                          np.ascontiguousarray(V, dtype=float), np.asarray(h.z_mean, float),
+                          np.asarray(h.z_scale * h.ls(0), float), np.asarray(h.y_mean, float),
+                          np.asarray(h.y_scale, float))
+
     def _in_units(self, predict_normalised, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h = self.hyper_
         mean_n, var_n = predict_normalised((Z - h.z_mean) / h.z_scale)

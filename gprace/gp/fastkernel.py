@@ -26,44 +26,51 @@ import numpy as np
 
 from gprace.gp.kernels import scaled_block
 
-_SOURCE = r"""
+KERNEL_C = r"""
 #include <math.h>
 #include <string.h>
 typedef double v4 __attribute__((vector_size(32)));
 static inline v4 load4(const double *p) { v4 v; memcpy(&v, p, sizeof v); return v; }
 
+/* buf (M) = k(b, a_j): one query b (d) against aT (d, M), both divided by the length scales;
+   matern: 1 for Matern 3/2, 0 for the squared exponential. */
+static inline void kernel_row(int M, int d, const double *restrict b, const double *restrict aT, double sf2,
+                              int matern, double *restrict buf) {
+    for (int j = 0; j < M; j++) { double t = b[0] - aT[j]; buf[j] = t * t; }
+    for (int k = 1; k < d; k++) {
+        const double bk = b[k]; const double *ak = aT + (long)k * M;
+        for (int j = 0; j < M; j++) { double t = bk - ak[j]; buf[j] += t * t; }
+    }
+    if (matern) {
+        for (int j = 0; j < M; j++) { double r = 1.7320508075688772 * sqrt(buf[j]); buf[j] = sf2 * (1.0 + r) * exp(-r); }
+    } else {
+        for (int j = 0; j < M; j++) buf[j] = sf2 * exp(-0.5 * buf[j]);
+    }
+}
+
+/* x . y over M: four independent accumulators (one would wait on its own sums). */
+static inline double dot(int M, const double *restrict x, const double *restrict y) {
+    v4 s0 = {0, 0, 0, 0}, s1 = s0, s2 = s0, s3 = s0;
+    int j = 0;
+    for (; j + 16 <= M; j += 16) {
+        s0 += load4(x + j) * load4(y + j);
+        s1 += load4(x + j + 4) * load4(y + j + 4);
+        s2 += load4(x + j + 8) * load4(y + j + 8);
+        s3 += load4(x + j + 12) * load4(y + j + 12);
+    }
+    v4 s4 = (s0 + s1) + (s2 + s3);
+    double s = (s4[0] + s4[1]) + (s4[2] + s4[3]);
+    for (; j < M; j++) s += x[j] * y[j];
+    return s;
+}
+
 /* out (m, q) = K(b, a) w: b (m, d) and aT (d, M) divided by the length scales, wT (q, M);
-   matern: 1 for Matern 3/2, 0 for the squared exponential; buf: M doubles of scratch.
-   The products with w run on four independent accumulators (one would wait on its own sums). */
+   buf: M doubles of scratch. */
 void kernel_dot(int m, int M, int d, int q, const double *restrict b, const double *restrict aT,
                 const double *restrict wT, double sf2, int matern, double *restrict out, double *restrict buf) {
     for (int i = 0; i < m; i++) {
-        const double *bi = b + (long)i * d;
-        for (int j = 0; j < M; j++) { double t = bi[0] - aT[j]; buf[j] = t * t; }
-        for (int k = 1; k < d; k++) {
-            const double bk = bi[k]; const double *ak = aT + (long)k * M;
-            for (int j = 0; j < M; j++) { double t = bk - ak[j]; buf[j] += t * t; }
-        }
-        if (matern) {
-            for (int j = 0; j < M; j++) { double r = 1.7320508075688772 * sqrt(buf[j]); buf[j] = sf2 * (1.0 + r) * exp(-r); }
-        } else {
-            for (int j = 0; j < M; j++) buf[j] = sf2 * exp(-0.5 * buf[j]);
-        }
-        for (int c = 0; c < q; c++) {
-            const double *w = wT + (long)c * M;
-            v4 s0 = {0, 0, 0, 0}, s1 = s0, s2 = s0, s3 = s0;
-            int j = 0;
-            for (; j + 16 <= M; j += 16) {
-                s0 += load4(buf + j) * load4(w + j);
-                s1 += load4(buf + j + 4) * load4(w + j + 4);
-                s2 += load4(buf + j + 8) * load4(w + j + 8);
-                s3 += load4(buf + j + 12) * load4(w + j + 12);
-            }
-            v4 s4 = (s0 + s1) + (s2 + s3);
-            double s = (s4[0] + s4[1]) + (s4[2] + s4[3]);
-            for (; j < M; j++) s += buf[j] * w[j];
-            out[(long)i * q + c] = s;
-        }
+        kernel_row(M, d, b + (long)i * d, aT, sf2, matern, buf);
+        for (int c = 0; c < q; c++) out[(long)i * q + c] = dot(M, buf, wT + (long)c * M);
     }
 }
 """
@@ -99,6 +106,31 @@ def kernel_dot(name: str, b: np.ndarray, pts: Points, wT: np.ndarray, sf2: float
     return out
 
 
+@dataclass(frozen=True)
+class KernelForm:
+    """A one-kernel GP posterior as arrays, for compiled predictors (the opponent rollout): in
+    normalised units, for a query ``b = (z - z_mean) / (z_scale * ls)`` and ``k = K(b, a)``,
+    mean ``wT @ k`` and latent variance ``sf2 - |L^-1 k|^2`` (``"tri"``, ``V = L`` lower, the
+    exact GP) or ``sf2 - k^T V k`` (``"quad"``, the sparse GP's ``Q``). See
+    :meth:`gprace.gp.base.GPBackend.kernel_form`."""
+
+    kernel: str
+    pts: Points
+    wT: np.ndarray  # (p, M) C-ordered
+    sf2: float
+    variance: str  # "tri" or "quad"
+    V: np.ndarray  # (M, M) C-ordered
+    z_mean: np.ndarray
+    z_div: np.ndarray  # z_scale * ls
+    y_mean: np.ndarray
+    y_scale: np.ndarray
+
+
+def fast_flags() -> tuple[str, ...]:
+    """Compiler flags of the hot-path kernels (see the module doc)."""
+    return ("-O3", "-ffast-math", "-Wno-psabi", *_cpu_flags())
+
+
 def _cpu_flags() -> tuple[str, ...]:
     try:
         with open("/proc/cpuinfo") as fh:
@@ -113,7 +145,7 @@ def _library():
     """The compiled ``kernel_dot`` (loaded once per process), or None: numpy then."""
     from gprace.backends.compiled import compiled_source
 
-    lib = compiled_source("gp_kernel_dot", _SOURCE, ("-O3", "-ffast-math", "-Wno-psabi", *_cpu_flags()),
+    lib = compiled_source("gp_kernel_dot", KERNEL_C, fast_flags(),
                           "GP kernel product")
     if lib is None:
         return None

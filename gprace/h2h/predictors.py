@@ -169,13 +169,22 @@ class GPPredictor(Predictor):
         return Prediction(mean, calibrated_std(std, self.calibration), std)
 
 
-def sample_paths(gp, track, ego: np.ndarray, opp: np.ndarray, n: int, eps: np.ndarray) -> np.ndarray:
+def sample_paths(gp, track, ego: np.ndarray, opp: np.ndarray, n: int, eps: np.ndarray,
+                 compiled: bool = True) -> np.ndarray:
     """Sampled rollouts of ``G`` start states at once: ``n`` samples from each opponent state
     ``opp (G, 6)``, with the ego part of the input ``ego (K, G, 6)`` at steps 0..K-1 and standard
     normal draws ``eps (K, G n, 5)``; returns paths ``(G n, K, 6)``, the samples of start g in rows
     ``g n .. g n + n - 1``. Each sample's mean is its own; the variance of a step is the GP's at
     the mean input of the start's samples (see the module doc). At step 0 a start's samples share
-    their state, so one prediction per start serves them all."""
+    their state, so one prediction per start serves them all. ``compiled``: one call of
+    :func:`gprace.h2h.fastroll.rollout` where it applies (the same values to rounding), this
+    numpy loop otherwise."""
+    if compiled:
+        from gprace.h2h.fastroll import rollout
+
+        paths = rollout(gp.kernel_form(), track, ego, opp, n, eps, _LOOKAHEAD, OUT_STATE)
+        if paths is not None:
+            return paths
     K, G = ego.shape[0], opp.shape[0]
     S = np.repeat(opp, n, axis=0)
     out = np.empty((G * n, K, 6))
