@@ -244,3 +244,18 @@ def test_effect_parameters_are_checked():
         make_effect("aero_drag")
     with pytest.raises(ConfigError, match="outside"):
         make_effect("yaw_inertia", factor=50.0)
+
+
+def test_named_state_indices_pick_the_kinematic_equations(audi):
+    """``State``/``Input`` name the entries of :data:`STATE`/:data:`INPUT`, and indexing the model's
+    derivative by them gives the Frenet kinematics: ``s' = (v_x cos e_psi - v_y sin e_psi) /
+    (1 - kappa e_y)``, ``e_y' = v_x sin e_psi + v_y cos e_psi``, ``e_psi' = r - kappa s'``."""
+    from gprace.model import INPUT, Input, State
+
+    assert [m.name.lower() for m in State] == list(STATE) and [m.name.lower() for m in Input] == list(INPUT)
+    f = NominalModel(audi).f(X0, U0, K0)
+    vx, vy, r, epsi, ey = (X0[i] for i in (State.V_X, State.V_Y, State.YAW_RATE, State.E_PSI, State.E_Y))
+    sdot = (vx * np.cos(epsi) - vy * np.sin(epsi)) / (1 - K0 * ey)
+    assert f[State.S] == pytest.approx(sdot, rel=1e-12)
+    assert f[State.E_Y] == pytest.approx(vx * np.sin(epsi) + vy * np.cos(epsi), rel=1e-12)
+    assert f[State.E_PSI] == pytest.approx(r - K0 * sdot, rel=1e-12)

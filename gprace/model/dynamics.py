@@ -23,6 +23,7 @@ numpy evaluation and the CasADi graph (``ops``), which is the "one symbolic defi
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import IntEnum
 from types import SimpleNamespace
 from typing import Any, Sequence
 
@@ -31,6 +32,24 @@ from gprace.config import G, VehicleConfig
 STATE = ("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s")
 INPUT = ("delta", "a_x")
 NX, NU = 6, 2
+
+
+class State(IntEnum):
+    """Index of each entry of the car state (named in :data:`STATE`): ``x[State.E_Y]``, ``X[:, State.S]``."""
+
+    V_X = 0
+    V_Y = 1
+    YAW_RATE = 2
+    E_PSI = 3
+    E_Y = 4
+    S = 5
+
+
+class Input(IntEnum):
+    """Index of each input (named in :data:`INPUT`)."""
+
+    DELTA = 0
+    A_X = 1
 
 
 @dataclass(frozen=True)

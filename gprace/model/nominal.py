@@ -8,7 +8,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from gprace.config import EffectConfig, VehicleConfig
-from gprace.model.dynamics import NU, NX, STATE, Params, dynamics
+from gprace.model.dynamics import NU, NX, STATE, Params, State, dynamics
 from gprace.model.effects import Effect, make_effect
 from gprace.model.ops import NP, CasadiOps
 
@@ -105,7 +105,7 @@ class NominalModel:
         """CasADi expression of ``x`` after ``dt`` by RK4 with ``substeps``; ``kappa_of_s(s)`` gives the
         curvature (a constant, or a CasADi lookup re-evaluated at every stage)."""
         h = dt / substeps
-        f = lambda xx: self.symbolic(xx, u, kappa_of_s(xx[5]))  # noqa: E731
+        f = lambda xx: self.symbolic(xx, u, kappa_of_s(xx[State.S]))  # noqa: E731
         xn = x
         for _ in range(substeps):
             k1 = f(xn)

@@ -42,9 +42,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import sparse
 
-NXS, NUS = 6, 2
-EY = 4
-GRIP_STATES = (0, 1, 2)  # state entries a grip row may weigh: v_x, v_y, yaw_rate
+from gprace.model.dynamics import NU as NUS
+from gprace.model.dynamics import NX as NXS
+from gprace.model.dynamics import State
+
+EY = State.E_Y
+GRIP_STATES = (State.V_X, State.V_Y, State.YAW_RATE)  # state entries a grip row may weigh
 GRIP_OPEN = 1.0          # bound of an inactive grip row (its coefficients are zero)
 STEER_OPEN = 10.0        # steering change per step [rad] of an open rate row
 ETA_UNIT = 0.01          # the grip slack's unit in the standard form [rad]: keeps its weights near the others

@@ -47,13 +47,16 @@ from scipy.special import erfinv
 
 from gprace.errors import ConfigError
 from gprace.gp.features import DYN_INPUTS, dyn_inputs
+from gprace.model.dynamics import Input, State
 from gprace.mpc.qp import EY, LtvProblem, QPStatus, Weights
 
 FEATURES = DYN_INPUTS
 EXPLORED = ("v_y", "yaw_rate", "delta")  # features Algorithm 1 may move the reference to
 RECOVER_STEPS = 10  # periods over which a rear slip beyond its bound is brought back
 KAPPA_DS = 1.0  # half-width [m] of the central difference giving the curvature's slope
-_REF = {"v_x": ("x", 0), "v_y": ("x", 1), "yaw_rate": ("x", 2), "delta": ("u", 0), "a_x": ("u", 1)}
+_REF = {"v_x": ("x", State.V_X), "v_y": ("x", State.V_Y), "yaw_rate": ("x", State.YAW_RATE),
+        "delta": ("u", Input.DELTA), "a_x": ("u", Input.A_X)}
+GP_STATES = slice(State.V_Y, State.YAW_RATE + 1)  # the states the GP corrects: v_y, yaw_rate
 
 
 @dataclass(frozen=True)
@@ -89,8 +92,8 @@ def covariances(A: np.ndarray, var: np.ndarray) -> np.ndarray:
     out = np.empty((N, 6, 6))
     for k in range(N):  # recursion over the horizon (N = 20 small matrices)
         S = A[k] @ S @ A[k].T
-        S[1, 1] += var[k, 0]
-        S[2, 2] += var[k, 1]
+        S[State.V_Y, State.V_Y] += var[k, 0]
+        S[State.YAW_RATE, State.YAW_RATE] += var[k, 1]
         out[k] = S
     return out
 
@@ -114,14 +117,21 @@ def rear_slip_rows(X: np.ndarray, lr: float, v_min: float) -> tuple[np.ndarray, 
 
     ``alpha_r = -atan((v_y - l_r r) / v_x)`` with ``v_x`` floored at ``v_min`` (as the model).
     """
-    vx = np.maximum(X[:, 0], v_min)
-    w = X[:, 1] - lr * X[:, 2]
+    vx = np.maximum(X[:, State.V_X], v_min)
+    w = X[:, State.V_Y] - lr * X[:, State.YAW_RATE]
     den = vx**2 + w**2
     G = np.zeros((len(X), 6))
-    G[:, 0] = np.where(X[:, 0] > v_min, w / den, 0.0)
-    G[:, 1] = -vx / den
-    G[:, 2] = lr * vx / den
+    G[:, State.V_X] = np.where(X[:, State.V_X] > v_min, w / den, 0.0)
+    G[:, State.V_Y] = -vx / den
+    G[:, State.YAW_RATE] = lr * vx / den
     return -np.arctan(w / vx), G
+
+
+def _at_s(X: np.ndarray, s0: float) -> np.ndarray:
+    """States ``X (n, 6)`` with relative ``s`` moved by ``s0`` (a copy)."""
+    X = X.copy()
+    X[:, State.S] += s0
+    return X
 
 
 def peak_slip(b: float, c: float) -> float:
@@ -200,7 +210,7 @@ class TrackingMPC:
         # spun the commonroad BMW on a plan that drives straight through the bend.
         kappa_of_s = lambda ss: k[0] + k[1] * (ss - k[2])  # noqa: E731
         if self.s.integrator == "euler":
-            xn = x + self.dt * self.model.symbolic(x, u, kappa_of_s(x[5]))
+            xn = x + self.dt * self.model.symbolic(x, u, kappa_of_s(x[State.S]))
         elif self.s.integrator == "rk4":
             xn = self.model.rk4_expression(x, u, kappa_of_s, self.dt)
         else:
@@ -219,7 +229,7 @@ class TrackingMPC:
         t0 = float(self.plan.time_at(s_abs))
         ts = t0 + self.dt * np.arange(self.N + 1)
         X, U = self.plan.at_time(ts)
-        X[:, 5] -= X[0, 5]
+        X[:, State.S] -= X[0, State.S]
         return X[1:], U[:-1]
 
     def explore(self, xref: np.ndarray, uref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -228,7 +238,7 @@ class TrackingMPC:
             return xref, uref
         from gprace.explore.algorithm import CandidateGrid, select_target
 
-        if uref[:, 1].min() < self.s.explore_brake * self.u_lo[1]:
+        if uref[:, Input.A_X].min() < self.s.explore_brake * self.u_lo[Input.A_X]:
             return xref, uref  # braking zone: perform, do not explore
         z_tilde = dyn_inputs(xref[:1], uref[:1], self.inputs)[0]
         g = self.grid
@@ -252,25 +262,25 @@ class TrackingMPC:
     def build(self, x_meas: np.ndarray) -> tuple[LtvProblem, dict]:
         """The QP of this period (also used by benchmarks) and side information."""
         N = self.N
-        s0 = float(x_meas[5])
+        s0 = float(x_meas[State.S])
         xref, uref = self.reference(s0)
         xr0 = xref
         xref, uref = self.explore(xref, uref)
         # nominal trajectory: previous solution shifted (or the reference), from the measured state
         if self.prev_x is None:
-            Xb = np.vstack([x_meas, xref[:-1] + np.r_[0, 0, 0, 0, 0, s0]])
+            Xb = np.vstack([x_meas, _at_s(xref[:-1], s0)])
             Ub = uref.copy()
         else:
             Xb = np.vstack([x_meas, self.prev_x[1:]])
             Ub = np.vstack([self.prev_u[1:], self.prev_u[-1:]])
-        Xb[:, 5] = np.maximum.accumulate(Xb[:, 5])  # progress along the nominal cannot go back
-        sb = Xb[:, 5]
+        Xb[:, State.S] = np.maximum.accumulate(Xb[:, State.S])  # progress along the nominal cannot go back
+        sb = Xb[:, State.S]
         kap, k_up, k_dn = self.track.kappa(np.concatenate([sb, sb + KAPPA_DS, sb - KAPPA_DS])).reshape(3, -1)
         slope = (k_up - k_dn) / (2 * KAPPA_DS)
         xn, A, B = self._lin(Xb, Ub, np.column_stack([kap, slope, sb]))
         Xr = Xb.copy()
-        Xr[:, 5] -= s0
-        xn[:, 5] -= s0
+        Xr[:, State.S] -= s0
+        xn[:, State.S] -= s0
         var = np.zeros((N, 2))
         mean = np.zeros((N, 2))
         if self.gp is not None:
@@ -283,21 +293,21 @@ class TrackingMPC:
                 A, B = A.copy(), B.copy()
                 for j, name in enumerate(self.inputs):
                     where, col = _REF[name]
-                    (A if where == "x" else B)[:, 1:3, col] += J[:, :, j]
+                    (A if where == "x" else B)[:, GP_STATES, col] += J[:, :, j]
             else:
                 mean, var = self.gp(dyn_inputs(Xb, Ub, self.inputs))
         c = xn - np.einsum("kij,kj->ki", A, Xr) - np.einsum("kij,kj->ki", B, Ub)
-        c[:, 1:3] += mean
+        c[:, GP_STATES] += mean
         Sig = covariances(A, var)
         gamma = self.quantile * np.sqrt(np.maximum(Sig[:, EY, EY], 0.0))
-        s_pred = Xb[:, 5] + (xn[:, 5] - Xr[:, 5])  # absolute s at k = 1..N along the nominal
+        s_pred = Xb[:, State.S] + (xn[:, State.S] - Xr[:, State.S])  # absolute s at k = 1..N along the nominal
         hi = self.track.width_left(s_pred) - self.half - gamma
         lo = -self.track.width_right(s_pred) + self.half + gamma
         mid = 0.5 * (hi + lo)
         bad = lo > hi
         hi[bad], lo[bad] = mid[bad], mid[bad]
         x0 = x_meas.copy()
-        x0[5] = 0.0
+        x0[State.S] = 0.0
         grip = {}
         if self.s.grip:
             # rear slip linearised about the REFERENCE x_1..x_N: a + G (x - xref). Measured: about
@@ -330,13 +340,13 @@ class TrackingMPC:
                 x_seq = np.vstack([self.prev_x[1:], self.prev_x[-1:]])
             else:
                 u_seq = info["uref"].copy()
-                x_seq = info["xref"] + np.r_[0, 0, 0, 0, 0, info["s0"]]
+                x_seq = _at_s(info["xref"], info["s0"])
         else:
             u_seq = res.u
             x_seq = res.x.copy()
-            x_seq[:, 5] += info["s0"]
+            x_seq[:, State.S] += info["s0"]
         self.prev_u, self.prev_x = u_seq, x_seq
         u = np.clip(u_seq[0], self.u_lo, self.u_hi)
-        self.delta_prev, self.a_prev = float(u[0]), float(u[1])
+        self.delta_prev, self.a_prev = float(u[Input.DELTA]), float(u[Input.A_X])
         info.update(solve_time=res.solve_time, status=res.status, fallback=fallback, iterations=res.iterations)
         return u, info

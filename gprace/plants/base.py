@@ -14,6 +14,7 @@ from typing import ClassVar
 import numpy as np
 
 from gprace.config import PlantConfig
+from gprace.model.dynamics import State
 
 
 class Plant(ABC):
@@ -47,12 +48,12 @@ class Plant(ABC):
     def _wrap(self, x: np.ndarray) -> np.ndarray:
         """Keep s inside the lap on closed tracks and count laps."""
         if self.track.closed:
-            L = self.track.length
-            while x[5] >= L:
-                x[5] -= L
+            L, S = self.track.length, State.S
+            while x[S] >= L:
+                x[S] -= L
                 self.lap += 1
-            while x[5] < 0:
-                x[5] += L
+            while x[S] < 0:
+                x[S] += L
                 self.lap -= 1
         return x
 

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from gprace.model.dynamics import Input, State
+
 
 def border_hits(track, X: np.ndarray, length: float, width: float) -> np.ndarray:
     """(n,) bool: the car's rectangular footprint crosses a track edge at true Frenet states X (n, 6).
@@ -14,16 +16,18 @@ def border_hits(track, X: np.ndarray, length: float, width: float) -> np.ndarray
     Half lateral extent of the footprint: ``|l/2 sin e_psi| + |w/2 cos e_psi|``.
     """
     X = np.atleast_2d(X)
-    ext = np.abs(0.5 * length * np.sin(X[:, 3])) + np.abs(0.5 * width * np.cos(X[:, 3]))
-    return (X[:, 4] + ext > track.width_left(X[:, 5])) | (X[:, 4] - ext < -track.width_right(X[:, 5]))
+    epsi, ey, s = X[:, State.E_PSI], X[:, State.E_Y], X[:, State.S]
+    ext = np.abs(0.5 * length * np.sin(epsi)) + np.abs(0.5 * width * np.cos(epsi))
+    return (ey + ext > track.width_left(s)) | (ey - ext < -track.width_right(s))
 
 
 def run_columns(track, dt: float, Y: np.ndarray, U: np.ndarray) -> dict[str, np.ndarray]:
     """The DESIGN.md run columns from measurements Y (n, 6) and applied inputs U (n, 2)."""
-    s = track.wrap(Y[:, 5])
+    s = track.wrap(Y[:, State.S])
     return {
-        "t": dt * np.arange(len(Y)), "s": s, "e_y": Y[:, 4], "e_psi": Y[:, 3], "v_x": Y[:, 0],
-        "v_y": Y[:, 1], "yaw_rate": Y[:, 2], "delta": U[:, 0], "a_x": U[:, 1], "kappa": track.kappa(s),
+        "t": dt * np.arange(len(Y)), "s": s, "e_y": Y[:, State.E_Y], "e_psi": Y[:, State.E_PSI],
+        "v_x": Y[:, State.V_X], "v_y": Y[:, State.V_Y], "yaw_rate": Y[:, State.YAW_RATE],
+        "delta": U[:, Input.DELTA], "a_x": U[:, Input.A_X], "kappa": track.kappa(s),
     }
 
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from gprace.model.dynamics import State
+
 SPIN_EPSI = 1.2  # rad
 SPIN_SLIP = 0.6  # |v_y| / |v_x|
 SPIN_SLIP_OFFSET = 2.0  # m/s
@@ -18,12 +20,13 @@ SPIN_SLIP_OFFSET = 2.0  # m/s
 
 def stop_reason(x: np.ndarray, width_left: float, width_right: float, car_width: float, v_stall: float) -> str:
     """Why a car in state ``x`` (6,) must stop ("" if it may go on), in words naming where."""
-    if x[4] > width_left + 2 * car_width or x[4] < -width_right - 2 * car_width:
-        return f"the car left the track at s = {x[5]:.1f} m (e_y = {x[4]:.2f} m)"
-    if abs(x[3]) > SPIN_EPSI or abs(x[1]) > SPIN_SLIP * abs(x[0]) + SPIN_SLIP_OFFSET:
-        return f"the car spun at s = {x[5]:.1f} m (e_psi = {x[3]:.2f} rad, v_y = {x[1]:.1f} m/s)"
-    if x[0] < v_stall:
-        return f"the car stalled at s = {x[5]:.1f} m (v_x = {x[0]:.2f} m/s)"
+    vx, vy, epsi, ey, s = (x[i] for i in (State.V_X, State.V_Y, State.E_PSI, State.E_Y, State.S))
+    if ey > width_left + 2 * car_width or ey < -width_right - 2 * car_width:
+        return f"the car left the track at s = {s:.1f} m (e_y = {ey:.2f} m)"
+    if abs(epsi) > SPIN_EPSI or abs(vy) > SPIN_SLIP * abs(vx) + SPIN_SLIP_OFFSET:
+        return f"the car spun at s = {s:.1f} m (e_psi = {epsi:.2f} rad, v_y = {vy:.1f} m/s)"
+    if vx < v_stall:
+        return f"the car stalled at s = {s:.1f} m (v_x = {vx:.2f} m/s)"
     return ""
 
 
@@ -33,10 +36,11 @@ def run_end(track, plant, car_width: float, v_stall: float, goal: float, steps: 
     (laps on a closed track) reaches ``goal`` metres, otherwise why it stops (:func:`stop_reason`,
     or ``too_long`` after more than ``max_steps`` steps)."""
     x = plant.state
-    progress = plant.lap * track.length + x[5] if track.closed else x[5]
+    s = x[State.S]
+    progress = plant.lap * track.length + s if track.closed else s
     if progress >= goal:
         return ""
-    reason = stop_reason(x, float(track.width_left(x[5])), float(track.width_right(x[5])), car_width, v_stall)
+    reason = stop_reason(x, float(track.width_left(s)), float(track.width_right(s)), car_width, v_stall)
     if not reason and steps > max_steps:
         reason = f"{too_long} after {max_steps} steps"
     return reason or None

@@ -18,6 +18,7 @@ import numpy as np
 
 from gprace.errors import InputError
 from gprace.io.runs import Run
+from gprace.model.dynamics import Input, State
 from gprace.mpc.tracking import MPCSettings, TrackingMPC
 from gprace.sim.stop import run_end
 
@@ -32,12 +33,13 @@ def start_state(plan, track, vehicle) -> tuple[np.ndarray, np.ndarray]:
     """Plan state and input at ``s = 0``; InputError if the car would start off the track."""
     X, U = plan.at_time(np.array([0.0]))
     x0, u0 = X[0], U[0]
-    wl, wr = float(track.width_left(x0[5])), float(track.width_right(x0[5]))
+    vx, epsi, ey, s = (x0[i] for i in (State.V_X, State.E_PSI, State.E_Y, State.S))
+    wl, wr = float(track.width_left(s)), float(track.width_right(s))
     half = 0.5 * vehicle.width
-    if not (-wr + half <= x0[4] <= wl - half) or x0[0] <= 0 or abs(x0[3]) > 1.0:
+    if not (-wr + half <= ey <= wl - half) or vx <= 0 or abs(epsi) > 1.0:
         raise InputError(
-            f"plan: infeasible start state at s = {x0[5]:.1f} m (e_y = {x0[4]:.2f} m with track [-{wr:.2f}, {wl:.2f}] m, "
-            f"v_x = {x0[0]:.2f} m/s, e_psi = {x0[3]:.2f} rad)"
+            f"plan: infeasible start state at s = {s:.1f} m (e_y = {ey:.2f} m with track [-{wr:.2f}, {wl:.2f}] m, "
+            f"v_x = {vx:.2f} m/s, e_psi = {epsi:.2f} rad)"
         )
     return x0, u0
 
@@ -56,7 +58,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     x0, u0 = start_state(plan, track, model.vehicle)
     plant = make_plant(plant_config, track, dt)
     y = plant.reset(x0, u0)
-    mpc.reset(delta_prev=float(u0[0]), a_prev=float(u0[1]))
+    mpc.reset(delta_prev=float(u0[Input.DELTA]), a_prev=float(u0[Input.A_X]))
 
     goal = settings.laps * track.length
     v_stall = min(1.0, 0.5 * float(plan.v_x.min()))  # 1 m/s, or half the plan's slowest corner (1:10 cars)
