@@ -25,15 +25,17 @@ from pathlib import Path
 import numpy as np
 
 from gprace.errors import InputError, UnknownBackendError
+from gprace.model.dynamics import State
 
 FEATURES = (
     "ey_ego_minus_ey_opp", "epsi_ego", "vx_ego", "s_opp_minus_s_ego", "ey_opp", "epsi_opp",
     "vx_opp", "yaw_rate_opp", "kappa_opp_0", "kappa_opp_0.5", "kappa_opp_1.0",
 )
 OUTPUTS = ("ds_opp", "dey_opp", "depsi_opp", "dvx_opp", "dyaw_rate_opp")
-OUT_STATE = (5, 4, 3, 0, 2)  # state index of each output (s, e_y, e_psi, v_x, yaw_rate)
+OUT_STATE = (State.S, State.E_Y, State.E_PSI, State.V_X, State.YAW_RATE)  # state index of each output
 LOOKAHEAD = (0.0, 0.5, 1.0)
 _LOOKAHEAD = np.asarray(LOOKAHEAD)
+_OPP_FEATURES = [State.E_Y, State.E_PSI, State.V_X, State.YAW_RATE]  # the opponent's own features
 CONTROLLABLE = (0, 3)  # gap in e_y and gap in s: the features the ego can steer
 FEATURE_MAP = "opponent"
 
@@ -50,11 +52,11 @@ def features(track, ego: np.ndarray, opp: np.ndarray) -> np.ndarray:
     """GP inputs (n, 11) from ego states (n, 6) or (6,) and opponent states (n, 6)."""
     opp = np.atleast_2d(opp)
     ego = np.broadcast_to(ego, opp.shape)
-    s_o = opp[:, 5]
+    s_o = opp[:, State.S]
     Z = np.empty((opp.shape[0], len(FEATURES)))
-    np.subtract(ego[:, 4], opp[:, 4], out=Z[:, 0])
-    Z[:, 1], Z[:, 2], Z[:, 3] = ego[:, 3], ego[:, 0], gap_s(track, s_o, ego[:, 5])
-    Z[:, 4:8] = opp[:, [4, 3, 0, 2]]
+    np.subtract(ego[:, State.E_Y], opp[:, State.E_Y], out=Z[:, 0])
+    Z[:, 1], Z[:, 2], Z[:, 3] = ego[:, State.E_PSI], ego[:, State.V_X], gap_s(track, s_o, ego[:, State.S])
+    Z[:, 4:8] = opp[:, _OPP_FEATURES]
     Z[:, 8:] = track.kappa(s_o[:, None] + _LOOKAHEAD)  # (n, 3): one spline call (kappa wraps s itself)
     return Z
 
@@ -116,11 +118,12 @@ class OraclePredictor(Predictor):
 
 def cv_positions(track, x: np.ndarray, K: int, dt: float) -> np.ndarray:
     """(2, K, n): ``s`` and ``e_y`` at steps 1..K of states x (n, 6) with their Frenet rates held."""
-    kap = track.kappa(track.wrap(x[:, 5]))
-    sdot = (x[:, 0] * np.cos(x[:, 3]) - x[:, 1] * np.sin(x[:, 3])) / (1.0 - kap * x[:, 4])
-    eydot = x[:, 0] * np.sin(x[:, 3]) + x[:, 1] * np.cos(x[:, 3])
+    vx, vy, epsi, ey, s = (x[:, i] for i in (State.V_X, State.V_Y, State.E_PSI, State.E_Y, State.S))
+    kap = track.kappa(track.wrap(s))
+    sdot = (vx * np.cos(epsi) - vy * np.sin(epsi)) / (1.0 - kap * ey)
+    eydot = vx * np.sin(epsi) + vy * np.cos(epsi)
     k = dt * np.arange(1, K + 1)[:, None]
-    return np.stack([x[None, :, 5] + k * sdot, x[None, :, 4] + k * eydot])
+    return np.stack([s[None, :] + k * sdot, ey[None, :] + k * eydot])
 
 
 class ConstantVelocityPredictor(Predictor):
@@ -133,7 +136,7 @@ class ConstantVelocityPredictor(Predictor):
         floor (the typical error of this predictor, measured on held-out races)."""
         K, x = self.steps, np.asarray(ctx.opp, float)
         mean = np.tile(x, (K, 1))
-        mean[:, 5], mean[:, 4] = cv_positions(ctx.track, x[None], K, self.dt)[:, :, 0]  # (2, K) of the one state
+        mean[:, State.S], mean[:, State.E_Y] = cv_positions(ctx.track, x[None], K, self.dt)[:, :, 0]  # (2, K) of the one state
         raw = np.zeros((K, 2))
         return Prediction(mean, calibrated_std(raw, self.calibration), raw)
 
@@ -165,7 +168,7 @@ class GPPredictor(Predictor):
         paths = self.rollout(ctx.track, ctx.ego_plan, ctx.opp)
         # s stays unwrapped (continuous) on closed tracks, as in the simulation
         mean = paths.mean(axis=0)
-        std = np.column_stack([paths[:, :, 5].std(axis=0), paths[:, :, 4].std(axis=0)])
+        std = np.column_stack([paths[:, :, State.S].std(axis=0), paths[:, :, State.E_Y].std(axis=0)])
         return Prediction(mean, calibrated_std(std, self.calibration), std)
 
 
