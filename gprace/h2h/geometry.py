@@ -14,6 +14,7 @@ import functools
 import numpy as np
 
 from gprace.errors import InputError
+from gprace.model.dynamics import State
 
 LOOP_NAME = "h2h_loop"
 
@@ -28,7 +29,7 @@ def border_hits(track, X: np.ndarray, length: float, width: float) -> np.ndarray
     """Boolean (T,) : some footprint corner outside ``[-w_r, w_l]`` for states X (T, 6)."""
     X = np.atleast_2d(X)
     c = corner_offsets(length, width)
-    epsi, ey, s = X[:, 3:4], X[:, 4:5], X[:, 5:6]
+    epsi, ey, s = (X[:, i, None] for i in (State.E_PSI, State.E_Y, State.S))
     lat = ey + c[:, 0] * np.sin(epsi) + c[:, 1] * np.cos(epsi)  # (T, 4)
     sc = s + c[:, 0] * np.cos(epsi) - c[:, 1] * np.sin(epsi)
     return np.any((lat > track.width_left(sc)) | (lat < -track.width_right(sc)), axis=1)
@@ -37,8 +38,9 @@ def border_hits(track, X: np.ndarray, length: float, width: float) -> np.ndarray
 def global_pose(track, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Global ``x, y, psi`` of Frenet states X (T, 6)."""
     X = np.atleast_2d(X)
-    x, y = track.to_global(X[:, 5], X[:, 4])
-    return np.asarray(x), np.asarray(y), np.asarray(track.heading(X[:, 5])) + X[:, 3]
+    s, ey, epsi = X[:, State.S], X[:, State.E_Y], X[:, State.E_PSI]
+    x, y = track.to_global(s, ey)
+    return np.asarray(x), np.asarray(y), np.asarray(track.heading(s)) + epsi
 
 
 def rect_overlap(pa: np.ndarray, pb: np.ndarray, length: float, width: float) -> np.ndarray:

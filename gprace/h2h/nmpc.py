@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gprace.h2h.config import H2HConfig, MPCConfig
-from gprace.model import NominalModel
+from gprace.model import NominalModel, State
 
 NX, NU, NS = 6, 2, 3  # states, inputs, slacks per stage (track, speed, collision)
 N_GLOBAL = 9  # x0 (6), u_prev (2), alpha
@@ -110,7 +110,7 @@ class NMPC:
             g.append(x - F(xk, u, q[KAPPA]))
             lbg += [0.0] * NX
             ubg += [0.0] * NX
-            ey, s, vx = x[4], x[5], x[0]
+            ey, s, vx = x[State.E_Y], x[State.S], x[State.V_X]
             g.append(ey - (q[WL] - c.border_margin) - sl[0])
             g.append(-(q[WR] - c.border_margin) - ey - sl[0])
             g.append(vx - c.speed_soft - sl[1])
@@ -121,7 +121,7 @@ class NMPC:
                 th = q[LIN_TH]
                 px = q[LIN_CX] + ca.cos(th) * dsg - ca.sin(th) * ey
                 py = q[LIN_CY] + ca.sin(th) * dsg + ca.cos(th) * ey
-                psi = th + q[LIN_KAP] * dsg + x[3]
+                psi = th + q[LIN_KAP] * dsg + x[State.E_PSI]
                 co, so = ca.cos(q[OPP_PSI]), ca.sin(q[OPP_PSI])
                 for d in DISK_OFFSETS:
                     rx = px + d * ca.cos(psi) - q[OPP_X]
@@ -141,7 +141,7 @@ class NMPC:
             penalty += c.slack_linear * sl[2] + c.slack_quadratic * sl[2] ** 2
             penalty += c.speed_slack * sl[1] ** 2
             xk, uk_prev = x, u
-        racing -= c.q_progress * (xk[5] - x0[5])
+        racing -= c.q_progress * (xk[State.S] - x0[State.S])
         J = alpha * explore + (1 - alpha) * racing + penalty
         wv = ca.vertcat(*w)
         gv = ca.vertcat(*g)
@@ -190,9 +190,9 @@ class NMPC:
         wv = np.zeros((N, self._stage_w))
         for k in range(N):
             xk = x0[:6].copy()
-            xk[5] = x0[5] + (k + 1) * self.h2h.dt * max(x0[0], 0.3)
-            xk[3] = 0.0
-            xk[1] = xk[2] = 0.0
+            xk[State.S] = x0[State.S] + (k + 1) * self.h2h.dt * max(x0[State.V_X], 0.3)
+            xk[State.E_PSI] = 0.0
+            xk[State.V_Y] = xk[State.YAW_RATE] = 0.0
             wv[k, NU:NU + NX] = xk
         return wv.ravel()
 
@@ -249,7 +249,7 @@ class NMPC:
         N = self.h2h.horizon
         last: Solution | None = self._warm.get("last")
         if last is None:  # nothing to shift: straight wheels, gentle braking down to a crawl
-            brake = self.mpc.accel[0] * 0.5 if x0[0] > 0.2 else 0.0
+            brake = self.mpc.accel[0] * 0.5 if x0[State.V_X] > 0.2 else 0.0
             U = np.tile([0.0, brake], (N, 1))
             X = np.tile(np.asarray(x0, float)[:6], (N + 1, 1))
         else:

@@ -48,7 +48,10 @@ from gprace.h2h.config import H2HConfig
 from gprace.h2h.geometry import border_hits, collisions, global_pose, make_track
 from gprace.h2h.nmpc import NMPC, StageData
 from gprace.h2h.predictors import Context, gap_s, make_predictor
+from gprace.model.dynamics import State
 from gprace.plants.frenet import compiled_step
+
+S, EY = State.S, State.E_Y  # the state entries the race code reads by name
 
 _LOCAL = threading.local()  # per thread (Dask threads): NMPCs hold solver state
 MAX_CONTROLLERS = 4  # configurations kept per thread (a study switches between a few)
@@ -174,16 +177,16 @@ def run_race(task: dict) -> dict:
     for step in range(n_steps):
         ego, opp = Xm[0], Xm[1]
         # ---- opponent: contouring MPC with the blocking term while the ego is behind
-        gap = float(gap_s(track, opp[5], ego[5]))
+        gap = float(gap_s(track, opp[S], ego[S]))
         # blocking while the ego is behind (its centre more than a car length back); alongside,
         # the opponent holds its line instead of steering into the ego
         wblock = cfg.opponent.q_block / (1.0 + gap) ** 2 if gap > cfg.car_length else 0.0
         Go = opp_mpc.guess_states(opp)
-        wl, wr = usable_widths(track, Go[1:, 5])
-        sig_o = Go[1:, 5]
+        wl, wr = usable_widths(track, Go[1:, S])
+        sig_o = Go[1:, S]
         cxo, cyo = track.to_global(sig_o, np.zeros(N))
         ego_cv = cv_ego.predict(Context(track, Go, ego)).mean  # the opponent sees the ego at constant velocity
-        st_o = StageData(kappa=kfun(Go[:-1, 5]), wl=wl, wr=wr, ey_other=np.full(N, ego[4]), w_block=np.full(N, wblock),
+        st_o = StageData(kappa=kfun(Go[:-1, S]), wl=wl, wr=wr, ey_other=np.full(N, ego[EY]), w_block=np.full(N, wblock),
                          lin=np.column_stack([cxo, cyo, track.heading(sig_o), sig_o, kfun(sig_o)]),
                          opp=ellipse_data(track, cfg, extend(ego_cv, N), np.zeros((N, 2))))
         sol_o = opp_mpc.solve(opp, Uprev[1], 0.0, st_o)
@@ -191,7 +194,7 @@ def run_race(task: dict) -> dict:
         Ge = ego_mpc.guess_states(ego)
         pred = predictor.predict(Context(track, Ge, opp, sol_o.X))
         mean, std = extend(pred.mean, N), extend(pred.std, N)
-        sig = Ge[1:, 5]
+        sig = Ge[1:, S]
         cx, cy = track.to_global(sig, np.zeros(N))
         lin = np.column_stack([cx, cy, track.heading(sig), sig, kfun(sig)])
         ref = None
@@ -200,7 +203,7 @@ def run_race(task: dict) -> dict:
             targets.append(explorer.target.copy())
             ref = explorer.reference(track, ego, mean, cfg.ego.border_margin)
         wl, wr = usable_widths(track, sig)
-        st_e = StageData(kappa=kfun(Ge[:-1, 5]), wl=wl, wr=wr, ref=ref,
+        st_e = StageData(kappa=kfun(Ge[:-1, S]), wl=wl, wr=wr, ref=ref,
                          lin=lin, opp=ellipse_data(track, cfg, mean, std))
         sol_e = ego_mpc.solve(ego, Uprev[0], alpha, st_e)
         U = np.vstack([sol_e.U[0], sol_o.U[0]])
@@ -218,16 +221,16 @@ def run_race(task: dict) -> dict:
         if not np.all(np.isfinite(X)):
             end_reason = "diverged"
             break
-        if np.isnan(t_overtake) and gap_s(track, X[1, 5], X[0, 5]) < 0:
+        if np.isnan(t_overtake) and gap_s(track, X[1, S], X[0, S]) < 0:
             t_overtake = t
-        w = track.width_left(X[:, 5]) + track.width_right(X[:, 5])
-        if np.any(np.abs(X[:, 4]) > 0.5 * w + 0.5):
+        w = track.width_left(X[:, S]) + track.width_right(X[:, S])
+        if np.any(np.abs(X[:, EY]) > 0.5 * w + 0.5):
             end_reason = "off_track"
             break
         if not duration and not np.isnan(t_overtake) and t >= t_overtake + cfg.after_overtake - 1e-9:
             end_reason = "overtaken"
             break
-        if not track.closed and np.max(X[:, 5]) >= track.length - cfg.end_margin:
+        if not track.closed and np.max(X[:, S]) >= track.length - cfg.end_margin:
             end_reason = "track_end"
             break
     H = np.array(hist_x)  # (T+1, 2, 6)
