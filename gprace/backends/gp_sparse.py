@@ -161,8 +161,8 @@ class SparseGP(GPBackend):
         return mean
 
     def kernel_form(self):
-        g, pts, WQ, wT = self._groups[0]
-        return self._form(pts, wT, "quad", WQ[:, len(g):])
+        _, pts, _, wT = self._groups[0]
+        return self._form(pts, wT, "quad", self.Q_[0])  # one kernel: Q_[0] is its Q in either file layout
 
     def _state_arrays(self):
         return {"Zu": self.Zu_, "w": self.w_, "Q": self.Q_}
