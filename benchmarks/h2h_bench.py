@@ -68,7 +68,7 @@ def bench_rollout(models: dict[str, Path], reps: int = 200) -> dict:
 def _bench_rollout(models: dict[str, Path], reps: int = 200) -> dict:
     """Per model the compiled rollout (``median_ms``, ``p99_ms``; :mod:`gprace.h2h.fastroll`) and
     the numpy loop it replaces (``numpy_*``), on the same draws."""
-    from gprace.h2h.fastroll import _library
+    from gprace.h2h.fastroll import applies
     from gprace.h2h.geometry import make_track
     from gprace.h2h.predictors import OUTPUTS, read_opponent_gp, sample_paths
 
@@ -92,7 +92,7 @@ def _bench_rollout(models: dict[str, Path], reps: int = 200) -> dict:
         gp, attrs = read_opponent_gp(path)
         fast, slow = times(gp, True), times(gp, False)
         res[name] = {"backend": attrs["backend"], "points": int(attrs.get("n_points", 0)),
-                     "path": "compiled" if _library() is not None and gp.kernel_form() is not None else "numpy",
+                     "path": "compiled" if applies(gp.kernel_form(), track) else "numpy",
                      "median_ms": float(np.median(fast)), "p99_ms": float(np.percentile(fast, 99)),
                      "numpy_median_ms": float(np.median(slow)), "numpy_p99_ms": float(np.percentile(slow, 99)),
                      "target_ms": 3}

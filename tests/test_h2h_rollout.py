@@ -155,14 +155,14 @@ def test_compiled_rollout_equals_the_numpy_loop(backend, kw, kernel, track_spec)
     """One C call (features, mean, variance, update) gives the numpy loop's paths to rounding, on an
     open and a closed track (the gap in s wraps, s passes the start line), several starts at once."""
     from gprace.gp.fastkernel import KernelForm
-    from gprace.h2h.fastroll import _library
+    from gprace.h2h.fastroll import _library, applies
     from gprace.h2h.predictors import sample_paths
 
     if _library() is None:
         pytest.skip("no C compiler: the rollout runs in numpy")
     _, gp = _opponent_gp(backend, kernel, **kw)
     track = make_track(track_spec)
-    assert isinstance(gp.kernel_form(), KernelForm)
+    assert isinstance(gp.kernel_form(), KernelForm) and applies(gp.kernel_form(), track)  # compiled vs numpy, not numpy twice
     rng = np.random.default_rng(9)
     G, n, K = 3, 30, 9
     s0 = track.length - 0.6 if track.closed else 2.0  # a closed track's samples cross s = L

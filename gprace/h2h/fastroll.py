@@ -125,10 +125,9 @@ def rollout(form: KernelForm | None, track, ego: np.ndarray, opp: np.ndarray, n:
     """:func:`~gprace.h2h.predictors.sample_paths` compiled (same arguments, ``form`` for the GP,
     ``look`` the curvature look-ahead, ``idx`` the state index of each output), or None where
     it does not apply: no form, a track without the spline centre line, no C compiler."""
-    poly = getattr(track, "_d12", None)
-    fn = _library() if form is not None and poly is not None else None
-    if fn is None or form.pts.a.shape[1] != 11 or poly.c.shape[-1] != 4:
+    if not applies(form, track):
         return None
+    fn, poly = _library(), track._d12
     K, G = ego.shape[0], opp.shape[0]
     p, M = form.wT.shape
     ego = np.ascontiguousarray(ego, dtype=float)
@@ -145,6 +144,13 @@ def rollout(form: KernelForm | None, track, ego: np.ndarray, opp: np.ndarray, n:
        int(form.kernel != "se"), int(form.variance == "tri"), form.V.ctypes.data, form.z_mean.ctypes.data,
        form.z_div.ctypes.data, form.y_mean.ctypes.data, form.y_scale.ctypes.data, out.ctypes.data, work.ctypes.data)
     return out
+
+
+def applies(form: KernelForm | None, track) -> bool:
+    """Whether :func:`rollout` runs compiled for this GP form and track (else the numpy loop)."""
+    poly = getattr(track, "_d12", None)
+    return (form is not None and poly is not None and form.pts.a.shape[1] == 11 and poly.c.shape[-1] == 4
+            and _library() is not None)
 
 
 @functools.cache

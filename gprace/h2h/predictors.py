@@ -35,7 +35,7 @@ OUTPUTS = ("ds_opp", "dey_opp", "depsi_opp", "dvx_opp", "dyaw_rate_opp")
 OUT_STATE = (State.S, State.E_Y, State.E_PSI, State.V_X, State.YAW_RATE)  # state index of each output
 LOOKAHEAD = (0.0, 0.5, 1.0)
 _LOOKAHEAD = np.asarray(LOOKAHEAD)
-_OPP_FEATURES = [State.E_Y, State.E_PSI, State.V_X, State.YAW_RATE]  # the opponent's own features
+_OPP_FEATURES = np.array([State.E_Y, State.E_PSI, State.V_X, State.YAW_RATE])  # the opponent's own features (an index array: no enum conversion per call)
 CONTROLLABLE = (0, 3)  # gap in e_y and gap in s: the features the ego can steer
 FEATURE_MAP = "opponent"
 
