@@ -83,6 +83,11 @@ def test_tuned_solve_agrees_with_a_tight_reference(curvy, monkeypatch):
     tuned, states = _solves(NMPC(_model(), CFG.ego, CFG, collision=True), curvy)
     monkeypatch.setattr(nmpc, "IPOPT_OPTIONS", REFERENCE)
     ref, _ = _solves(NMPC(_model(), CFG.ego, CFG, collision=True), curvy, states)
-    for a, b in zip(tuned, ref):  # measured: at most 1.4e-3 m (the first, cold solve), then < 6e-4
+    # per state [v_x, v_y, yaw_rate, e_psi, e_y, s]: the planned path within 2 mm and 5 mrad of
+    # the tight solution, speeds within 5 mm/s, the yaw rate (no cost weighs it) within 0.03 rad/s.
+    # Measured with one acceptable iterate ending the solve: inputs 3.6e-3, yaw rate 0.016, e_y
+    # 0.4 mm at most (with three acceptable iterates, ten times less)
+    tol = np.array([5e-3, 5e-3, 0.03, 5e-3, 2e-3, 2e-3])
+    for a, b in zip(tuned, ref):
         assert np.max(np.abs(a.U - b.U)) < 5e-3
-        assert np.max(np.abs(a.X - b.X)) < 5e-3
+        assert np.all(np.abs(a.X - b.X) < tol)
