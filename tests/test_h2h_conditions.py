@@ -110,6 +110,18 @@ def test_a_noisy_race_sees_the_measured_states_and_is_deterministic():
     assert not np.allclose(quiet["arrays"]["opp"], a["arrays"]["opp"])  # process noise moved the cars
 
 
+def test_a_race_ends_on_the_one_stop_rule():
+    """Process noise throws the cars off the track, or turns them across it: the race ends at once
+    and says which (gprace.sim.stop)."""
+    from gprace.h2h.race import run_race
+
+    task = {"track": {"kind": "random", "seed": 3, "stretches": 1, "width": 0.75}, "seed": 11, "predictor": "cv"}
+    off = run_race({**task, "config": {"max_time": 2.0, "process_std": [0, 0, 0, 0, 3.0, 0]}})["attrs"]
+    spun = run_race({**task, "config": {"max_time": 2.0, "process_std": [0, 0, 0, 3.0, 0, 0]}})["attrs"]
+    assert (off["end_reason"], spun["end_reason"]) == ("off_track", "spun")
+    assert off["steps"] < 5 and spun["steps"] < 5
+
+
 def _synthetic(rng, n: int, K: int = 3):
     """Errors whose true std is 3 x the predicted one (an over-confident predictor)."""
     std = rng.uniform(0.01, 0.05, size=(2, K, n))

@@ -223,7 +223,7 @@ def test_border_hits_is_the_footprint_against_the_edges(circle_track):
 
 
 def test_one_stop_rule_names_off_track_spin_and_stall():
-    from gprace.sim.stop import SPIN_EPSI, stop_reason
+    from gprace.sim.stop import SPIN_EPSI, stop_kind, stop_reason
 
     ok = np.array([20.0, 0.5, 0.1, 0.2, 1.0, 100.0])
     assert stop_reason(ok, 5.0, 5.0, 2.0, 1.0) == ""
@@ -239,3 +239,7 @@ def test_one_stop_rule_names_off_track_spin_and_stall():
     slow = ok.copy()
     slow[0] = 0.9
     assert "stalled" in stop_reason(slow, 5.0, 5.0, 2.0, 1.0)
+    # the kinds the race records; without a stall speed a standing car goes on
+    assert [stop_kind(x, 5.0, 5.0, 2.0, 1.0) for x in (ok, off, spin, slide, slow)] == [
+        "", "off_track", "spun", "spun", "stalled"]
+    assert stop_kind(slow * [0, 1, 1, 1, 1, 1], 5.0, 5.0, 2.0) == ""

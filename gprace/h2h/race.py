@@ -16,7 +16,8 @@ Starts (REFERENCE.md): opponent ``s`` in [0.9, 1.2] m, ego in [0.2, 0.4] m, late
 shifted by a random arc length. The plant integrates both cars with RK4 and 10 sub-steps per
 0.1 s (the frenet plant's compiled step, curvature re-evaluated at every stage). The race ends
 1.5 s after the ego's centre passes the opponent's, when a car reaches the end of an open track,
-when a car leaves the track by more than half a metre, or at ``max_time``.
+when a car leaves the track or spins (the stop rule of :mod:`gprace.sim.stop`: more than two car
+widths outside a border, ``|e_psi| > 1.2``), or at ``max_time``.
 
 The opponent avoids the ego too (the same soft ellipse constraint, around the ego's constant-velocity
 prediction): a blocker steers across the ego's path but does not drive into it.
@@ -50,6 +51,7 @@ from gprace.h2h.nmpc import NMPC, StageData
 from gprace.h2h.predictors import Context, gap_s, make_predictor
 from gprace.model.dynamics import State
 from gprace.plants.frenet import compiled_step
+from gprace.sim.stop import stop_kind
 
 S, EY = State.S, State.E_Y  # the state entries the race code reads by name
 
@@ -223,9 +225,10 @@ def run_race(task: dict) -> dict:
             break
         if np.isnan(t_overtake) and gap_s(track, X[1, S], X[0, S]) < 0:
             t_overtake = t
-        w = track.width_left(X[:, S]) + track.width_right(X[:, S])
-        if np.any(np.abs(X[:, EY]) > 0.5 * w + 0.5):
-            end_reason = "off_track"
+        # a car left the track or spun: the one stop rule (no stall speed: a blocked car may stand)
+        stop = [stop_kind(x, float(track.width_left(x[S])), float(track.width_right(x[S])), cfg.car_width) for x in X]
+        if any(stop):
+            end_reason = next(k for k in stop if k)
             break
         if not duration and not np.isnan(t_overtake) and t >= t_overtake + cfg.after_overtake - 1e-9:
             end_reason = "overtaken"

@@ -1,4 +1,5 @@
-"""The one stop rule of a driven car: off the track, spun, or stalled (simulate, the time-trial drive).
+"""The one stop rule of a driven car: off the track, spun, or stalled (simulate, the time-trial
+drive, the head-to-head race).
 
 A run ends early when the car's centre is more than two car widths outside a border, when it has
 spun (``|e_psi| > SPIN_EPSI`` or ``|v_y| > SPIN_SLIP |v_x| + SPIN_SLIP_OFFSET``) or when ``v_x``
@@ -18,16 +19,29 @@ SPIN_SLIP = 0.6  # |v_y| / |v_x|
 SPIN_SLIP_OFFSET = 2.0  # m/s
 
 
-def stop_reason(x: np.ndarray, width_left: float, width_right: float, car_width: float, v_stall: float) -> str:
-    """Why a car in state ``x`` (6,) must stop ("" if it may go on), in words naming where."""
-    vx, vy, epsi, ey, s = (x[i] for i in (State.V_X, State.V_Y, State.E_PSI, State.E_Y, State.S))
+def stop_kind(x: np.ndarray, width_left: float, width_right: float, car_width: float,
+              v_stall: float = -np.inf) -> str:
+    """Why a car in state ``x`` (6,) must stop: "" (it may go on), "off_track", "spun" or "stalled"."""
+    vx, vy, epsi, ey = (x[i] for i in (State.V_X, State.V_Y, State.E_PSI, State.E_Y))
     if ey > width_left + 2 * car_width or ey < -width_right - 2 * car_width:
-        return f"the car left the track at s = {s:.1f} m (e_y = {ey:.2f} m)"
+        return "off_track"
     if abs(epsi) > SPIN_EPSI or abs(vy) > SPIN_SLIP * abs(vx) + SPIN_SLIP_OFFSET:
-        return f"the car spun at s = {s:.1f} m (e_psi = {epsi:.2f} rad, v_y = {vy:.1f} m/s)"
+        return "spun"
     if vx < v_stall:
-        return f"the car stalled at s = {s:.1f} m (v_x = {vx:.2f} m/s)"
+        return "stalled"
     return ""
+
+
+def stop_reason(x: np.ndarray, width_left: float, width_right: float, car_width: float, v_stall: float) -> str:
+    """:func:`stop_kind` in words naming where ("" if the car may go on)."""
+    kind = stop_kind(x, width_left, width_right, car_width, v_stall)
+    vx, vy, epsi, ey, s = (x[i] for i in (State.V_X, State.V_Y, State.E_PSI, State.E_Y, State.S))
+    return {
+        "": "",
+        "off_track": f"the car left the track at s = {s:.1f} m (e_y = {ey:.2f} m)",
+        "spun": f"the car spun at s = {s:.1f} m (e_psi = {epsi:.2f} rad, v_y = {vy:.1f} m/s)",
+        "stalled": f"the car stalled at s = {s:.1f} m (v_x = {vx:.2f} m/s)",
+    }[kind]
 
 
 def run_end(track, plant, car_width: float, v_stall: float, goal: float, steps: int, max_steps: int,
