@@ -11,17 +11,7 @@ drawn with matplotlib's Agg canvas (no display, no global pyplot state). Heavy i
 inside functions so ``gprace --help`` stays fast.
 """
 
-__all__ = ["build_report", "describe", "open_artifact"]
+from gprace._lazy import lazy_face
 
-
-def __getattr__(name: str):
-    # lazy: `gprace --help` imports the commands module of this package, which must stay light
-    if name in ("describe", "open_artifact"):
-        from gprace.report import inspect
-
-        return getattr(inspect, name)
-    if name == "build_report":
-        from gprace.report.html import build_report
-
-        return build_report
-    raise AttributeError(name)
+# lazy: `gprace --help` imports this package
+__all__, __getattr__ = lazy_face(__name__, {"inspect": "describe open_artifact", "html": "build_report"})

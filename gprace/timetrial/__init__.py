@@ -1,1 +1,19 @@
-"""Time trial: driving plans with the tracking MPC, exploration, the iterative double-GP loop."""
+"""Time trial: driving plans with the tracking MPC, exploration, the iterative double-GP loop.
+
+Public surface::
+
+    from gprace.timetrial import DriveSettings, IterateSettings, iterate_many, read_record, load_predictor
+
+The stage functions are named like their modules: ``gprace.timetrial.drive.drive``,
+``gprace.timetrial.iterate.iterate``, ``gprace.timetrial.compare.compare``.
+
+:mod:`~gprace.timetrial.drive` (one run of a plan), :mod:`~gprace.timetrial.learning` (the GP
+compensation of the tracking MPC), :mod:`~gprace.timetrial.grip` (the friction envelope the plan may
+use), :mod:`~gprace.timetrial.iterate` (the paper's loop, resumable), :mod:`~gprace.timetrial.compare`
+and :mod:`~gprace.timetrial.commands` (CLI).
+"""
+
+from gprace._lazy import lazy_face
+
+__all__, __getattr__ = lazy_face(__name__, {
+    "drive": "DriveSettings", "iterate": "iterate_many IterateSettings read_record", "learning": "load_predictor"})
