@@ -85,6 +85,16 @@ def resample(sig: Signal, tg: np.ndarray, dt: float, max_gap: float | None, hold
     return val, ok
 
 
+def _measured_or_rate(vals: dict, name: str, of: np.ndarray, valid: np.ndarray, dt: float, notes: list[str],
+                      what: str) -> tuple[np.ndarray, np.ndarray]:
+    """The recorded channel ``name``, or the rate of change of ``of`` (noted; valid where defined)."""
+    if name in vals:
+        return vals[name], valid
+    rate, ok = seg_gradient(of, valid, dt)
+    notes.append(f"no {name}: from {what}")
+    return rate, valid & ok
+
+
 def seg_gradient(v: np.ndarray, valid: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """d v / dt on a uniform grid by central differences inside valid runs, one-sided at their
     ends; never across an invalid sample. Returns the derivative and where it is defined."""
@@ -221,22 +231,9 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
         v_x, v_y = c * vxw + s_ * vyw, -s_ * vxw + c * vyw
         valid = valid & okx & oky
         notes.append("no velocities: from successive positions")
-    if "yaw_rate" in vals:
-        yaw_rate = vals["yaw_rate"]
-    else:
-        yaw_rate, ok = seg_gradient(yaw, valid, dt)
-        valid &= ok
-        notes.append("no yaw_rate: from the heading")
-    if "delta" in vals:
-        delta = vals["delta"]
-    else:
-        delta = vals["steering_wheel"] / rmap.steering_ratio
-    if "a_x" in vals:
-        a_x = vals["a_x"]
-    else:
-        a_x, ok = seg_gradient(v_x, valid, dt)
-        valid &= ok
-        notes.append("no a_x: from the change of v_x")
+    yaw_rate, valid = _measured_or_rate(vals, "yaw_rate", yaw, valid, dt, notes, "the heading")
+    delta = vals["delta"] if "delta" in vals else vals["steering_wheel"] / rmap.steering_ratio
+    a_x, valid = _measured_or_rate(vals, "a_x", v_x, valid, dt, notes, "the change of v_x")
     origin = {q: S[q].origin for q in S}
     gs = GlobalState(tg, x, y, yaw, v_x, v_y, yaw_rate, delta, a_x, valid, notes, origin)
     if rmap.check_units:

@@ -441,6 +441,18 @@ def _nearest_plan(run_path: Path, found: Found) -> Path | None:
 
 # ----------------------------------------------------------------------------------------------
 # head-to-head
+
+def _first_race(paths: list[Path]):
+    """(path, artifact) of the first readable race record that finished and holds the ego's states."""
+    for p in paths:
+        try:
+            art = open_artifact(p, "h2h_run")
+        except UNREADABLE:
+            continue
+        if art.attrs.get("ok", True) and "ego" in art.arrays:
+            return p, art
+    return None
+
 def h2h_section(found: Found, max_error_samples: int = 20) -> Section | None:
     tables = found.of("h2h_table")
     records = found.of("h2h_run")
@@ -477,29 +489,12 @@ def h2h_section(found: Found, max_error_samples: int = 20) -> Section | None:
                                                "overtake time [s]", "e_y error 1-step [m]", "e_y error last step [m]"], rows)))
     else:
         sec.missing.append("no table.json (the evaluation did not finish): no results table or error curves")
-    ok = []
     evals = [p for p in records if "eval" in p.relative_to(found.root).parts]
-    # prefer a race of the exploring predictor, else the first evaluation race
+    # prefer a race of the exploring predictor, else the first evaluation race, else any race
     evals = sorted(evals, key=lambda q: ("explore" not in q.parent.name, str(q)))[:20]
-    for p in evals:
-        try:
-            art = open_artifact(p, "h2h_run")
-        except UNREADABLE:
-            continue
-        if art.attrs.get("ok", True) and "ego" in art.arrays:
-            ok.append((p, art))
-            break
-    if not ok:
-        for p in records[:20]:
-            try:
-                art = open_artifact(p, "h2h_run")
-            except UNREADABLE:
-                continue
-            if art.attrs.get("ok", True) and "ego" in art.arrays:
-                ok.append((p, art))
-                break
-    if ok:
-        p, art = ok[-1]
+    shown = _first_race(evals) or _first_race(records[:20])
+    if shown:
+        p, art = shown
         from gprace.report.single import h2h_track
 
         track = h2h_track(art.attrs)

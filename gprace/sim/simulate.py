@@ -54,9 +54,7 @@ def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Ru
         x = plant.state
         Y[k], X[k], U[k], lap[k] = y, x, u, plant.lap
         k += 1
-        end = run_end(track, plant, vehicle.width, v_stall, goal, k, n_max, "no progress to the goal")
-        if end is not None:
-            reason = end
+        if (reason := run_end(track, plant, vehicle.width, v_stall, goal, k, n_max, "no progress to the goal")) is not None:
             break
         y = plant.step(u)
 

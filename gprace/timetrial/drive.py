@@ -81,9 +81,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         cols["explore"][k] = float(mpc.last_target is not None and info.get("explored", False))
         cols["gamma"][k] = float(info["gamma"][0]) if len(info["gamma"]) else 0.0
         k += 1
-        end = run_end(track, plant, vehicle.width, v_stall, goal, k, n_max, "no lap")
-        if end is not None:
-            reason = end
+        if (reason := run_end(track, plant, vehicle.width, v_stall, goal, k, n_max, "no lap")) is not None:
             break
         y = plant.step(u)
     data = {
