@@ -151,7 +151,6 @@ def main() -> None:
         st = P.Settings(tracks=a.tracks, runs=a.runs, init_runs=a.init_runs, explore_minutes=a.explore_minutes,
                         episode_seconds=a.episode_seconds, explore_width=a.explore_width, dict_size=a.dict_size,
                         workers=a.workers, resume=True)
-        st.check()
         stages = {}
         t0 = time.perf_counter()
         paths = P.models(st, out)

@@ -13,7 +13,7 @@ import json
 import math
 import tomllib
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -45,6 +45,37 @@ class Frozen(BaseModel):
 
     def to_toml(self) -> str:
         return dumps_toml(self.model_dump(mode="json", exclude_none=True))
+
+
+class CommandSettings(Frozen):
+    """Settings a command builds from its options: frozen, validated once when built, and a bad
+    value is an :class:`~gprace.errors.InputError` (exit 2) naming the option (``--dict-size``).
+
+    A field's option is ``--`` and its name with dashes unless ``OPTIONS`` says otherwise; checks
+    across fields live in ``model_validator(mode="after")`` methods that raise ``ValueError`` with
+    the options named in the message.
+    """
+
+    OPTIONS: ClassVar[dict[str, str]] = {}
+
+    def __init__(self, **data: Any) -> None:
+        try:
+            super().__init__(**data)
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            msg = err["msg"].removeprefix("Value error, ")
+            if not err["loc"]:  # a check across fields names its options itself
+                raise InputError(msg) from None
+            name = str(err["loc"][0])
+            option = self.OPTIONS.get(name, "--" + name.replace("_", "-"))
+            if err["type"] == "extra_forbidden":
+                raise InputError(f"{option}: unknown setting") from None
+            bound = {"greater_than_equal": ">=", "greater_than": ">", "less_than_equal": "<=", "less_than": "<"}
+            ctx = err.get("ctx") or {}
+            if err["type"] in bound:
+                limit = next(iter(ctx.values()))
+                raise InputError(f"{option} must be {bound[err['type']]} {limit}, got {err['input']!r}") from None
+            raise InputError(f"{option}: {msg}, got {err.get('input')!r}") from None
 
 
 class TireConfig(Frozen):

@@ -133,7 +133,7 @@ def test_failed_run_is_recorded_skipped_and_resumed(tmp_path):
         calls.append(task["seed"])
         return P.race_with_data(task)
 
-    st.resume = True
+    st = st.model_copy(update={"resume": True})
     again = P.run_tasks(tasks, tmp_path / "runs", st, "test", fn=counting)
     assert calls == [tasks[1]["seed"]]
     np.testing.assert_array_equal(again[0]["arrays"]["ego"], recs[0]["arrays"]["ego"])
@@ -180,7 +180,7 @@ def test_zero_tracks(capsys):
     assert main(["eval", "head2head", "--tracks", "0", "--out", "/tmp/unused_h2h"]) == 2
     assert "--tracks must be >= 1" in capsys.readouterr().err
     with pytest.raises(InputError):
-        P.Settings(tracks=0).check()
+        P.Settings(tracks=0)
 
 
 def test_exploration_width_outside_the_loop_validity(capsys, tmp_path):

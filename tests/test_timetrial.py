@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from gprace.errors import ConfigError, RunFailedError
+from gprace.errors import InputError, RunFailedError
 from gprace.timetrial.iterate import IterateSettings, Steps, build_summary, iterate, jsonable
 
 pytest.importorskip("gprace.gp")
@@ -60,12 +60,10 @@ def test_iterate_resumes_after_kill(tmp_path, monkeypatch):
 
 
 def test_iterate_rejects_bad_settings(tmp_path):
-    with pytest.raises(ConfigError, match=r"\[0, 1\]"):
-        iterate(IterateSettings(alphas=(1.5,)), tmp_path / "x")
+    with pytest.raises(InputError, match=r"--alpha: values must be in \[0, 1\]"):
+        IterateSettings(alphas=(1.5,))  # validated once, where it is built
     iterate_settings = IterateSettings(alphas=(0.0,), iterations=1, trials=1, track="circle_100")
     (tmp_path / "y").mkdir()
     (tmp_path / "y" / "settings.json").write_text(json.dumps({"alphas": [0.3]}))
-    from gprace.errors import InputError
-
     with pytest.raises(InputError, match="other settings"):
         iterate(iterate_settings, tmp_path / "y")

@@ -54,7 +54,6 @@ def _settings(out: Path, **kw):
         kw["raced"] = tuple(p.strip() for p in raced.split(",") if p.strip())
     st = Settings(**kw)
     check_execution(st.executor, st.workers, st.scheduler)
-    st.check()
     check_folder(out)
     return st
 

@@ -72,13 +72,14 @@ exploration GP's dictionary; GPs with more than ``exact_max`` points use the ``s
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 import numpy as np
+from pydantic import Field, model_validator
 
-from gprace.config import config_hash
+from gprace.config import CommandSettings, config_hash
 from gprace.errors import ConfigError, InputError
 from gprace.h2h.config import opponent_mpc
 from gprace.h2h.predictors import FEATURE_MAP, FEATURES, OUTPUTS
@@ -118,85 +119,67 @@ VALIDATION_POINTS = 1000
 QUALITY_VERSION = 2  # models fitted before the quality reports are refitted (and checked)
 
 
-@dataclass
-class Settings:
-    tracks: int = 100
-    runs: int = 500
-    init_runs: int = 20
-    explore_minutes: float = 10.0
-    episode_seconds: float = 60.0
-    explore_width: float | None = None  # None: the racing width (``width``); the loop's own is 1.5 m
-    alpha: float = 0.9
-    dict_size: int = 600
-    points_per_run: int = 10
-    stretches: int = 5
-    width: float = 0.75
-    raced: tuple[str, ...] = RACED
-    offline: tuple[str, ...] = OFFLINE
-    backend: str = "auto"
-    exact_max: int = 1500
-    inducing: int = 200
-    optimize: bool = True
-    samples: int = 50
-    max_time: float = 60.0
-    # conditions of the comparison (issue 17)
-    sensor_noise: float = 1.0  # scale of SENSOR_STD (0: noiseless)
-    process_noise: float = 1.0  # scale of PROCESS_STD (0: noiseless)
-    baseline_tracks: str = "eval"  # eval | training
-    blocking_weight: float = BLOCKING_WEIGHT
-    calib_runs: int = 20
-    calib_passes: int = 3  # at most this many driven calibration passes (:func:`calibrate`)
-    config: dict = field(default_factory=dict)
-    # execution (not part of any result)
-    workers: int = 1
-    executor: str = "local"
-    scheduler: str | None = None
-    resume: bool = False
-    seeds: tuple[int, ...] = (0,)  # chains of the whole protocol (``--seeds``)
-    seed: int = 0  # the chain being run (set per chain by :func:`head2head`)
+class Settings(CommandSettings):
+    """The protocol of ``gprace eval head2head`` (defaults: the paper's comparison, REFERENCE.md)."""
 
-    def check(self) -> None:
+    OPTIONS: ClassVar[dict[str, str]] = {"backend": "--gp-backend", "raced": "--predictors", "config": "--config"}
+
+    tracks: int = Field(100, ge=1, description="evaluation tracks (one race per predictor on each)")
+    runs: int = Field(500, ge=1, description="collection races of the baseline's data")
+    init_runs: int = Field(20, ge=1, description="collection races of the exploration's first GP")
+    explore_minutes: float = Field(10.0, gt=0, description="simulated minutes of active exploration")
+    episode_seconds: float = Field(60.0, gt=0, description="length of one exploration episode [s]")
+    explore_width: float | None = Field(None, description="width of the exploration loop [m]; None: the racing "
+                                        "width (``width``)")
+    alpha: float = Field(0.9, ge=0, le=1, description="exploration weight of the exploring ego")
+    dict_size: int = Field(600, ge=2, description="points of the exploration's GP dictionary")
+    points_per_run: int = Field(10, ge=1, description="training points drawn from each collection race")
+    stretches: int = Field(5, ge=1, description="random stretches of an evaluation track")
+    width: float = Field(0.75, description="track width [m]")
+    raced: tuple[str, ...] = Field(RACED, description="predictors whose egos race the evaluation tracks")
+    offline: tuple[str, ...] = Field(OFFLINE, description="predictors whose open-loop errors are measured")
+    backend: str = Field("auto", description="GP backend: exact | sparse | auto (sparse above exact_max points)")
+    exact_max: int = Field(1500, ge=1, description="most points the exact GP takes with backend auto")
+    inducing: int = Field(200, ge=1, description="inducing points of the sparse GP")
+    optimize: bool = Field(True, description="fit the GP hyperparameters (False: the defaults)")
+    samples: int = Field(50, ge=1, description="samples of the GP opponent rollout")
+    max_time: float = Field(60.0, gt=0, description="longest race [s]")
+    # conditions of the comparison (issue 17)
+    sensor_noise: float = Field(1.0, ge=0, allow_inf_nan=False, description="scale of SENSOR_STD (0: noiseless)")
+    process_noise: float = Field(1.0, ge=0, allow_inf_nan=False, description="scale of PROCESS_STD (0: noiseless)")
+    baseline_tracks: str = Field("eval", description="where the baseline's races run: " + " | ".join(BASELINE_TRACKS))
+    blocking_weight: float = Field(BLOCKING_WEIGHT, ge=0, allow_inf_nan=False, description="the opponent's Q_block")
+    calib_runs: int = Field(20, ge=1, description="races of each calibration pass")
+    calib_passes: int = Field(3, ge=1, description="at most this many driven calibration passes (:func:`calibrate`)")
+    config: dict = Field(default_factory=dict, description="H2HConfig entries of the races")
+    # execution (not part of any result)
+    workers: int = Field(1, ge=1, description="parallel workers")
+    executor: str = Field("local", description="local | dask")
+    scheduler: str | None = Field(None, description="address of a Dask scheduler")
+    resume: bool = Field(False, description="reuse the records already written")
+    seeds: tuple[int, ...] = Field((0,), description="chains of the whole protocol (``--seeds``)")
+    seed: int = Field(0, description="the chain being run (set per chain by :func:`head2head`)")
+
+    @model_validator(mode="after")
+    def _check(self) -> Settings:
         if not self.seeds or min(self.seeds) < 0 or len(set(self.seeds)) != len(self.seeds):
-            raise InputError(f"--seeds: a list of distinct seeds >= 0, got {list(self.seeds)}")
-        if self.tracks < 1:
-            raise InputError(f"--tracks must be >= 1, got {self.tracks}")
-        if self.runs < 1 or self.init_runs < 1:
-            raise InputError(f"--runs and --init-runs must be >= 1, got {self.runs} and {self.init_runs}")
+            raise ValueError(f"--seeds: a list of distinct seeds >= 0, got {list(self.seeds)}")
         if self.init_runs > self.runs:
-            raise InputError(f"--init-runs ({self.init_runs}) cannot exceed --runs ({self.runs})")
-        if not 0.0 <= self.alpha <= 1.0:
-            raise InputError(f"--alpha must be in [0, 1], got {self.alpha}")
-        if self.explore_minutes <= 0 or self.episode_seconds <= 0:
-            raise InputError("--explore-minutes and --episode-seconds must be positive")
+            raise ValueError(f"--init-runs ({self.init_runs}) cannot exceed --runs ({self.runs})")
         if self.explore_width is not None:
             from gprace.h2h.geometry import loop_track
 
             try:
                 loop_track(float(self.explore_width))  # the loop's own validity check, before any work
             except InputError as exc:
-                raise InputError(f"--explore-width: {exc}") from None
-        if self.dict_size < 2:
-            raise InputError(f"--dict-size must be >= 2, got {self.dict_size}")
+                raise ValueError(f"--explore-width: {exc}") from None
         from gprace.h2h.config import H2HConfig
 
         car = 2.0 * H2HConfig().ego.border_margin
         if not self.width > car:
-            raise InputError(f"--width must exceed {car:g} m (the car's footprint kept inside the borders), got {self.width}")
-        for name, v in (("--points-per-run", self.points_per_run), ("--stretches", self.stretches),
-                        ("--exact-max", self.exact_max), ("--inducing", self.inducing), ("--samples", self.samples),
-                        ("--workers", self.workers)):
-            if v < 1:
-                raise InputError(f"{name} must be >= 1, got {v}")
-        if not self.max_time > 0:
-            raise InputError(f"--max-time must be positive, got {self.max_time}")
-        for name, v in (("--sensor-noise", self.sensor_noise), ("--process-noise", self.process_noise),
-                        ("--blocking-weight", self.blocking_weight)):
-            if not (np.isfinite(v) and v >= 0):
-                raise InputError(f"{name} must be a finite number >= 0, got {v}")
+            raise ValueError(f"--width must exceed {car:g} m (the car's footprint kept inside the borders), got {self.width}")
         if self.baseline_tracks not in BASELINE_TRACKS:
-            raise InputError(f"--baseline-tracks must be one of {', '.join(BASELINE_TRACKS)}, got {self.baseline_tracks!r}")
-        if self.calib_runs < 1 or self.calib_passes < 1:
-            raise InputError(f"--calib-runs and --calib-passes must be >= 1, got {self.calib_runs} and {self.calib_passes}")
+            raise ValueError(f"--baseline-tracks must be one of {', '.join(BASELINE_TRACKS)}, got {self.baseline_tracks!r}")
         if self.backend != "auto":
             from gprace.backends import gps
 
@@ -207,6 +190,7 @@ class Settings:
                 from gprace.errors import UnknownBackendError
 
                 raise UnknownBackendError(f"unknown predictor {p!r}; available: {', '.join(sorted(known))}")
+        return self
 
     def race_config(self) -> dict:
         """The races' :class:`H2HConfig` entries; a condition at its noiseless / default value adds
@@ -394,7 +378,7 @@ def calib_tasks(st: Settings, predictor: str = "oracle", model: Path | None = No
         return [{"id": f"calib-{sd - base}", "track": _track_spec(st, sd), "seed": sd, "predictor": "oracle",
                  "config": st.race_config()} for sd in seeds]
     return [{**t, "id": f"calib-{predictor}-{sd - base}", "track": _track_spec(st, sd), "seed": sd}
-            for t, sd in zip(eval_tasks(replace(st, tracks=len(seeds)), predictor, model, calibration), seeds)]
+            for t, sd in zip(eval_tasks(st.model_copy(update={'tracks': len(seeds)}), predictor, model, calibration), seeds)]
 
 
 def collect(st: Settings, out: Path) -> dict[str, Path]:
@@ -412,13 +396,13 @@ def collect(st: Settings, out: Path) -> dict[str, Path]:
     if _cached(paths["collect"], key) and _cached(paths["init"], key_init) and _cached(paths["validation"], key_val):
         return paths
     # the datasets are reused whatever --resume says; so are the finished runs behind them
-    reuse = replace(st, resume=True) if _cached(paths["collect"], key) else st
+    reuse = st.model_copy(update={'resume': True}) if _cached(paths["collect"], key) else st
     recs = run_tasks(tasks, out / "collect" / "runs", reuse, "collect")
     Z, Y, R = dataset_from_records(recs, st.points_per_run)
     n_failed = sum(not r["attrs"].get("ok") for r in recs)
     _write_dataset(paths["collect"], Z, Y, R, key, {"runs": len(recs), "failed": n_failed, "source": "collect"})
     if own_init:
-        init_reuse = replace(st, resume=True) if _cached(paths["init"], key_init) else st
+        init_reuse = st.model_copy(update={'resume': True}) if _cached(paths["init"], key_init) else st
         Zi, Yi, Ri = dataset_from_records(run_tasks(init_tasks, out / "init" / "runs", init_reuse, "collect init"),
                                           st.points_per_run)
     else:
@@ -825,7 +809,7 @@ def table(st: Settings, raced: dict[str, list[dict]], errors: dict[str, np.ndarr
     for p, E in errors.items():
         err[p] = {"mean": E.mean(axis=1).tolist() if E.shape[1] else [], "std": E.std(axis=1).tolist() if E.shape[1] else [],
                   "points": int(E.shape[1])}
-    return {"settings": {k: v for k, v in asdict(st).items() if k not in ("workers", "executor", "scheduler", "resume")},
+    return {"settings": {k: v for k, v in st.model_dump(mode="json").items() if k not in ("workers", "executor", "scheduler", "resume")},
             "conditions": st.conditions(), "common_inside": int(inside.sum()), "racing": rows, "ey_error": err}
 
 
@@ -865,10 +849,9 @@ def head2head(st: Settings, out: Path) -> dict:
     ``spread`` (every figure over seeds and its bootstrap interval over tracks) and ``claims``."""
     from gprace.h2h.spread import summarise
 
-    st.check()
     tables, data, fits = {}, [], {}
     for s in st.seeds:
-        tab, td, fit = run_chain(replace(st, seed=s), chain_dir(out, s))
+        tab, td, fit = run_chain(st.model_copy(update={'seed': s}), chain_dir(out, s))
         tables[str(s)], fits[str(s)] = tab, fit
         data.append(td)
     spread = summarise(data)

@@ -212,7 +212,6 @@ def register(app: typer.Typer) -> None:
         st = IterateSettings(alphas=_floats(alpha, "--alpha"), iterations=iterations, trials=trials, selection=selection,
                              plant=plant, track=track, vehicle=vehicle, dictionary_size=dictionary, solver=solver, seed=seed,
                              features=features, grip=grip)
-        st.check()
         from gprace.executor import check_execution
 
         check_execution(executor, workers, scheduler)
@@ -245,7 +244,6 @@ def register(app: typer.Typer) -> None:
 
         st = IterateSettings(iterations=iterations, trials=trials, plant=plant, track=track, vehicle=vehicle,
                              dictionary_size=dictionary, seed=seed, features=features)
-        st.check()
         from gprace.executor import check_execution
 
         check_execution(executor, workers, scheduler)

@@ -43,71 +43,69 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
+from pydantic import Field, model_validator
 
+from gprace.config import CommandSettings
 from gprace.console import console, jsonable
-from gprace.errors import ConfigError, InputError, RunFailedError, SolverError
+from gprace.errors import InputError, RunFailedError, SolverError
 
-@dataclass(frozen=True)
-class IterateSettings:
-    alphas: tuple[float, ...] = (0.857, 0.714, 0.0)
-    iterations: int = 7
-    trials: int = 3
-    selection: str = "diverse"
-    plant: str = "audi_hidden"
-    track: str = "gprace_ring"
-    vehicle: str = "audi_tt_cup"
-    dictionary_size: int = 1000
-    max_fit_points: int = 300
-    plan_ds: float = 6.0
-    first_speed_scale: float = 0.7
-    plan_grip: float = 1.0           # cap of the widened ellipse: share of the nominal model's limits
-    widen: float = 0.05              # widening of the measured envelope per clean lap
-    features: str = "full"           # GP inputs: "full" or "paper" (gprace.gp.features.DYN_FEATURE_SETS)
-    grip: bool = True                # rear-slip constraint in the tracking MPC
-    oracle: bool = True              # plan and drive the oracle lap (frenet plants)
-    solver: str = "clarabel"
-    beta: float = 0.6
-    laps: float = 1.0
-    seed: int = 0
-    grid_values: int = 7
-    heldout_laps: float = 1.0
-    heldout_weave: float = 0.7
-    calib_weave: float = 0.4         # weave of the calibration run [m]; 0: leave-one-out calibration only
+class IterateSettings(CommandSettings):
+    """The iterative double-GP time trial (``gprace iterate``; defaults: the paper's schedule)."""
+
+    OPTIONS: ClassVar[dict[str, str]] = {"alphas": "--alpha", "dictionary_size": "--dictionary"}
+
+    alphas: tuple[float, ...] = Field((0.857, 0.714, 0.0), description="exploration weight of iteration 1, 2, ...; "
+                                      "the last holds for the rest")
+    iterations: int = Field(7, ge=1, description="GP iterations after the nominal iteration 0")
+    trials: int = Field(3, ge=1, description="independent repetitions")
+    selection: str = Field("diverse", description="how the dictionary keeps points: diverse | random")
+    plant: str = Field("audi_hidden", description="the plant driven (shipped name or TOML path)")
+    track: str = Field("gprace_ring", description="track: shipped name or a TUM CSV/TOML path")
+    vehicle: str = Field("audi_tt_cup", description="the nominal model's vehicle")
+    dictionary_size: int = Field(1000, ge=10, description="points of each GP's dictionary")
+    max_fit_points: int = Field(300, ge=1, description="points the hyperparameter fit uses at most")
+    plan_ds: float = Field(6.0, gt=0, description="arc-length step of the planner [m]")
+    first_speed_scale: float = Field(0.7, gt=0, le=1, description="speed scale of the first, GP-free plan")
+    plan_grip: float = Field(1.0, gt=0, description="cap of the widened ellipse: share of the nominal model's limits")
+    widen: float = Field(0.05, ge=0, lt=0.5, description="widening of the measured envelope per clean lap")
+    features: str = Field("full", description='GP inputs: "full" or "paper" (gprace.gp.features.DYN_FEATURE_SETS)')
+    grip: bool = Field(True, description="rear-slip constraint in the tracking MPC")
+    oracle: bool = Field(True, description="plan and drive the oracle lap (frenet plants)")
+    solver: str = Field("clarabel", description="QP backend of the tracking MPC")
+    beta: float = Field(0.6, description="chance-constraint probability of the tracking MPC")
+    laps: float = Field(1.0, gt=0, description="laps per trial and iteration")
+    seed: int = Field(0, description="seed of trial 0 (trial t: seed + t)")
+    grid_values: int = Field(7, ge=2, description="candidate values per exploration dimension")
+    heldout_laps: float = Field(1.0, gt=0, description="laps of the held-out reference run")
+    heldout_weave: float = Field(0.7, ge=0, description="weave of the held-out run [m]")
+    calib_weave: float = Field(0.4, ge=0, description="weave of the calibration run [m]; 0: leave-one-out "
+                               "calibration only")
+
+    @model_validator(mode="after")
+    def _check(self) -> IterateSettings:
+        if not self.alphas:
+            raise ValueError("--alpha: give at least one value")
+        bad = [a for a in self.alphas if not 0.0 <= a <= 1.0]
+        if bad:
+            raise ValueError(f"--alpha: values must be in [0, 1], got {bad[0]}")
+        if self.selection not in ("diverse", "random"):
+            raise ValueError(f"--selection must be diverse or random, got {self.selection!r}")
+        from gprace.backends import solvers
+        from gprace.gp.features import dyn_feature_set
+        from gprace.mpc.tracking import quantile_factor
+
+        dyn_feature_set(self.features)
+        solvers.get(self.solver)  # an unknown name lists the registered ones, before any planning
+        quantile_factor(self.beta)
+        return self
 
     def alpha(self, i: int) -> float:
         """alpha of iteration i >= 1."""
         return float(self.alphas[min(i - 1, len(self.alphas) - 1)])
-
-    def check(self) -> None:
-        if not self.alphas:
-            raise ConfigError("--alpha: give at least one value")
-        bad = [a for a in self.alphas if not 0.0 <= a <= 1.0]
-        if bad:
-            raise ConfigError(f"--alpha: values must be in [0, 1], got {bad[0]}")
-        if self.iterations < 1 or self.trials < 1:
-            raise ConfigError("--iterations and --trials must be >= 1")
-        if self.selection not in ("diverse", "random"):
-            raise ConfigError(f"--selection must be diverse or random, got {self.selection!r}")
-        if self.dictionary_size < 10:
-            raise ConfigError("dictionary size must be >= 10")
-        from gprace.gp.features import dyn_feature_set
-
-        dyn_feature_set(self.features)
-        if not 0.0 < self.first_speed_scale <= 1.0:
-            raise ConfigError(f"first speed scale must be in (0, 1], got {self.first_speed_scale}")
-        if not (self.heldout_weave >= 0.0 and self.calib_weave >= 0.0):
-            raise ConfigError("weave amplitudes of the reference runs must be >= 0")
-        if not 0.0 <= self.widen < 0.5:
-            raise ConfigError(f"widen must be in [0, 0.5), got {self.widen}")
-        from gprace.backends import solvers
-        from gprace.mpc.tracking import quantile_factor
-
-        solvers.get(self.solver)  # an unknown name lists the registered ones, before any planning
-        quantile_factor(self.beta)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -200,10 +198,9 @@ def _prepare(settings: IterateSettings, out: Path, share: Path | None = None) ->
     from gprace.io.artifacts import check_folder
     from gprace.tracks import load_track
 
-    settings.check()
     _check_start(settings)  # a bad track, plant or vehicle, or a car that cannot start: before anything is written
     check_folder(out)
-    mine = json.loads(json.dumps(asdict(settings)))
+    mine = settings.model_dump(mode="json")
     sfile = out / "settings.json"
     if sfile.exists():
         old = json.loads(sfile.read_text())
