@@ -59,12 +59,12 @@ from gprace.gp.linalg import cholesky
 class SelectionStats:
     """Counters of what happened to streamed points."""
 
-    seen: int = 0
-    inserted: int = 0
-    replaced: int = 0
-    rejected_outlier: int = 0
-    rejected_variance: int = 0
-    refreshes: int = 0
+    seen: int = 0  # points offered
+    inserted: int = 0  # added while the dictionary had room
+    replaced: int = 0  # took the place of the point of smallest leave-one-out variance
+    rejected_outlier: int = 0  # output more than kappa std from the dictionary's prediction
+    rejected_variance: int = 0  # posterior variance not above the dictionary's median
+    refreshes: int = 0  # full refactorisations of the dictionary's Cholesky factor
 
     def as_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
