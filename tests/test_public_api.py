@@ -41,7 +41,6 @@ def test_the_cli_imports_no_numerics():
 
 
 def test_plugin_surfaces_stay_where_outside_packages_import_them():
-    from gprace.backends import Registry  # noqa: F401
     from gprace.config import PlantConfig, VehicleConfig
     from gprace.gp.base import GPBackend
     from gprace.plants.base import Plant

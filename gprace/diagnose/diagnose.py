@@ -265,7 +265,6 @@ def _significant(ctx: Ctx, l0: np.ndarray, l1: np.ndarray) -> tuple[bool, str, f
 
 def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, log: Callable[[str], None]) -> Named:
     """Greedy forward selection of catalogue effects by held-out gain beyond those already chosen."""
-    data, starts, H = p.data, p.starts, p.H
     chosen: list[NamedEffect] = []
     searched: list[dict] = []
     dyn_struct = set(s.nominal.dynamic_structured)

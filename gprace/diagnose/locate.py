@@ -113,7 +113,6 @@ def track_profile(data: Dataset, starts: np.ndarray, H: int, E: np.ndarray, c: i
 def _bin_z(s, e, lap, edges, H):
     """Per-bin signed mean error, its z-score and per-lap means (windows overlap ~H-fold)."""
     nb = len(edges)
-    bin_m = edges[1] - edges[0]
     b = np.clip(np.digitize(s, edges) - 1, 0, nb - 1)
     cnt = np.bincount(b, minlength=nb)
     mean = np.bincount(b, e, nb) / np.maximum(cnt, 1)

@@ -160,133 +160,134 @@ def print_table(tab: dict, as_json: bool) -> None:
                       "interval per seed", "verdict"], crows)
 
 
+def head2head_cmd(
+    tracks: int = typer.Option(100, "--tracks", help="Random evaluation scenarios."),
+    out: Path = OUT,
+    runs: int = RUNS,
+    init_runs: int = INIT_RUNS,
+    explore_minutes: float = typer.Option(10.0, "--explore-minutes", help="Simulated exploration time."),
+    episode_seconds: float = typer.Option(60.0, "--episode-seconds", help="Length of one exploration episode."),
+    explore_width: Optional[float] = EXPLORE_WIDTH,
+    alpha: float = typer.Option(0.9, "--alpha", help="Exploration weight during exploration."),
+    dict_size: int = typer.Option(600, "--dict-size", help="Dictionary size of the exploration GP."),
+    points_per_run: int = POINTS_PER_RUN,
+    width: float = WIDTH,
+    stretches: int = STRETCHES,
+    predictors: str = typer.Option("baseline,explore", "--predictors", help="Predictors raced (baseline, explore, select, init, cv, oracle)."),
+    backend: str = GP_BACKEND,
+    exact_max: int = EXACT_MAX,
+    inducing: int = INDUCING,
+    samples: int = typer.Option(50, "--samples", help="GP rollout samples."),
+    max_time: float = MAX_TIME,
+    sensor_noise: float = typer.Option(
+        1.0, "--sensor-noise", help="Scale of the measurement noise of both cars' states (1: realistic for 1:10 "
+        "cars, std v_x 0.01 m/s, v_y 0.01 m/s, yaw rate 0.02 rad/s, e_psi 0.005 rad, e_y and s 5 mm; 0: none)."),
+    process_noise: float = typer.Option(
+        1.0, "--process-noise", help="Scale of the process noise per 0.1 s plant step (1: std v_x 0.01 m/s, "
+        "v_y 0.005 m/s, yaw rate 0.02 rad/s; 0: none)."),
+    baseline_tracks: str = typer.Option(
+        "eval", "--baseline-tracks", help="Tracks of the baseline's collection: eval (random evaluation-style "
+        "tracks) or training (the short curve and chicane tracks of Zhu et al. 2022)."),
+    blocking_weight: float = typer.Option(500.0, "--blocking-weight", help="The opponent's blocking weight."),
+    calib_runs: int = typer.Option(20, "--calib-runs", help="Held-out races per calibration pass of every "
+                                   "predictor's spread."),
+    calib_passes: int = typer.Option(3, "--calib-passes", help="At most this many calibration passes driven by "
+                                     "the raced predictors (they stop when the races confirm the calibration)."),
+    seeds: str = typer.Option("1", "--seeds", help="Seeds of the whole chain (collection, training, exploration, "
+                              "evaluation): a count N (seeds 0..N-1) or a list such as 0,4,7. Seed 0 writes to "
+                              "--out, seed s to --out/seed_<s>; the evaluation scenarios are shared."),
+    workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
+    resume: bool = RESUME, as_json: bool = JSON,
+) -> None:
+    """The paper's head-to-head comparison: collect, train, explore, race all predictors, tabulate."""
+    from gprace.h2h.protocol import head2head as run, parse_seeds
+
+    st = _settings(out, tracks=tracks, runs=runs, init_runs=init_runs, explore_minutes=explore_minutes,
+                   episode_seconds=episode_seconds, explore_width=explore_width, alpha=alpha, dict_size=dict_size,
+                   points_per_run=points_per_run, width=width,
+                   stretches=stretches, predictors=predictors, backend=backend, exact_max=exact_max,
+                   inducing=inducing, samples=samples, max_time=max_time, sensor_noise=sensor_noise,
+                   process_noise=process_noise, baseline_tracks=baseline_tracks, blocking_weight=blocking_weight,
+                   calib_runs=calib_runs, calib_passes=calib_passes, workers=workers, executor=executor,
+                   scheduler=scheduler, resume=resume, seeds=parse_seeds(seeds))
+    print_table(run(st, out), as_json)
+
+def collect_cmd(
+    out: Path = OUT,
+    runs: int = RUNS, init_runs: int = INIT_RUNS, points_per_run: int = POINTS_PER_RUN,
+    width: float = WIDTH, stretches: int = STRETCHES, max_time: float = MAX_TIME,
+    workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
+    resume: bool = RESUME, as_json: bool = JSON,
+) -> None:
+    """Race random tracks with the oracle predictor; write the (Z, Y) datasets."""
+    from gprace.h2h.protocol import collect as run, read_dataset
+
+    st = _settings(out, runs=runs, init_runs=init_runs, points_per_run=points_per_run, width=width, stretches=stretches, max_time=max_time,
+                   workers=workers, executor=executor, scheduler=scheduler, resume=resume)
+    paths = run(st, out)
+    res = {k: {"path": str(v), "points": len(read_dataset(v)[0])} for k, v in paths.items()}
+    console.json(res) if as_json else [console.result(f"{k}: {v['path']} ({v['points']} points)") for k, v in res.items()]
+
+def train_cmd(
+    dataset: Path = typer.Argument(..., help="An h2h_dataset file."),
+    model: Path = typer.Argument(..., help="Output GP model file."),
+    size: Optional[int] = typer.Option(None, "--select", help="Diverse selection of this many points first."),
+    hyper_model: Optional[Path] = typer.Option(None, "--hyper-model", help="GP whose hyperparameters drive the selection."),
+    initial: Optional[Path] = typer.Option(None, "--initial", help="Dataset that starts the dictionary."),
+    validation: Optional[Path] = typer.Option(
+        None, "--validation", help="Held-out dataset of the fit quality report (default: training points "
+        "outside the reference's subsample)."),
+    backend: str = GP_BACKEND, exact_max: int = EXACT_MAX, inducing: int = INDUCING, as_json: bool = JSON,
+) -> None:
+    """Fit the opponent GP (Matern 1.5) on a dataset; print its fit quality (a degenerate fit is refused)."""
+    from gprace.gp.quality import COLUMNS
+    from gprace.h2h.predictors import read_opponent_gp
+    from gprace.h2h.protocol import Settings, fit_report, train as run
+
+    st = Settings(backend=backend, exact_max=exact_max, inducing=inducing)
+    path = run(dataset, model, st, size=size, hyper_model=hyper_model, initial=initial, validation=validation)
+    _, attrs = read_opponent_gp(path)
+    q = fit_report(attrs)
+    res = {"model": str(path), "backend": attrs["backend"], "points": int(attrs.get("n_points", 0)),
+           "quality": None if q is None else asdict(q)}
+    if as_json:
+        console.json(res)
+        return
+    if q is not None:
+        console.table(f"Fit quality (held-out: {q.heldout_points} points, {q.heldout_source}; exact GP on "
+                      f"{q.reference_points} points; attempts {q.attempts})", COLUMNS, q.rows())
+    console.result(f"{res['model']}: {res['backend']} GP on {res['points']} points")
+
+def explore_cmd(
+    out: Path = OUT,
+    init_model: Path = typer.Option(..., "--init-model", help="The initial GP model."),
+    init_data: Path = typer.Option(..., "--init-data", help="Its dataset (candidate grid, first dictionary)."),
+    explore_minutes: float = typer.Option(10.0, "--explore-minutes", help="Simulated exploration time."),
+    episode_seconds: float = typer.Option(60.0, "--episode-seconds", help="Length of one exploration episode."),
+    explore_width: Optional[float] = typer.Option(
+        None, "--explore-width", help="Width of the exploration loop in metres (default 0.75 m, the racing width of "
+        "eval head2head; the loop's own is 1.5 m)."),
+    alpha: float = typer.Option(0.9, "--alpha", help="Exploration weight in [0, 1]."),
+    workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
+    resume: bool = RESUME, as_json: bool = JSON,
+) -> None:
+    """Exploration episodes on the closed loop (Algorithm 1, stalemate breaking)."""
+    from gprace.h2h.protocol import explore as run, read_dataset
+
+    st = _settings(out, explore_minutes=explore_minutes, episode_seconds=episode_seconds, explore_width=explore_width,
+                   alpha=alpha, workers=workers,
+                   executor=executor, scheduler=scheduler, resume=resume)
+    path = run(st, out, init_model, init_data)
+    res = {"dataset": str(path), "points": len(read_dataset(path)[0])}
+    console.json(res) if as_json else console.result(f"{res['dataset']}: {res['points']} exploration points")
+
+
 def register(app: typer.Typer) -> None:
     from gprace.timetrial.commands import RUN_PANEL, eval_group
 
     ev = eval_group(app)
     h2h = _group(app, "h2h", "Head-to-head racing steps: collect, train, explore.")
-
-    @ev.command("head2head", rich_help_panel=RUN_PANEL)
-    def head2head(
-        tracks: int = typer.Option(100, "--tracks", help="Random evaluation scenarios."),
-        out: Path = OUT,
-        runs: int = RUNS,
-        init_runs: int = INIT_RUNS,
-        explore_minutes: float = typer.Option(10.0, "--explore-minutes", help="Simulated exploration time."),
-        episode_seconds: float = typer.Option(60.0, "--episode-seconds", help="Length of one exploration episode."),
-        explore_width: Optional[float] = EXPLORE_WIDTH,
-        alpha: float = typer.Option(0.9, "--alpha", help="Exploration weight during exploration."),
-        dict_size: int = typer.Option(600, "--dict-size", help="Dictionary size of the exploration GP."),
-        points_per_run: int = POINTS_PER_RUN,
-        width: float = WIDTH,
-        stretches: int = STRETCHES,
-        predictors: str = typer.Option("baseline,explore", "--predictors", help="Predictors raced (baseline, explore, select, init, cv, oracle)."),
-        backend: str = GP_BACKEND,
-        exact_max: int = EXACT_MAX,
-        inducing: int = INDUCING,
-        samples: int = typer.Option(50, "--samples", help="GP rollout samples."),
-        max_time: float = MAX_TIME,
-        sensor_noise: float = typer.Option(
-            1.0, "--sensor-noise", help="Scale of the measurement noise of both cars' states (1: realistic for 1:10 "
-            "cars, std v_x 0.01 m/s, v_y 0.01 m/s, yaw rate 0.02 rad/s, e_psi 0.005 rad, e_y and s 5 mm; 0: none)."),
-        process_noise: float = typer.Option(
-            1.0, "--process-noise", help="Scale of the process noise per 0.1 s plant step (1: std v_x 0.01 m/s, "
-            "v_y 0.005 m/s, yaw rate 0.02 rad/s; 0: none)."),
-        baseline_tracks: str = typer.Option(
-            "eval", "--baseline-tracks", help="Tracks of the baseline's collection: eval (random evaluation-style "
-            "tracks) or training (the short curve and chicane tracks of Zhu et al. 2022)."),
-        blocking_weight: float = typer.Option(500.0, "--blocking-weight", help="The opponent's blocking weight."),
-        calib_runs: int = typer.Option(20, "--calib-runs", help="Held-out races per calibration pass of every "
-                                       "predictor's spread."),
-        calib_passes: int = typer.Option(3, "--calib-passes", help="At most this many calibration passes driven by "
-                                         "the raced predictors (they stop when the races confirm the calibration)."),
-        seeds: str = typer.Option("1", "--seeds", help="Seeds of the whole chain (collection, training, exploration, "
-                                  "evaluation): a count N (seeds 0..N-1) or a list such as 0,4,7. Seed 0 writes to "
-                                  "--out, seed s to --out/seed_<s>; the evaluation scenarios are shared."),
-        workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
-        resume: bool = RESUME, as_json: bool = JSON,
-    ) -> None:
-        """The paper's head-to-head comparison: collect, train, explore, race all predictors, tabulate."""
-        from gprace.h2h.protocol import head2head as run, parse_seeds
-
-        st = _settings(out, tracks=tracks, runs=runs, init_runs=init_runs, explore_minutes=explore_minutes,
-                       episode_seconds=episode_seconds, explore_width=explore_width, alpha=alpha, dict_size=dict_size,
-                       points_per_run=points_per_run, width=width,
-                       stretches=stretches, predictors=predictors, backend=backend, exact_max=exact_max,
-                       inducing=inducing, samples=samples, max_time=max_time, sensor_noise=sensor_noise,
-                       process_noise=process_noise, baseline_tracks=baseline_tracks, blocking_weight=blocking_weight,
-                       calib_runs=calib_runs, calib_passes=calib_passes, workers=workers, executor=executor,
-                       scheduler=scheduler, resume=resume, seeds=parse_seeds(seeds))
-        print_table(run(st, out), as_json)
-
-    @h2h.command("collect")
-    def collect(
-        out: Path = OUT,
-        runs: int = RUNS, init_runs: int = INIT_RUNS, points_per_run: int = POINTS_PER_RUN,
-        width: float = WIDTH, stretches: int = STRETCHES, max_time: float = MAX_TIME,
-        workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
-        resume: bool = RESUME, as_json: bool = JSON,
-    ) -> None:
-        """Race random tracks with the oracle predictor; write the (Z, Y) datasets."""
-        from gprace.h2h.protocol import collect as run, read_dataset
-
-        st = _settings(out, runs=runs, init_runs=init_runs, points_per_run=points_per_run, width=width, stretches=stretches, max_time=max_time,
-                       workers=workers, executor=executor, scheduler=scheduler, resume=resume)
-        paths = run(st, out)
-        res = {k: {"path": str(v), "points": len(read_dataset(v)[0])} for k, v in paths.items()}
-        console.json(res) if as_json else [console.result(f"{k}: {v['path']} ({v['points']} points)") for k, v in res.items()]
-
-    @h2h.command("train")
-    def train(
-        dataset: Path = typer.Argument(..., help="An h2h_dataset file."),
-        model: Path = typer.Argument(..., help="Output GP model file."),
-        size: Optional[int] = typer.Option(None, "--select", help="Diverse selection of this many points first."),
-        hyper_model: Optional[Path] = typer.Option(None, "--hyper-model", help="GP whose hyperparameters drive the selection."),
-        initial: Optional[Path] = typer.Option(None, "--initial", help="Dataset that starts the dictionary."),
-        validation: Optional[Path] = typer.Option(
-            None, "--validation", help="Held-out dataset of the fit quality report (default: training points "
-            "outside the reference's subsample)."),
-        backend: str = GP_BACKEND, exact_max: int = EXACT_MAX, inducing: int = INDUCING, as_json: bool = JSON,
-    ) -> None:
-        """Fit the opponent GP (Matern 1.5) on a dataset; print its fit quality (a degenerate fit is refused)."""
-        from gprace.gp.quality import COLUMNS
-        from gprace.h2h.predictors import read_opponent_gp
-        from gprace.h2h.protocol import Settings, fit_report, train as run
-
-        st = Settings(backend=backend, exact_max=exact_max, inducing=inducing)
-        path = run(dataset, model, st, size=size, hyper_model=hyper_model, initial=initial, validation=validation)
-        _, attrs = read_opponent_gp(path)
-        q = fit_report(attrs)
-        res = {"model": str(path), "backend": attrs["backend"], "points": int(attrs.get("n_points", 0)),
-               "quality": None if q is None else asdict(q)}
-        if as_json:
-            console.json(res)
-            return
-        if q is not None:
-            console.table(f"Fit quality (held-out: {q.heldout_points} points, {q.heldout_source}; exact GP on "
-                          f"{q.reference_points} points; attempts {q.attempts})", COLUMNS, q.rows())
-        console.result(f"{res['model']}: {res['backend']} GP on {res['points']} points")
-
-    @h2h.command("explore")
-    def explore(
-        out: Path = OUT,
-        init_model: Path = typer.Option(..., "--init-model", help="The initial GP model."),
-        init_data: Path = typer.Option(..., "--init-data", help="Its dataset (candidate grid, first dictionary)."),
-        explore_minutes: float = typer.Option(10.0, "--explore-minutes", help="Simulated exploration time."),
-        episode_seconds: float = typer.Option(60.0, "--episode-seconds", help="Length of one exploration episode."),
-        explore_width: Optional[float] = typer.Option(
-            None, "--explore-width", help="Width of the exploration loop in metres (default 0.75 m, the racing width of "
-            "eval head2head; the loop's own is 1.5 m)."),
-        alpha: float = typer.Option(0.9, "--alpha", help="Exploration weight in [0, 1]."),
-        workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
-        resume: bool = RESUME, as_json: bool = JSON,
-    ) -> None:
-        """Exploration episodes on the closed loop (Algorithm 1, stalemate breaking)."""
-        from gprace.h2h.protocol import explore as run, read_dataset
-
-        st = _settings(out, explore_minutes=explore_minutes, episode_seconds=episode_seconds, explore_width=explore_width,
-                       alpha=alpha, workers=workers,
-                       executor=executor, scheduler=scheduler, resume=resume)
-        path = run(st, out, init_model, init_data)
-        res = {"dataset": str(path), "points": len(read_dataset(path)[0])}
-        console.json(res) if as_json else console.result(f"{res['dataset']}: {res['points']} exploration points")
+    ev.command("head2head", rich_help_panel=RUN_PANEL)(head2head_cmd)
+    h2h.command("collect")(collect_cmd)
+    h2h.command("train")(train_cmd)
+    h2h.command("explore")(explore_cmd)

@@ -100,7 +100,6 @@ class NMPC:
         racing, explore, penalty = 0, 0, 0
         xk, uk_prev = x0, u_prev
         R, Rd = np.array(c.r_input), np.array(c.r_rate)
-        disks = []
         for k in range(N):
             q = p[N_GLOBAL + N_STAGE * k: N_GLOBAL + N_STAGE * (k + 1)]
             u = ca.SX.sym(f"u{k}", NU)

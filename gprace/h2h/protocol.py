@@ -80,7 +80,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from gprace.config import CommandSettings, config_hash
-from gprace.errors import ConfigError, InputError
+from gprace.errors import InputError
 from gprace.h2h.config import opponent_mpc
 from gprace.h2h.predictors import FEATURE_MAP, FEATURES, OUTPUTS
 

@@ -39,7 +39,6 @@ Each control period:
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -48,7 +47,7 @@ from scipy.special import erfinv
 from gprace.errors import ConfigError
 from gprace.gp.features import DYN_INPUTS, dyn_inputs
 from gprace.model.dynamics import Input, State
-from gprace.mpc.qp import EY, LtvProblem, QPStatus, Weights
+from gprace.mpc.qp import EY, LtvProblem, Weights
 
 FEATURES = DYN_INPUTS
 EXPLORED = ("v_y", "yaw_rate", "delta")  # features Algorithm 1 may move the reference to

@@ -506,7 +506,7 @@ def h2h_section(found: Found, max_error_samples: int = 20) -> Section | None:
             errs = _errors_along(p, art, found, max_error_samples)
             if errs is not None:
                 t, E = errs
-                sec.add_figure("error_along_run", f"1-step and 9-step opponent e_y error along that run",
+                sec.add_figure("error_along_run", "1-step and 9-step opponent e_y error along that run",
                                lambda: F.fig_error_along_run(t, E, (1, min(9, min(e.shape[0] for e in E.values())))))
             else:
                 sec.missing.append("error along one run: no opponent models found next to the run records")

@@ -56,214 +56,215 @@ def check_nodes(track, ds: float) -> None:
                           f"use {track.length / MAX_NODES:.3g} to {track.length / MIN_NODES:.3g} m")
 
 
-def register(app: typer.Typer) -> None:
-    @app.command("plan")
-    def plan_cmd(
-        track: str = typer.Option("gprace_ring", "--track", help="Track: shipped name or a CSV/TOML path."),
-        vehicle: str = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle: shipped name or TOML path."),
-        model: Path | None = typer.Option(None, "--model", help="Planning GP (gp_model, feature map 'planning')."),
-        warm_start: Path | None = typer.Option(None, "--warm-start", help="Previous plan of the same track (initial guess)."),
-        curvature: bool = typer.Option(False, "--curvature", help="Write the GP-free minimum-curvature path instead."),
-        ds: float = typer.Option(6.0, "--ds", help="Node spacing in metres."),
-        grip: float | None = typer.Option(None, "--grip", help="Friction-ellipse margin: share of the model's limits (e.g. 0.9)."),
-        output: Path = typer.Option(..., "--output", "-o", help="Plan file to write (.h5)."),
-        as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
-    ) -> None:
-        """Plan a minimum-lap-time lap (CasADi/IPOPT), optionally compensated by a planning GP."""
-        from gprace.config import load_vehicle
-        from gprace.console import console
-        from gprace.errors import ConfigError
-        from gprace.model import NominalModel
-        from gprace.plan import PlanSettings, curvature_plan, plan_min_time, read_plan
-        from gprace.io.artifacts import check_output
-        from gprace.tracks import load_track
+def plan_cmd(
+    track: str = typer.Option("gprace_ring", "--track", help="Track: shipped name or a CSV/TOML path."),
+    vehicle: str = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle: shipped name or TOML path."),
+    model: Path | None = typer.Option(None, "--model", help="Planning GP (gp_model, feature map 'planning')."),
+    warm_start: Path | None = typer.Option(None, "--warm-start", help="Previous plan of the same track (initial guess)."),
+    curvature: bool = typer.Option(False, "--curvature", help="Write the GP-free minimum-curvature path instead."),
+    ds: float = typer.Option(6.0, "--ds", help="Node spacing in metres."),
+    grip: float | None = typer.Option(None, "--grip", help="Friction-ellipse margin: share of the model's limits (e.g. 0.9)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Plan file to write (.h5)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
+) -> None:
+    """Plan a minimum-lap-time lap (CasADi/IPOPT), optionally compensated by a planning GP."""
+    from gprace.config import load_vehicle
+    from gprace.console import console
+    from gprace.errors import ConfigError
+    from gprace.model import NominalModel
+    from gprace.plan import PlanSettings, curvature_plan, plan_min_time, read_plan
+    from gprace.io.artifacts import check_output
+    from gprace.tracks import load_track
 
-        check_output(output)
-        if ds <= 0:
-            raise ConfigError(f"--ds must be positive, got {ds}")
-        if grip is not None and not 0.0 < grip <= 1.0:
-            raise ConfigError(f"--grip must be in (0, 1] (a share of the model's limits), got {grip}")
-        tr = load_track(track)
-        check_nodes(tr, ds)
-        m = NominalModel(load_vehicle(vehicle))
-        nodes = f"{tr.length / ds:.0f} nodes of {tr.name}"
-        if curvature:
-            console.info(f"plan: minimum-curvature path on {nodes}")
-            plan = curvature_plan(tr, m, ds=ds)
-        else:
-            warm = read_plan(warm_start, tr) if warm_start else None
-            mu = None
-            if model is not None:
-                from gprace.timetrial.learning import load_predictor
-
-                gp = load_predictor(model, "planning")
-                mu = lambda X, U: gp.at(X, U)[0]  # noqa: E731
-            console.info(f"plan: minimum-time NLP (IPOPT) on {nodes}" + (" with the planning GP" if mu else ""))
-            plan = plan_min_time(tr, m, PlanSettings(ds=ds, grip=grip), warm=warm, mu_plan=mu)
-        plan.write(output)
-        if as_json:
-            console.json({"output": str(output), "method": plan.method, "track": tr.name, "lap_time": plan.lap_time, "nodes": plan.n})
-        else:
-            console.result(f"{output}: {plan.method} plan of {tr.name}, lap time {plan.lap_time:.3f} s, {plan.n} nodes")
-
-    @app.command("run")
-    def run_cmd(
-        plan: Path = typer.Option(..., "--plan", help="Plan file (from gprace plan)."),
-        plant: str = typer.Option("audi_hidden", "--plant", help="Plant config: shipped name or TOML path."),
-        track: str | None = typer.Option(None, "--track", help="Track (default: the plan's track by name)."),
-        vehicle: str = typer.Option("audi_tt_cup", "--vehicle", help="The controller's nominal vehicle."),
-        model: Path | None = typer.Option(None, "--model", help="Tracking GP (gp_model, feature map 'tracking')."),
-        candidates: Path | None = typer.Option(None, "--candidates", help="Exploration candidates (from iterate); default: built from the GP's data."),
-        alpha: float = typer.Option(0.0, "--alpha", help="Exploration trade-off in [0, 1] (0: plain tracking)."),
-        laps: float = typer.Option(1.0, "--laps", help="Laps to drive."),
-        solver: str = typer.Option("clarabel", "--solver", help="QP backend: clarabel, cvxpy-clarabel, casadi or a plugin."),
-        beta: float = typer.Option(0.6, "--beta", help="Risk parameter of the lateral chance constraints."),
-        radius: float = typer.Option(0.5, "--explore-radius", help="Exploration trust region (scaled feature distance)."),
-        seed: int = typer.Option(0, "--seed", help="Seed of the plant's sensor noise."),
-        output: Path = typer.Option(..., "--output", "-o", help="Run file to write (.h5)."),
-        as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
-    ) -> None:
-        """Drive a plan on a plant with the (GP-compensated, exploring) tracking MPC; record a run."""
-        from gprace.backends import solvers
-        from gprace.config import load_plant, load_vehicle
-        from gprace.console import console
-        from gprace.errors import ConfigError, RunFailedError
-        from gprace.io.runs import write_run
-        from gprace.model import NominalModel
-        from gprace.mpc.tracking import MPCSettings
-        from gprace.plan import read_plan
-        from gprace.timetrial.drive import DriveSettings, drive
-        from gprace.io.artifacts import check_output
-        from gprace.tracks import load_track
-
-        check_output(output)
-        if not 0.0 <= alpha <= 1.0:
-            raise ConfigError(f"--alpha must be in [0, 1], got {alpha}")
-        if laps <= 0:
-            raise ConfigError(f"--laps must be positive, got {laps}")
-        mpc = MPCSettings(solver=solver, beta=beta, explore_radius=radius)  # checks radius and beta
-        solvers.get(solver)  # an unknown name lists the registered ones
-        p0 = read_plan(plan)
-        tr = load_track(track or p0.track)
-        p0.check_track(tr, str(plan))
-        m = NominalModel(load_vehicle(vehicle))
-        gp = grid = None
+    check_output(output)
+    if ds <= 0:
+        raise ConfigError(f"--ds must be positive, got {ds}")
+    if grip is not None and not 0.0 < grip <= 1.0:
+        raise ConfigError(f"--grip must be in (0, 1] (a share of the model's limits), got {grip}")
+    tr = load_track(track)
+    check_nodes(tr, ds)
+    m = NominalModel(load_vehicle(vehicle))
+    nodes = f"{tr.length / ds:.0f} nodes of {tr.name}"
+    if curvature:
+        console.info(f"plan: minimum-curvature path on {nodes}")
+        plan = curvature_plan(tr, m, ds=ds)
+    else:
+        warm = read_plan(warm_start, tr) if warm_start else None
+        mu = None
         if model is not None:
             from gprace.timetrial.learning import load_predictor
 
-            gp = load_predictor(model, "tracking")
-        if alpha > 0:
-            if gp is None:
-                raise ConfigError("--alpha > 0 needs --model (exploration ranks candidates by the tracking GP's variance)")
-            from gprace.explore.algorithm import CandidateGrid
-            from gprace.io.artifacts import read_artifact
+            gp = load_predictor(model, "planning")
+            mu = lambda X, U: gp.at(X, U)[0]  # noqa: E731
+        console.info(f"plan: minimum-time NLP (IPOPT) on {nodes}" + (" with the planning GP" if mu else ""))
+        plan = plan_min_time(tr, m, PlanSettings(ds=ds, grip=grip), warm=warm, mu_plan=mu)
+    plan.write(output)
+    if as_json:
+        console.json({"output": str(output), "method": plan.method, "track": tr.name, "lap_time": plan.lap_time, "nodes": plan.n})
+    else:
+        console.result(f"{output}: {plan.method} plan of {tr.name}, lap time {plan.lap_time:.3f} s, {plan.n} nodes")
 
-            if candidates is not None:
-                c = read_artifact(candidates, "candidates")
-                grid = CandidateGrid(c.arrays["Z"], c.arrays["v"], c.arrays["scale"])
-            else:
-                from gprace.timetrial.iterate import make_grid
+def run_cmd(
+    plan: Path = typer.Option(..., "--plan", help="Plan file (from gprace plan)."),
+    plant: str = typer.Option("audi_hidden", "--plant", help="Plant config: shipped name or TOML path."),
+    track: str | None = typer.Option(None, "--track", help="Track (default: the plan's track by name)."),
+    vehicle: str = typer.Option("audi_tt_cup", "--vehicle", help="The controller's nominal vehicle."),
+    model: Path | None = typer.Option(None, "--model", help="Tracking GP (gp_model, feature map 'tracking')."),
+    candidates: Path | None = typer.Option(None, "--candidates", help="Exploration candidates (from iterate); default: built from the GP's data."),
+    alpha: float = typer.Option(0.0, "--alpha", help="Exploration trade-off in [0, 1] (0: plain tracking)."),
+    laps: float = typer.Option(1.0, "--laps", help="Laps to drive."),
+    solver: str = typer.Option("clarabel", "--solver", help="QP backend: clarabel, cvxpy-clarabel, casadi or a plugin."),
+    beta: float = typer.Option(0.6, "--beta", help="Risk parameter of the lateral chance constraints."),
+    radius: float = typer.Option(0.5, "--explore-radius", help="Exploration trust region (scaled feature distance)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the plant's sensor noise."),
+    output: Path = typer.Option(..., "--output", "-o", help="Run file to write (.h5)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
+) -> None:
+    """Drive a plan on a plant with the (GP-compensated, exploring) tracking MPC; record a run."""
+    from gprace.backends import solvers
+    from gprace.config import load_plant, load_vehicle
+    from gprace.console import console
+    from gprace.errors import ConfigError, RunFailedError
+    from gprace.io.runs import write_run
+    from gprace.model import NominalModel
+    from gprace.mpc.tracking import MPCSettings
+    from gprace.plan import read_plan
+    from gprace.timetrial.drive import DriveSettings, drive
+    from gprace.io.artifacts import check_output
+    from gprace.tracks import load_track
 
-                grid = make_grid(gp.gp, gp.gp.Z_ if hasattr(gp.gp, "Z_") else None, MPCSettings(), 7)
-        settings = DriveSettings(laps=laps, mpc=mpc)
-        plant_cfg = load_plant(plant)
-        console.info(f"run: driving {plan} on {plant} for {laps:g} lap(s) with the tracking MPC"
-                     + (" and the tracking GP" if gp is not None else "") + (f", exploring (alpha {alpha:g})" if alpha > 0 else ""))
-        run = drive(p0, plant_cfg, tr, m, settings, gp=gp, grid=grid, alpha=alpha, seed=seed)
-        write_run(run, output)
-        mt = run.meta
-        if as_json:
-            console.json({"output": str(output), **{k: mt[k] for k in ("lap_time", "planned_lap_time", "completed", "reason",
-                                                                      "border_hit_steps", "fallbacks")},
-                          "solve_time_median_ms": 1e3 * mt["solve_time_median"]})
+    check_output(output)
+    if not 0.0 <= alpha <= 1.0:
+        raise ConfigError(f"--alpha must be in [0, 1], got {alpha}")
+    if laps <= 0:
+        raise ConfigError(f"--laps must be positive, got {laps}")
+    mpc = MPCSettings(solver=solver, beta=beta, explore_radius=radius)  # checks radius and beta
+    solvers.get(solver)  # an unknown name lists the registered ones
+    p0 = read_plan(plan)
+    tr = load_track(track or p0.track)
+    p0.check_track(tr, str(plan))
+    m = NominalModel(load_vehicle(vehicle))
+    gp = grid = None
+    if model is not None:
+        from gprace.timetrial.learning import load_predictor
+
+        gp = load_predictor(model, "tracking")
+    if alpha > 0:
+        if gp is None:
+            raise ConfigError("--alpha > 0 needs --model (exploration ranks candidates by the tracking GP's variance)")
+        from gprace.explore.algorithm import CandidateGrid
+        from gprace.io.artifacts import read_artifact
+
+        if candidates is not None:
+            c = read_artifact(candidates, "candidates")
+            grid = CandidateGrid(c.arrays["Z"], c.arrays["v"], c.arrays["scale"])
         else:
-            lap = (f"lap {mt['lap_time']:.2f} s" if math.isfinite(mt["lap_time"])
-                   else "no full lap" if mt["completed"] else "lap not completed")
-            console.result(
-                f"{output}: {lap} (planned {mt['planned_lap_time']:.2f} s), completed {mt['completed']}, "
-                f"border-hit steps {mt['border_hit_steps']}, fallbacks {mt['fallbacks']}, QP median {1e3 * mt['solve_time_median']:.2f} ms"
-            )
-        if not mt["completed"]:  # a failed run (the record is kept for inspection): exit 1
-            raise RunFailedError(f"run: {mt['reason']}; the partial run is in {output}")
+            from gprace.timetrial.iterate import make_grid
 
-    @app.command("iterate")
-    def iterate_cmd(
-        alpha: str = typer.Option("0.857,0.714,0", "--alpha", help="Exploration alphas per iteration; the last repeats."),
-        iterations: int = typer.Option(7, "--iterations", help="GP iterations after the nominal iteration 0."),
-        trials: int = typer.Option(3, "--trials", help="Independent repetitions (seeds)."),
-        selection: str = typer.Option("diverse", "--selection", help="Data selection: diverse (paper) or random (baseline)."),
-        plant: str = PLANT,
-        track: str = typer.Option("gprace_ring", "--track", help="Track."),
-        vehicle: str = VEHICLE,
-        dictionary: int = DICTIONARY,
-        features: str = FEATURES,
-        grip: bool = typer.Option(True, "--grip/--no-grip", help="Rear-slip (grip) constraint in the tracking MPC; --no-grip is the paper's QP."),
-        solver: str = typer.Option("clarabel", "--solver", help="QP backend."),
-        seed: int = SEED,
-        executor: str = EXECUTOR,
-        workers: int = WORKERS,
-        scheduler: str | None = SCHEDULER,
-        out: Path = typer.Option(Path("iterate_out"), "--out", help="Folder for every artifact (rerun to resume)."),
-        as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
-    ) -> None:
-        """The iterative double-GP time trial with active exploration (resumable)."""
-        from gprace.timetrial.iterate import IterateSettings, iterate
+            grid = make_grid(gp.gp, gp.gp.Z_ if hasattr(gp.gp, "Z_") else None, MPCSettings(), 7)
+    settings = DriveSettings(laps=laps, mpc=mpc)
+    plant_cfg = load_plant(plant)
+    console.info(f"run: driving {plan} on {plant} for {laps:g} lap(s) with the tracking MPC"
+                 + (" and the tracking GP" if gp is not None else "") + (f", exploring (alpha {alpha:g})" if alpha > 0 else ""))
+    run = drive(p0, plant_cfg, tr, m, settings, gp=gp, grid=grid, alpha=alpha, seed=seed)
+    write_run(run, output)
+    mt = run.meta
+    if as_json:
+        console.json({"output": str(output), **{k: mt[k] for k in ("lap_time", "planned_lap_time", "completed", "reason",
+                                                                  "border_hit_steps", "fallbacks")},
+                      "solve_time_median_ms": 1e3 * mt["solve_time_median"]})
+    else:
+        lap = (f"lap {mt['lap_time']:.2f} s" if math.isfinite(mt["lap_time"])
+               else "no full lap" if mt["completed"] else "lap not completed")
+        console.result(
+            f"{output}: {lap} (planned {mt['planned_lap_time']:.2f} s), completed {mt['completed']}, "
+            f"border-hit steps {mt['border_hit_steps']}, fallbacks {mt['fallbacks']}, QP median {1e3 * mt['solve_time_median']:.2f} ms"
+        )
+    if not mt["completed"]:  # a failed run (the record is kept for inspection): exit 1
+        raise RunFailedError(f"run: {mt['reason']}; the partial run is in {output}")
 
-        st = IterateSettings(alphas=_floats(alpha, "--alpha"), iterations=iterations, trials=trials, selection=selection,
-                             plant=plant, track=track, vehicle=vehicle, dictionary_size=dictionary, solver=solver, seed=seed,
-                             features=features, grip=grip)
-        from gprace.executor import check_execution
+def iterate_cmd(
+    alpha: str = typer.Option("0.857,0.714,0", "--alpha", help="Exploration alphas per iteration; the last repeats."),
+    iterations: int = typer.Option(7, "--iterations", help="GP iterations after the nominal iteration 0."),
+    trials: int = typer.Option(3, "--trials", help="Independent repetitions (seeds)."),
+    selection: str = typer.Option("diverse", "--selection", help="Data selection: diverse (paper) or random (baseline)."),
+    plant: str = PLANT,
+    track: str = typer.Option("gprace_ring", "--track", help="Track."),
+    vehicle: str = VEHICLE,
+    dictionary: int = DICTIONARY,
+    features: str = FEATURES,
+    grip: bool = typer.Option(True, "--grip/--no-grip", help="Rear-slip (grip) constraint in the tracking MPC; --no-grip is the paper's QP."),
+    solver: str = typer.Option("clarabel", "--solver", help="QP backend."),
+    seed: int = SEED,
+    executor: str = EXECUTOR,
+    workers: int = WORKERS,
+    scheduler: str | None = SCHEDULER,
+    out: Path = typer.Option(Path("iterate_out"), "--out", help="Folder for every artifact (rerun to resume)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+) -> None:
+    """The iterative double-GP time trial with active exploration (resumable)."""
+    from gprace.timetrial.iterate import IterateSettings, iterate
 
-        check_execution(executor, workers, scheduler)
-        summary = iterate(st, out, executor=executor, workers=workers, scheduler=scheduler)
-        _print_summary(summary, as_json)
+    st = IterateSettings(alphas=_floats(alpha, "--alpha"), iterations=iterations, trials=trials, selection=selection,
+                         plant=plant, track=track, vehicle=vehicle, dictionary_size=dictionary, solver=solver, seed=seed,
+                         features=features, grip=grip)
+    from gprace.executor import check_execution
 
+    check_execution(executor, workers, scheduler)
+    summary = iterate(st, out, executor=executor, workers=workers, scheduler=scheduler)
+    _print_summary(summary, as_json)
+
+def eval_timetrial(
+    plant: str = PLANT,
+    track: str = typer.Option("gprace_ring", "--track", help="Track: shipped name or a TUM CSV/TOML path."),
+    vehicle: str = VEHICLE,
+    trials: int = typer.Option(3, "--trials", help="Independent repetitions (the same seeds in both variants)."),
+    iterations: int = typer.Option(7, "--iterations", help="GP iterations after the nominal iteration 0."),
+    features: str = FEATURES,
+    dictionary: int = DICTIONARY,
+    seed: int = SEED,
+    executor: str = EXECUTOR,
+    workers: int = WORKERS,
+    scheduler: str | None = SCHEDULER,
+    out: Path = typer.Option(Path("timetrial_out"), "--out", help="Folder of both variants (rerun to resume)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the table as JSON."),
+) -> None:
+    """The paper's comparison: exploration (alpha 0.857,0.714,0, diverse) vs Double GP (alpha 0, random)."""
+    from gprace.console import console
+    from gprace.errors import RunFailedError
+    from gprace.timetrial.compare import compare, format_table
+    from gprace.timetrial.iterate import IterateSettings
+
+    st = IterateSettings(iterations=iterations, trials=trials, plant=plant, track=track, vehicle=vehicle,
+                         dictionary_size=dictionary, seed=seed, features=features)
+    from gprace.executor import check_execution
+
+    check_execution(executor, workers, scheduler)
+    res = compare(st, out, executor=executor, workers=workers, scheduler=scheduler)
+    if as_json:
+        console.json(res)
+    else:
+        console.result(format_table(res))
+    if res["error"]:
+        raise RunFailedError(res["error"])
+
+def evaluate_iterate(
+    folder: Path = typer.Argument(..., help="An iterate --out folder."),
+    as_json: bool = typer.Option(False, "--json", help="Print as JSON."),
+) -> None:
+    """Print the summary table of an iterate folder (finished steps only)."""
+    from gprace.timetrial.iterate import build_summary
+
+    _print_summary(build_summary(folder), as_json)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("plan")(plan_cmd)
+    app.command("run")(run_cmd)
+    app.command("iterate")(iterate_cmd)
     ev = eval_group(app)
-
-    @ev.command("timetrial", rich_help_panel=RUN_PANEL)
-    def eval_timetrial(
-        plant: str = PLANT,
-        track: str = typer.Option("gprace_ring", "--track", help="Track: shipped name or a TUM CSV/TOML path."),
-        vehicle: str = VEHICLE,
-        trials: int = typer.Option(3, "--trials", help="Independent repetitions (the same seeds in both variants)."),
-        iterations: int = typer.Option(7, "--iterations", help="GP iterations after the nominal iteration 0."),
-        features: str = FEATURES,
-        dictionary: int = DICTIONARY,
-        seed: int = SEED,
-        executor: str = EXECUTOR,
-        workers: int = WORKERS,
-        scheduler: str | None = SCHEDULER,
-        out: Path = typer.Option(Path("timetrial_out"), "--out", help="Folder of both variants (rerun to resume)."),
-        as_json: bool = typer.Option(False, "--json", help="Print the table as JSON."),
-    ) -> None:
-        """The paper's comparison: exploration (alpha 0.857,0.714,0, diverse) vs Double GP (alpha 0, random)."""
-        from gprace.console import console
-        from gprace.errors import RunFailedError
-        from gprace.timetrial.compare import compare, format_table
-        from gprace.timetrial.iterate import IterateSettings
-
-        st = IterateSettings(iterations=iterations, trials=trials, plant=plant, track=track, vehicle=vehicle,
-                             dictionary_size=dictionary, seed=seed, features=features)
-        from gprace.executor import check_execution
-
-        check_execution(executor, workers, scheduler)
-        res = compare(st, out, executor=executor, workers=workers, scheduler=scheduler)
-        if as_json:
-            console.json(res)
-        else:
-            console.result(format_table(res))
-        if res["error"]:
-            raise RunFailedError(res["error"])
-
-    @ev.command("iterate", rich_help_panel=SCORE_PANEL)
-    def evaluate_iterate(
-        folder: Path = typer.Argument(..., help="An iterate --out folder."),
-        as_json: bool = typer.Option(False, "--json", help="Print as JSON."),
-    ) -> None:
-        """Print the summary table of an iterate folder (finished steps only)."""
-        from gprace.timetrial.iterate import build_summary
-
-        _print_summary(build_summary(folder), as_json)
+    ev.command("timetrial", rich_help_panel=RUN_PANEL)(eval_timetrial)
+    ev.command("iterate", rich_help_panel=SCORE_PANEL)(evaluate_iterate)
 
 
 def _print_summary(summary: dict, as_json: bool) -> None:

@@ -194,9 +194,7 @@ def _prepare(settings: IterateSettings, out: Path, share: Path | None = None) ->
     """Check the settings, write or match ``settings.json``, make the held-out run and the oracle lap."""
     import shutil
 
-    from gprace.config import load_plant
     from gprace.io.artifacts import check_folder
-    from gprace.tracks import load_track
 
     _check_start(settings)  # a bad track, plant or vehicle, or a car that cannot start: before anything is written
     check_folder(out)
