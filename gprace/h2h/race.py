@@ -140,8 +140,64 @@ def usable_widths(track, s: np.ndarray, kappa_max_ey: float = 0.8) -> tuple[np.n
     return wl, wr
 
 
+def _linearisation(track, G: np.ndarray, kfun) -> np.ndarray:
+    """(N, 5) centre-line points, headings, arc lengths and curvatures of a plan's states 1..N."""
+    sig = G[1:, S]
+    cx, cy = track.to_global(sig, np.zeros(len(sig)))
+    return np.column_stack([cx, cy, track.heading(sig), sig, kfun(sig)])
+
+
+def _opponent_stage(track, cfg: H2HConfig, opp_mpc: NMPC, cv_ego, opp: np.ndarray, ego: np.ndarray,
+                    kfun) -> StageData:
+    """The opponent's stage data: blocking while the ego is behind (its centre more than a car
+    length back; alongside, the opponent holds its line instead of steering into the ego), and the
+    ego seen at constant velocity."""
+    N = cfg.horizon
+    gap = float(gap_s(track, opp[S], ego[S]))
+    wblock = cfg.opponent.q_block / (1.0 + gap) ** 2 if gap > cfg.car_length else 0.0
+    Go = opp_mpc.guess_states(opp)
+    wl, wr = usable_widths(track, Go[1:, S])
+    ego_cv = cv_ego.predict(Context(track, Go, ego)).mean
+    return StageData(kappa=kfun(Go[:-1, S]), wl=wl, wr=wr, ey_other=np.full(N, ego[EY]), w_block=np.full(N, wblock),
+                     lin=_linearisation(track, Go, kfun), opp=ellipse_data(track, cfg, extend(ego_cv, N), np.zeros((N, 2))))
+
+
+def _ego_stage(track, cfg: H2HConfig, ego_mpc: NMPC, predictor, explorer, ego: np.ndarray, opp: np.ndarray,
+               opp_plan: np.ndarray, kfun) -> StageData:
+    """The ego's stage data: the opponent predicted from its previous open-loop plan, inflated by
+    the predicted spread, and the exploration reference when the ego explores."""
+    N = cfg.horizon
+    Ge = ego_mpc.guess_states(ego)
+    pred = predictor.predict(Context(track, Ge, opp, opp_plan))
+    mean, std = extend(pred.mean, N), extend(pred.std, N)
+    ref = None
+    if explorer is not None:
+        explorer.target_gaps(track, ego, opp)
+        ref = explorer.reference(track, ego, mean, cfg.ego.border_margin)
+    wl, wr = usable_widths(track, Ge[1:, S])
+    return StageData(kappa=kfun(Ge[:-1, S]), wl=wl, wr=wr, ref=ref, lin=_linearisation(track, Ge, kfun),
+                     opp=ellipse_data(track, cfg, mean, std))
+
+
+def _race_end(track, cfg: H2HConfig, X: np.ndarray, t: float, t_overtake: float, duration) -> str | None:
+    """Why the race ends after this step (None: it goes on)."""
+    if not np.all(np.isfinite(X)):
+        return "diverged"
+    # a car left the track or spun: the one stop rule (no stall speed: a blocked car may stand)
+    stop = [stop_kind(x, float(track.width_left(x[S])), float(track.width_right(x[S])), cfg.car_width) for x in X]
+    if any(stop):
+        return next(k for k in stop if k)
+    if not duration and not np.isnan(t_overtake) and t >= t_overtake + cfg.after_overtake - 1e-9:
+        return "overtaken"
+    if not track.closed and np.max(X[:, S]) >= track.length - cfg.end_margin:
+        return "track_end"
+    return None
+
+
 @single_thread_blas
 def run_race(task: dict) -> dict:
+    """One race of ``task`` (track, seed, predictor, ...): per step the opponent's NMPC, the ego's
+    prediction and NMPC, one plant step of both cars; the states, inputs and outcome as a record."""
     cfg = H2HConfig(**task.get("config", {}))
     track = make_track(task["track"])
     rng = np.random.default_rng(int(task["seed"]))
@@ -149,18 +205,9 @@ def run_race(task: dict) -> dict:
     predictor = make_predictor(task.get("predictor", "gp"), cfg.pred_steps, dt, task.get("model"), cfg.samples,
                                seed=int(task["seed"]) + 7919, calibration=task.get("calibration"))
     alpha = float(task.get("alpha", 0.0))
-    explorer = None
-    if alpha > 0:
-        from gprace.h2h.explore import Explorer
-        from gprace.io.artifacts import read_artifact
-
-        data = read_artifact(task["explore_data"], "h2h_dataset")
-        explorer = Explorer.from_data(predictor.gp, data.arrays["Z"], data.arrays["Y"], alpha,
-                                      stalemate_steps=cfg.stalemate_steps, stalemate_tol=cfg.stalemate_tol,
-                                      hold_steps=cfg.hold_steps)
+    explorer = _explorer(task, cfg, predictor, alpha)
     ego_mpc, opp_mpc = controllers(cfg)
     cv_ego = make_predictor("cv", N, dt)
-    model = _model()
     ego, opp = start_states(track, rng)
     duration = task.get("duration")
     max_time = float(duration) if duration else cfg.max_time
@@ -171,42 +218,16 @@ def run_race(task: dict) -> dict:
     Xm = X + measure() if measure else X  # what the controllers and the predictor see
     hist_m = [Xm.copy()]
     Uprev = np.zeros((2, 2))
-    plant = compiled_step(model, track, dt, cfg.plant_substeps).map(2)  # both cars in one call
+    plant = compiled_step(_model(), track, dt, cfg.plant_substeps).map(2)  # both cars in one call
     kfun = lambda s: track.kappa(track.wrap(s))  # noqa: E731
     hist_x, hist_u, ego_ms, fb, targets = [X.copy()], [], [], [], []
     t_overtake, end_reason = np.nan, "time"
-    n_steps = int(round(max_time / dt))
-    for step in range(n_steps):
+    for step in range(int(round(max_time / dt))):
         ego, opp = Xm[0], Xm[1]
-        # ---- opponent: contouring MPC with the blocking term while the ego is behind
-        gap = float(gap_s(track, opp[S], ego[S]))
-        # blocking while the ego is behind (its centre more than a car length back); alongside,
-        # the opponent holds its line instead of steering into the ego
-        wblock = cfg.opponent.q_block / (1.0 + gap) ** 2 if gap > cfg.car_length else 0.0
-        Go = opp_mpc.guess_states(opp)
-        wl, wr = usable_widths(track, Go[1:, S])
-        sig_o = Go[1:, S]
-        cxo, cyo = track.to_global(sig_o, np.zeros(N))
-        ego_cv = cv_ego.predict(Context(track, Go, ego)).mean  # the opponent sees the ego at constant velocity
-        st_o = StageData(kappa=kfun(Go[:-1, S]), wl=wl, wr=wr, ey_other=np.full(N, ego[EY]), w_block=np.full(N, wblock),
-                         lin=np.column_stack([cxo, cyo, track.heading(sig_o), sig_o, kfun(sig_o)]),
-                         opp=ellipse_data(track, cfg, extend(ego_cv, N), np.zeros((N, 2))))
-        sol_o = opp_mpc.solve(opp, Uprev[1], 0.0, st_o)
-        # ---- ego: prediction from the previous open-loop plan, then the NMPC
-        Ge = ego_mpc.guess_states(ego)
-        pred = predictor.predict(Context(track, Ge, opp, sol_o.X))
-        mean, std = extend(pred.mean, N), extend(pred.std, N)
-        sig = Ge[1:, S]
-        cx, cy = track.to_global(sig, np.zeros(N))
-        lin = np.column_stack([cx, cy, track.heading(sig), sig, kfun(sig)])
-        ref = None
+        sol_o = opp_mpc.solve(opp, Uprev[1], 0.0, _opponent_stage(track, cfg, opp_mpc, cv_ego, opp, ego, kfun))
+        st_e = _ego_stage(track, cfg, ego_mpc, predictor, explorer, ego, opp, sol_o.X, kfun)
         if explorer is not None:
-            explorer.target_gaps(track, ego, opp)
             targets.append(explorer.target.copy())
-            ref = explorer.reference(track, ego, mean, cfg.ego.border_margin)
-        wl, wr = usable_widths(track, sig)
-        st_e = StageData(kappa=kfun(Ge[:-1, S]), wl=wl, wr=wr, ref=ref,
-                         lin=lin, opp=ellipse_data(track, cfg, mean, std))
         sol_e = ego_mpc.solve(ego, Uprev[0], alpha, st_e)
         U = np.vstack([sol_e.U[0], sol_o.U[0]])
         X = np.asarray(plant(X.T, U.T)).T
@@ -220,23 +241,34 @@ def run_race(task: dict) -> dict:
         ego_ms.append(1e3 * sol_e.seconds)
         fb.append((sol_e.fallback, sol_o.fallback))
         t = (step + 1) * dt
-        if not np.all(np.isfinite(X)):
-            end_reason = "diverged"
-            break
-        if np.isnan(t_overtake) and gap_s(track, X[1, S], X[0, S]) < 0:
+        if np.isnan(t_overtake) and np.all(np.isfinite(X)) and gap_s(track, X[1, S], X[0, S]) < 0:
             t_overtake = t
-        # a car left the track or spun: the one stop rule (no stall speed: a blocked car may stand)
-        stop = [stop_kind(x, float(track.width_left(x[S])), float(track.width_right(x[S])), cfg.car_width) for x in X]
-        if any(stop):
-            end_reason = next(k for k in stop if k)
+        end = _race_end(track, cfg, X, t, t_overtake, duration)
+        if end is not None:
+            end_reason = end
             break
-        if not duration and not np.isnan(t_overtake) and t >= t_overtake + cfg.after_overtake - 1e-9:
-            end_reason = "overtaken"
-            break
-        if not track.closed and np.max(X[:, S]) >= track.length - cfg.end_margin:
-            end_reason = "track_end"
-            break
-    H = np.array(hist_x)  # (T+1, 2, 6)
+    return _record(task, cfg, track, predictor, alpha, explorer, end_reason, t_overtake, np.array(hist_x),
+                   hist_u, hist_m if measure else None, ego_ms, fb, targets)
+
+
+def _explorer(task: dict, cfg: H2HConfig, predictor, alpha: float):
+    """The exploring ego's target picker (Algorithm 1 on its dataset), None when alpha is 0."""
+    if alpha <= 0:
+        return None
+    from gprace.h2h.explore import Explorer
+    from gprace.io.artifacts import read_artifact
+
+    data = read_artifact(task["explore_data"], "h2h_dataset")
+    return Explorer.from_data(predictor.gp, data.arrays["Z"], data.arrays["Y"], alpha,
+                              stalemate_steps=cfg.stalemate_steps, stalemate_tol=cfg.stalemate_tol,
+                              hold_steps=cfg.hold_steps)
+
+
+def _record(task: dict, cfg: H2HConfig, track, predictor, alpha: float, explorer, end_reason: str,
+            t_overtake: float, H: np.ndarray, hist_u: list, hist_m: list | None, ego_ms: list, fb: list,
+            targets: list) -> dict:
+    """The race record: states (T+1, 2, 6) of both cars, inputs, border hits, collisions, outcome."""
+    dt = cfg.dt
     Xe, Xo = H[:, 0], H[:, 1]
     be = border_hits(track, Xe, cfg.car_length, cfg.car_width)
     bo = border_hits(track, Xo, cfg.car_length, cfg.car_width)
@@ -248,7 +280,7 @@ def run_race(task: dict) -> dict:
         "ego_solve_ms": np.array(ego_ms), "fallback_ego": fb[:, 0], "fallback_opp": fb[:, 1],
         "border_ego": be, "border_opp": bo, "collision": col,
     }
-    if measure:
+    if hist_m is not None:
         M = np.array(hist_m)
         arrays["ego_meas"], arrays["opp_meas"] = M[:, 0], M[:, 1]
     if targets:
