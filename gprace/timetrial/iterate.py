@@ -43,8 +43,9 @@ from __future__ import annotations
 import json
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -347,138 +348,207 @@ def _oracle_task(task: dict) -> list[dict]:
     return [res]
 
 
-def _run_chain(task: dict) -> list[dict]:
+@dataclass
+class _Chain:
+    """What every step of one trial's chain of iterations reads: settings, folders, the track, the
+    nominal model, the plant, the held-out and calibration features."""
+
+    st: IterateSettings
+    out: Path
+    trial: int
+    steps: Steps
+    track: Any
+    model: Any
+    plant: Any
+    mpc: Any
+    drive: Any  # DriveSettings
+    seed: int
+    heldout: dict  # kind -> held-out (Z, Y)
+    calib: dict  # kind -> calibration (Z, Y) or None
+    cap: np.ndarray
+
+    @property
+    def folder(self) -> Path:
+        return self.out / f"trial_{self.trial}"
+
+    def dir(self, i: int) -> Path:
+        return self.folder / f"iter_{i:02d}"
+
+    def tag(self, i: int, name: str) -> str:
+        return f"t{self.trial}_i{i}_{name}"
+
+    def record(self, i: int) -> dict:
+        return read_record(self.dir(i) / "record.json")
+
+
+def _chain(task: dict) -> _Chain:
     from gprace.config import load_plant, load_vehicle
-    from gprace.io.artifacts import Artifact, read_artifact, write_artifact
-    from gprace.io.runs import read_run, write_run
+    from gprace.io.runs import read_run
     from gprace.model import NominalModel
     from gprace.mpc.tracking import MPCSettings
-    from gprace.plan import PlanSettings, curvature_plan, plan_min_time, read_plan
     from gprace.timetrial import grip as G
     from gprace.timetrial import learning as L
-    from gprace.timetrial.drive import DriveSettings, drive
+    from gprace.timetrial.drive import DriveSettings
     from gprace.tracks import load_track
 
     st = _task_settings(task)
     out, j = Path(task["out"]), int(task["trial"])
-    steps = Steps(out)
-    tdir = out / f"trial_{j}"
-    track = load_track(st.track)
-    vehicle = load_vehicle(st.vehicle)
-    model = NominalModel(vehicle)
-    plant = load_plant(st.plant)
+    track, model = load_track(st.track), NominalModel(load_vehicle(st.vehicle))
     mpc = MPCSettings(solver=st.solver, beta=st.beta, grip=st.grip)
-    dsettings = DriveSettings(laps=st.laps, mpc=mpc)
-    seed = st.seed * 1000 + j + 1
     heldout = read_run(out / "heldout.h5")
-    H = {k: L.features(heldout, model, track, k, st.features) for k in ("tracking", "planning")}
     calib = read_run(out / "calib.h5") if st.calib_weave > 0 else None
-    C = {k: L.features(calib, model, track, k, st.features) if calib is not None else None for k in ("tracking", "planning")}
-    cap = G.nominal_cap(model, st.plan_grip)
+    kinds = ("tracking", "planning")
+    return _Chain(
+        st=st, out=out, trial=j, steps=Steps(out), track=track, model=model, plant=load_plant(st.plant), mpc=mpc,
+        drive=DriveSettings(laps=st.laps, mpc=mpc), seed=st.seed * 1000 + j + 1,
+        heldout={k: L.features(heldout, model, track, k, st.features) for k in kinds},
+        calib={k: L.features(calib, model, track, k, st.features) if calib is not None else None for k in kinds},
+        cap=G.nominal_cap(model, st.plan_grip),
+    )
 
-    def tag(i, name):
-        return f"t{j}_i{i}_{name}"
 
-    def record(i):
-        return read_record(tdir / f"iter_{i:02d}" / "record.json")
+def _iteration_zero(c: _Chain) -> None:
+    """The nominal model's curvature plan, driven."""
+    from gprace.io.runs import write_run
+    from gprace.plan import curvature_plan, read_plan
+    from gprace.timetrial import grip as G
+    from gprace.timetrial.drive import drive
 
-    # iteration 0 ------------------------------------------------------------------------------
-    d0 = tdir / "iter_00"
-    if not steps.done(tag(0, "drive")):
-        console.info(f"iterate: {out.name} trial {j} iteration 0 (nominal model): curvature plan, drive")
-    if not steps.done(tag(0, "plan")):
-        p0 = curvature_plan(track, model, ds=st.plan_ds, speed_scale=st.first_speed_scale)
+    st, d0 = c.st, c.dir(0)
+    if not c.steps.done(c.tag(0, "drive")):
+        console.info(f"iterate: {c.out.name} trial {c.trial} iteration 0 (nominal model): curvature plan, drive")
+    if not c.steps.done(c.tag(0, "plan")):
+        p0 = curvature_plan(c.track, c.model, ds=st.plan_ds, speed_scale=st.first_speed_scale)
         # what the curvature plan used: its lateral and braking limits scaled, the drive limit full
-        p0.meta["limits"] = (G.nominal_cap(model, 1.0) * [st.first_speed_scale, 1.0, st.first_speed_scale]).tolist()
+        p0.meta["limits"] = (G.nominal_cap(c.model, 1.0) * [st.first_speed_scale, 1.0, st.first_speed_scale]).tolist()
         p0.write(d0 / "plan.h5")
-        steps.mark(tag(0, "plan"))
-    if not steps.done(tag(0, "drive")):
-        plan = read_plan(d0 / "plan.h5", track)
-        run = drive(plan, plant, track, model, dsettings, seed=seed * 100)
+        c.steps.mark(c.tag(0, "plan"))
+    if not c.steps.done(c.tag(0, "drive")):
+        plan = read_plan(d0 / "plan.h5", c.track)
+        run = drive(plan, c.plant, c.track, c.model, c.drive, seed=c.seed * 100)
         write_run(run, d0 / "run.h5")
-        _write_json(d0 / "record.json", _record(0, 0.0, j, plan, run, None, None, H, _lap_extra(run, model)))
-        steps.mark(tag(0, "drive"))
+        _write_json(d0 / "record.json", _record(0, 0.0, c.trial, plan, run, None, None, c.heldout,
+                                                _lap_extra(run, c.model)))
+        c.steps.mark(c.tag(0, "drive"))
 
-    for i in range(1, st.iterations + 1):
-        alpha = st.alpha(i)
-        di, dp = tdir / f"iter_{i:02d}", tdir / f"iter_{i - 1:02d}"
-        if not steps.done(tag(i, "drive")):
-            console.info(f"iterate: {out.name} trial {j} iteration {i} (alpha {alpha:g}): select, retrain, plan, drive")
-        # (1) data selection ---------------------------------------------------------------------
-        if not steps.done(tag(i, "select")):
-            prev_run = read_run(dp / "run.h5")
-            sel_stats = {}
-            for kind in ("tracking", "planning"):
-                Znew, Ynew = L.features(prev_run, model, track, kind, st.features)
-                hyper_path = tdir / f"hyper_{kind}.h5"
-                if not hyper_path.exists():
-                    if len(Znew) < 20:
-                        raise RunFailedError(f"trial {j}: iteration {i - 1} recorded only {len(Znew)} usable samples; cannot train the GPs")
-                    gp0 = L.fit_hyper(Znew, Ynew, seed=seed, max_fit_points=st.max_fit_points)
-                    L.save_predictor(hyper_path, gp0, kind, feature_set=st.features)
-                hyper = L.load_predictor(hyper_path, kind).gp
-                old = None
-                if i > 1:
-                    a = read_artifact(dp / f"data_{kind}.h5", "dataset")
-                    old = L.Dictionary(a.arrays["Z"], a.arrays["Y"], int(a.attrs["n_seen"]))
-                d, stats = L.update_dictionary(old, Znew, Ynew, st.dictionary_size, st.selection, hyper.hyper_, seed=seed + i)
-                sel_stats[kind] = stats
-                write_artifact(di / f"data_{kind}.h5", Artifact("dataset", {"Z": d.Z, "Y": d.Y},
-                                                                 {"n_seen": int(d.n_seen), "gp": kind, "selection": st.selection,
-                                                                  "stats": stats}))
-            steps.mark(tag(i, "select"))
-        # (2) retrain ----------------------------------------------------------------------------
-        if not steps.done(tag(i, "retrain")):
-            for kind in ("tracking", "planning"):
-                a = read_artifact(di / f"data_{kind}.h5", "dataset")
-                hyper = L.load_predictor(tdir / f"hyper_{kind}.h5", kind).gp
-                gp = L.refit_fixed(hyper, a.arrays["Z"], a.arrays["Y"])
-                L.save_predictor(di / f"gp_{kind}.h5", gp, kind, {"iteration": i, "trial": j}, st.features, L.calibrate(gp, calib=C[kind]))
-                if kind == "tracking":
-                    grid = make_grid(gp, a.arrays["Z"], mpc, st.grid_values)
-                    write_artifact(di / "candidates.h5", Artifact("candidates", {"Z": grid.Z, "v": grid.v, "scale": grid.scale}))
-            steps.mark(tag(i, "retrain"))
-        # (3) plan -------------------------------------------------------------------------------
-        if not steps.done(tag(i, "plan")):
-            last = read_plan(dp / "plan.h5", track)
-            rec = record(i - 1)
-            failed = [record(k)["limits"] for k in range(i) if not record(k)["completed"]]
-            limits = G.next_limits(last.meta.get("limits", cap), rec["envelope"], rec["completed"], rec["utilisation"],
-                                   cap, st.widen, failed=failed, border_hits=rec["border_hits"])
-            good = [k for k in range(i - 1, -1, -1) if record(k)["completed"]]
-            warm = read_plan(tdir / f"iter_{good[0]:02d}" / "plan.h5", track) if good else None
-            gp_plan = L.load_predictor(di / "gp_planning.h5", "planning")
-            try:
-                plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, limits=tuple(limits)),
-                                     warm=warm or last, mu_plan=lambda X, U: gp_plan.at(X, U)[0])
-            except SolverError as exc:
-                # a failed re-plan must not end the experiment: drive the last plan that completed a
-                # lap again (never a plan that failed), or a slower curvature plan if none did
-                scale = st.first_speed_scale * (1 - 2 * st.widen)
-                plan = warm or curvature_plan(track, model, ds=st.plan_ds, speed_scale=scale)
-                # the limits of the plan actually driven, not the ones tried: the next widening
-                # starts from what was driven (measured: two widenings at once after a failed
-                # re-plan, then a spin at s = 2266 m)
-                limits = plan.meta.get("limits", G.nominal_cap(model, 1.0) * [scale, 1.0, scale])
-                plan.meta = {**plan.meta, "replan_failed": str(exc)}
-            plan.meta["limits"] = [float(v) for v in limits]
-            plan.write(di / "plan.h5")
-            steps.mark(tag(i, "plan"))
-        # (4) drive ------------------------------------------------------------------------------
-        if not steps.done(tag(i, "drive")):
-            plan = read_plan(di / "plan.h5", track)
-            gp_track = L.load_predictor(di / "gp_tracking.h5", "tracking")
-            c = read_artifact(di / "candidates.h5", "candidates")
-            from gprace.explore.algorithm import CandidateGrid
 
-            grid = CandidateGrid(c.arrays["Z"], c.arrays["v"], c.arrays["scale"])
-            run = drive(plan, plant, track, model, dsettings, gp=gp_track, grid=grid, alpha=alpha, seed=seed * 100 + i)
-            write_run(run, di / "run.h5")
-            gps = {k: L.load_predictor(di / f"gp_{k}.h5", k) for k in ("tracking", "planning")}
-            sizes = {k: int(read_artifact(di / f"data_{k}.h5", "dataset").arrays["Z"].shape[0]) for k in gps}
-            _write_json(di / "record.json", _record(i, alpha, j, plan, run, gps, sizes, H, _lap_extra(run, model)))
-            steps.mark(tag(i, "drive"))
-    return [record(i) for i in range(st.iterations + 1)]
+def _select(c: _Chain, i: int) -> None:
+    """(1) The last run's samples streamed into each GP's dictionary (hyperparameters fitted once,
+    on the first run's data)."""
+    from gprace.io.artifacts import Artifact, read_artifact, write_artifact
+    from gprace.io.runs import read_run
+    from gprace.timetrial import learning as L
+
+    st, di, dp, tdir = c.st, c.dir(i), c.dir(i - 1), c.folder
+    prev_run = read_run(dp / "run.h5")
+    for kind in ("tracking", "planning"):
+        Znew, Ynew = L.features(prev_run, c.model, c.track, kind, st.features)
+        hyper_path = tdir / f"hyper_{kind}.h5"
+        if not hyper_path.exists():
+            if len(Znew) < 20:
+                raise RunFailedError(f"trial {c.trial}: iteration {i - 1} recorded only {len(Znew)} usable samples; "
+                                     "cannot train the GPs")
+            gp0 = L.fit_hyper(Znew, Ynew, seed=c.seed, max_fit_points=st.max_fit_points)
+            L.save_predictor(hyper_path, gp0, kind, feature_set=st.features)
+        hyper = L.load_predictor(hyper_path, kind).gp
+        old = None
+        if i > 1:
+            a = read_artifact(dp / f"data_{kind}.h5", "dataset")
+            old = L.Dictionary(a.arrays["Z"], a.arrays["Y"], int(a.attrs["n_seen"]))
+        d, stats = L.update_dictionary(old, Znew, Ynew, st.dictionary_size, st.selection, hyper.hyper_, seed=c.seed + i)
+        write_artifact(di / f"data_{kind}.h5", Artifact("dataset", {"Z": d.Z, "Y": d.Y},
+                                                         {"n_seen": int(d.n_seen), "gp": kind, "selection": st.selection,
+                                                          "stats": stats}))
+
+
+def _retrain(c: _Chain, i: int) -> None:
+    """(2) Both GPs on their dictionaries, calibrated; the exploration candidates of the tracking GP."""
+    from gprace.io.artifacts import Artifact, read_artifact, write_artifact
+    from gprace.timetrial import learning as L
+
+    di = c.dir(i)
+    for kind in ("tracking", "planning"):
+        a = read_artifact(di / f"data_{kind}.h5", "dataset")
+        hyper = L.load_predictor(c.folder / f"hyper_{kind}.h5", kind).gp
+        gp = L.refit_fixed(hyper, a.arrays["Z"], a.arrays["Y"])
+        L.save_predictor(di / f"gp_{kind}.h5", gp, kind, {"iteration": i, "trial": c.trial}, c.st.features,
+                         L.calibrate(gp, calib=c.calib[kind]))
+        if kind == "tracking":
+            grid = make_grid(gp, a.arrays["Z"], c.mpc, c.st.grid_values)
+            write_artifact(di / "candidates.h5", Artifact("candidates", {"Z": grid.Z, "v": grid.v, "scale": grid.scale}))
+
+
+def _replan(c: _Chain, i: int) -> None:
+    """(3) The minimum-time plan with the planning GP inside the widened friction envelope."""
+    from gprace.plan import PlanSettings, curvature_plan, plan_min_time, read_plan
+    from gprace.timetrial import grip as G
+    from gprace.timetrial import learning as L
+
+    st, track, model = c.st, c.track, c.model
+    last = read_plan(c.dir(i - 1) / "plan.h5", track)
+    rec = c.record(i - 1)
+    failed = [c.record(k)["limits"] for k in range(i) if not c.record(k)["completed"]]
+    limits = G.next_limits(last.meta.get("limits", c.cap), rec["envelope"], rec["completed"], rec["utilisation"],
+                           c.cap, st.widen, failed=failed, border_hits=rec["border_hits"])
+    good = [k for k in range(i - 1, -1, -1) if c.record(k)["completed"]]
+    warm = read_plan(c.dir(good[0]) / "plan.h5", track) if good else None
+    gp_plan = L.load_predictor(c.dir(i) / "gp_planning.h5", "planning")
+    try:
+        plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, limits=tuple(limits)),
+                             warm=warm or last, mu_plan=lambda X, U: gp_plan.at(X, U)[0])
+    except SolverError as exc:
+        # a failed re-plan must not end the experiment: drive the last plan that completed a
+        # lap again (never a plan that failed), or a slower curvature plan if none did
+        scale = st.first_speed_scale * (1 - 2 * st.widen)
+        plan = warm or curvature_plan(track, model, ds=st.plan_ds, speed_scale=scale)
+        # the limits of the plan actually driven, not the ones tried: the next widening
+        # starts from what was driven (measured: two widenings at once after a failed
+        # re-plan, then a spin at s = 2266 m)
+        limits = plan.meta.get("limits", G.nominal_cap(model, 1.0) * [scale, 1.0, scale])
+        plan.meta = {**plan.meta, "replan_failed": str(exc)}
+    plan.meta["limits"] = [float(v) for v in limits]
+    plan.write(c.dir(i) / "plan.h5")
+
+
+def _drive_iteration(c: _Chain, i: int, alpha: float) -> None:
+    """(4) The plan driven by the GP-compensated tracking MPC, exploring with weight ``alpha``."""
+    from gprace.explore.algorithm import CandidateGrid
+    from gprace.io.artifacts import read_artifact
+    from gprace.io.runs import write_run
+    from gprace.plan import read_plan
+    from gprace.timetrial import learning as L
+    from gprace.timetrial.drive import drive
+
+    di = c.dir(i)
+    plan = read_plan(di / "plan.h5", c.track)
+    gp_track = L.load_predictor(di / "gp_tracking.h5", "tracking")
+    a = read_artifact(di / "candidates.h5", "candidates")
+    grid = CandidateGrid(a.arrays["Z"], a.arrays["v"], a.arrays["scale"])
+    run = drive(plan, c.plant, c.track, c.model, c.drive, gp=gp_track, grid=grid, alpha=alpha, seed=c.seed * 100 + i)
+    write_run(run, di / "run.h5")
+    gps = {k: L.load_predictor(di / f"gp_{k}.h5", k) for k in ("tracking", "planning")}
+    sizes = {k: int(read_artifact(di / f"data_{k}.h5", "dataset").arrays["Z"].shape[0]) for k in gps}
+    _write_json(di / "record.json", _record(i, alpha, c.trial, plan, run, gps, sizes, c.heldout, _lap_extra(run, c.model)))
+
+
+def _run_chain(task: dict) -> list[dict]:
+    """One trial: iteration 0, then per iteration select, retrain, plan, drive; each step once
+    (a rerun resumes after the last step marked done)."""
+    c = _chain(task)
+    _iteration_zero(c)
+    for i in range(1, c.st.iterations + 1):
+        alpha = c.st.alpha(i)
+        if not c.steps.done(c.tag(i, "drive")):
+            console.info(f"iterate: {c.out.name} trial {c.trial} iteration {i} (alpha {alpha:g}): select, retrain, "
+                         "plan, drive")
+        for name, step in (("select", _select), ("retrain", _retrain), ("plan", _replan)):
+            if not c.steps.done(c.tag(i, name)):
+                step(c, i)
+                c.steps.mark(c.tag(i, name))
+        if not c.steps.done(c.tag(i, "drive")):
+            _drive_iteration(c, i, alpha)
+            c.steps.mark(c.tag(i, "drive"))
+    return [c.record(i) for i in range(c.st.iterations + 1)]
 
 
 def make_grid(gp, Z: np.ndarray, mpc, n_values: int):
