@@ -221,6 +221,16 @@ def _read_json(p: Path) -> Any:
         return None
 
 
+def _iteration_record(p: Path) -> dict | None:
+    """A time-trial iteration record through its schema (None if it is not one; never rewritten)."""
+    from gprace.timetrial.record import read_record
+
+    try:
+        return read_record(p, migrate=False)
+    except UNREADABLE:
+        return None
+
+
 def _iterate_root(p: Path, top: Path) -> Path | None:
     """The iterate folder of an artifact: the nearest ancestor with settings.json or summary.json,
     else the folder above its ``iter_<i>`` (and ``trial_<j>``) folders; None outside any."""
@@ -261,8 +271,8 @@ def timetrial_variants(found: Found) -> dict[Path, dict[str, Any]]:
         v["rows"] = _rows_in(v["summary"]) if v["summary"] is not None else []
         v["rows_from"] = "summary.json" if v["rows"] else ""
         if not v["rows"]:
-            recs = [_read_json(q) for q in sorted(root.glob("**/record.json"))]
-            v["rows"] = [r for r in recs if isinstance(r, dict) and _get(r, "iteration") is not None]
+            recs = [_iteration_record(q) for q in sorted(root.glob("**/record.json"))]
+            v["rows"] = [r for r in recs if r is not None]
             v["rows_from"] = "record.json files" if v["rows"] else ""
         v["runs"], v["plans"] = [], []
         for p in found.of("run"):
@@ -295,6 +305,23 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
     if not variants and not loose_runs and not loose_plans:
         return None
     sec = Section("timetrial", "Time trial")
+    lap, gperr, table_rows = _iteration_rows(sec, variants)
+    _lap_and_error_figures(sec, variants, lap, gperr, table_rows)
+    all_runs = [r for v in variants.values() for r in v["runs"]]
+    _exploration_figure(sec, found, variants, all_runs)
+    _driven_line_figure(sec, all_runs, loose_runs, track_override)
+    if not variants:
+        for p in loose_plans[:2]:
+            art = open_artifact(p, "plan")
+            track = _load_track(art.attrs.get("track"), track_override)
+            sec.add_figure(f"plan_{p.stem}", f"Plan {p.name}: lap time {float(art.attrs.get('lap_time', np.nan)):.2f} s",
+                           lambda art=art, track=track, p=p: F.fig_plan(art.arrays, track, title=p.name))
+    return sec
+
+
+def _iteration_rows(sec: Section, variants: dict) -> tuple[dict, dict, list]:
+    """Per variant: lap times and GP errors per iteration (from the records, else from the run
+    files), the table's rows; what is missing goes to ``sec.missing``."""
     lap: dict[str, dict[str, list[float]]] = {}
     gperr: dict[str, dict[str, list[float]]] = {}
     table_rows = []
@@ -345,6 +372,11 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
             want = _expected_iterations(v)
             if want is not None and len(done) < want:
                 sec.missing.append(f"{root} ({name}): {len(done)} of {want} iterations finished")
+    return lap, gperr, table_rows
+
+
+def _lap_and_error_figures(sec: Section, variants: dict, lap: dict, gperr: dict, table_rows: list) -> None:
+    """Lap times per iteration (figure and table) and the GPs' errors per iteration."""
     lap = {k: {a: np.asarray(b) for a, b in d.items()} for k, d in lap.items() if d["iteration"]}
     if lap:
         sec.add_figure("lap_times", "Lap time per iteration: planned, driven and their difference (mean and "
@@ -368,8 +400,10 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
                        "(mean and +-1 std over trials)", lambda: F.fig_gp_errors(gperr))
     elif variants:
         sec.missing.append("GP prediction errors per iteration: not in any summary.json yet")
-    # data collected in an exploration iteration, against its plan
-    all_runs = [r for v in variants.values() for r in v["runs"]]
+
+
+def _exploration_figure(sec: Section, found: Found, variants: dict, all_runs: list) -> None:
+    """The data collected in the first exploration iteration, against its plan."""
     expl = [r for r in all_runs if float(r[1].attrs.get("alpha", 0) or 0) > 0]
     if expl:
         p, art, it, _ = sorted(expl, key=lambda r: (r[2] if r[2] is not None else 0, r[3]))[0]
@@ -383,7 +417,10 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
             sec.missing.append(f"{p}: exploration run found but no plan next to it")
     elif variants:
         sec.missing.append("no run driven with exploration (alpha > 0) found")
-    # driven line of the latest run
+
+
+def _driven_line_figure(sec: Section, all_runs: list, loose_runs: list, track_override: str | None) -> None:
+    """The latest run's line coloured by speed (a loose run if no iterate folder has one)."""
     cand = sorted(all_runs, key=lambda r: (r[2] if r[2] is not None else -1, -r[3]))
     pick = cand[-1] if cand else None
     if pick is None and loose_runs:
@@ -402,13 +439,6 @@ def timetrial_section(found: Found, track_override: str | None = None) -> Sectio
                                                      title=p.name))
         else:
             sec.missing.append(f"{p}: track {art.attrs.get('track')!r} cannot be loaded; pass --track for the map")
-    if not variants:
-        for p in loose_plans[:2]:
-            art = open_artifact(p, "plan")
-            track = _load_track(art.attrs.get("track"), track_override)
-            sec.add_figure(f"plan_{p.stem}", f"Plan {p.name}: lap time {float(art.attrs.get('lap_time', np.nan)):.2f} s",
-                           lambda art=art, track=track, p=p: F.fig_plan(art.arrays, track, title=p.name))
-    return sec
 
 
 def _lap_status(r: dict) -> str:

@@ -2,7 +2,7 @@
 
 Public surface::
 
-    from gprace.timetrial import DriveSettings, IterateSettings, iterate_many, read_record, load_predictor
+    from gprace.timetrial import DriveSettings, IterateSettings, iterate_many, read_record, IterationRecord
 
 The stage functions are named like their modules: ``gprace.timetrial.drive.drive``,
 ``gprace.timetrial.iterate.iterate``, ``gprace.timetrial.compare.compare``.
@@ -16,4 +16,5 @@ and :mod:`~gprace.timetrial.commands` (CLI).
 from gprace._lazy import lazy_face
 
 __all__, __getattr__ = lazy_face(__name__, {
-    "drive": "DriveSettings", "iterate": "iterate_many IterateSettings read_record", "learning": "load_predictor"})
+    "drive": "DriveSettings", "iterate": "iterate_many IterateSettings",
+    "record": "IterationRecord read_record", "learning": "load_predictor"})

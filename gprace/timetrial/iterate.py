@@ -53,6 +53,7 @@ from pydantic import Field, model_validator
 from gprace.config import CommandSettings
 from gprace.console import console, jsonable
 from gprace.errors import InputError, RunFailedError, SolverError
+from gprace.timetrial.record import IterationRecord, read_record, write_record
 
 class IterateSettings(CommandSettings):
     """The iterative double-GP time trial (``gprace iterate``; defaults: the paper's schedule)."""
@@ -126,11 +127,6 @@ class Steps:
         tmp = p.with_suffix(".tmp")
         tmp.write_text(time.strftime("%Y-%m-%dT%H:%M:%S"))
         os.replace(tmp, p)
-
-
-def read_record(path: Path) -> dict:
-    """A record written by :func:`_write_json`, with ``null`` read back as NaN."""
-    return {k: float("nan") if v is None else v for k, v in json.loads(Path(path).read_text()).items()}
 
 
 def _write_json(path: Path, obj) -> None:
@@ -427,7 +423,7 @@ def _iteration_zero(c: _Chain) -> None:
         plan = read_plan(d0 / "plan.h5", c.track)
         run = drive(plan, c.plant, c.track, c.model, c.drive, seed=c.seed * 100)
         write_run(run, d0 / "run.h5")
-        _write_json(d0 / "record.json", _record(0, 0.0, c.trial, plan, run, None, None, c.heldout,
+        write_record(d0 / "record.json", _record(0, 0.0, c.trial, plan, run, None, None, c.heldout,
                                                 _lap_extra(run, c.model)))
         c.steps.mark(c.tag(0, "drive"))
 
@@ -528,7 +524,7 @@ def _drive_iteration(c: _Chain, i: int, alpha: float) -> None:
     write_run(run, di / "run.h5")
     gps = {k: L.load_predictor(di / f"gp_{k}.h5", k) for k in ("tracking", "planning")}
     sizes = {k: int(read_artifact(di / f"data_{k}.h5", "dataset").arrays["Z"].shape[0]) for k in gps}
-    _write_json(di / "record.json", _record(i, alpha, c.trial, plan, run, gps, sizes, c.heldout, _lap_extra(run, c.model)))
+    write_record(di / "record.json", _record(i, alpha, c.trial, plan, run, gps, sizes, c.heldout, _lap_extra(run, c.model)))
 
 
 def _run_chain(task: dict) -> list[dict]:
@@ -593,7 +589,7 @@ def _coverage(pred, data) -> float:
     return float(np.min(coverage(pred, Z, Y)))
 
 
-def _record(i, alpha, trial, plan, run, gps, sizes, H, extra) -> dict:
+def _record(i, alpha, trial, plan, run, gps, sizes, H, extra) -> IterationRecord:
     m = run.meta
     rec = {
         "iteration": i, "trial": trial, "alpha": alpha, "planned": float(plan.lap_time),
@@ -607,8 +603,7 @@ def _record(i, alpha, trial, plan, run, gps, sizes, H, extra) -> dict:
         rec[f"dict_{k}"] = int(sizes[k]) if sizes else 0
         rec[f"cov_{k}"] = _coverage(gps[k] if gps else None, H[k])
     rec["limits"] = [float(v) for v in plan.meta.get("limits", [])]
-    rec.update(extra)
-    return rec
+    return IterationRecord(**rec, **extra)
 
 
 def build_summary(out: str | Path) -> dict:
