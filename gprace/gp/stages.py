@@ -48,11 +48,9 @@ def select_data(
     reused). Hyperparameters for ``diverse`` come, in this order, from ``model`` (a gp_model),
     the continued dataset, or a quick exact-GP fit on at most 300 points of all the data.
     """
-    from gprace.gp.dataset import GPDataset, is_dataset, read_dataset, write_dataset
-    from gprace.gp.features import dyn_feature_set, feature_map, run_features
+    from gprace.gp.dataset import GPDataset, write_dataset
+    from gprace.gp.features import dyn_feature_set, feature_map
     from gprace.gp.kernels import check_kernel
-    from gprace.io.envelope import envelope
-    from gprace.io.runs import read_run
 
     fmap = feature_map(gp)
     if gp == "opponent":
@@ -66,6 +64,47 @@ def select_data(
         raise InputError("select-data: no RUN given")
     input_names = list(dyn_feature_set(features))
     veh = _load_vehicle(vehicle)
+
+    previous, Zs, Ys, sources, dts, envelopes = _read_inputs(inputs, gp, input_names, features, step, veh)
+    dt = dts[0]
+    bad = [s for s, d in zip(sources, dts) if abs(d - dt) > 1e-6 * dt]
+    prev_dt = previous.attrs.get("dt") if previous is not None else None
+    if bad or (prev_dt and abs(float(prev_dt) - dt) > 1e-6 * dt):
+        raise InputError(f"runs with different periods cannot share one dataset (dt {dt} s vs {bad or prev_dt})")
+    Znew, Ynew = np.concatenate(Zs), np.concatenate(Ys)
+
+    t0 = time.perf_counter()
+    Z, Y, n_seen, stats, hyper = _stream(selection, previous, Znew, Ynew, max_points, seed, model, gp, kernel,
+                                         outlier_kappa)
+    elapsed = time.perf_counter() - t0
+
+    attrs = {
+        "selection": selection,
+        "max_points": int(max_points),
+        "n_seen": int(n_seen),
+        "dt": float(dt),
+        "step": step,
+        "vehicle": veh.name if veh is not None else "",
+        "sources": (list(previous.attrs.get("sources", [])) if previous is not None else []) + sources,
+        "outlier_kappa": outlier_kappa if outlier_kappa is not None else 0.0,
+        "stats": stats,
+        "excluded_samples": int(sum(e.samples_excluded for e in envelopes)),
+    }
+    write_dataset(output, GPDataset(Z, Y, gp, input_names, list(fmap.output_names), attrs, hyper),
+                  seed=seed)
+    return {"output": str(output), "feature_map": gp, "selection": selection, "points": int(len(Z)),
+            "max_points": int(max_points), "new_samples": int(len(Znew)), "n_seen": int(n_seen),
+            "continued_from": previous.source if previous is not None else None, "seconds": elapsed,
+            "stats": stats, "envelope": [e.to_dict() for e in envelopes], "notes": _notes(envelopes)}
+
+
+def _read_inputs(inputs, gp: str, input_names: list[str], features: str, step: str, veh):
+    """The features of every run among ``inputs``, and the one dataset to continue from (if any),
+    checked against the requested feature map, inputs and step."""
+    from gprace.gp.dataset import GPDataset, is_dataset, read_dataset
+    from gprace.gp.features import run_features
+    from gprace.io.envelope import envelope
+    from gprace.io.runs import read_run
 
     previous: GPDataset | None = None
     Zs, Ys, sources, dts, envelopes = [], [], [], [], []
@@ -95,16 +134,13 @@ def select_data(
         dts.append(run.dt)
     if not Zs:
         raise InputError("select-data: no RUN among the inputs (only a dataset)")
-    dt = dts[0]
-    bad = [s for s, d in zip(sources, dts) if abs(d - dt) > 1e-6 * dt]
-    prev_dt = previous.attrs.get("dt") if previous is not None else None
-    if bad or (prev_dt and abs(float(prev_dt) - dt) > 1e-6 * dt):
-        raise InputError(f"runs with different periods cannot share one dataset (dt {dt} s vs {bad or prev_dt})")
-    Znew, Ynew = np.concatenate(Zs), np.concatenate(Ys)
+    return previous, Zs, Ys, sources, dts, envelopes
 
-    t0 = time.perf_counter()
-    hyper = None
-    stats: dict[str, Any] = {"seen": int(len(Znew))}
+
+def _stream(selection: str, previous, Znew, Ynew, max_points: int, seed: int, model, gp: str, kernel: str,
+            outlier_kappa):
+    """The new points streamed into the (continued) dictionary: ``Z, Y, n_seen, stats, hyper``
+    (``hyper`` is None for random selection)."""
     if selection == "random":
         from gprace.gp.selection import random_subsample, reservoir_merge
 
@@ -113,35 +149,14 @@ def select_data(
         else:
             Z, Y = random_subsample(Znew, Ynew, max_points, seed)
             n_seen = len(Znew)
-    else:
-        from gprace.gp.selection import select_diverse
+        return Z, Y, n_seen, {"seen": int(len(Znew))}, None
+    from gprace.gp.selection import select_diverse
 
-        hyper, hyper_source = _selection_hyper(model, previous, gp, kernel, Znew, Ynew, seed)
-        initial = (previous.Z, previous.Y) if previous is not None and len(previous.Z) else None
-        Z, Y, st = select_diverse(hyper, Znew, Ynew, max_points, outlier_kappa, initial=initial)
-        stats = st.as_dict()
-        stats["hyperparameters_from"] = hyper_source
-        n_seen = (previous.n_seen if previous is not None else 0) + len(Znew)
-    elapsed = time.perf_counter() - t0
-
-    attrs = {
-        "selection": selection,
-        "max_points": int(max_points),
-        "n_seen": int(n_seen),
-        "dt": float(dt),
-        "step": step,
-        "vehicle": veh.name if veh is not None else "",
-        "sources": (list(previous.attrs.get("sources", [])) if previous is not None else []) + sources,
-        "outlier_kappa": outlier_kappa if outlier_kappa is not None else 0.0,
-        "stats": stats,
-        "excluded_samples": int(sum(e.samples_excluded for e in envelopes)),
-    }
-    write_dataset(output, GPDataset(Z, Y, gp, input_names, list(fmap.output_names), attrs, hyper),
-                  seed=seed)
-    return {"output": str(output), "feature_map": gp, "selection": selection, "points": int(len(Z)),
-            "max_points": int(max_points), "new_samples": int(len(Znew)), "n_seen": int(n_seen),
-            "continued_from": previous.source if previous is not None else None, "seconds": elapsed,
-            "stats": stats, "envelope": [e.to_dict() for e in envelopes], "notes": _notes(envelopes)}
+    hyper, hyper_source = _selection_hyper(model, previous, gp, kernel, Znew, Ynew, seed)
+    initial = (previous.Z, previous.Y) if previous is not None and len(previous.Z) else None
+    Z, Y, st = select_diverse(hyper, Znew, Ynew, max_points, outlier_kappa, initial=initial)
+    stats = {**st.as_dict(), "hyperparameters_from": hyper_source}
+    return Z, Y, (previous.n_seen if previous is not None else 0) + len(Znew), stats, hyper
 
 
 def _notes(envelopes) -> list[str]:

@@ -40,8 +40,10 @@ import enum
 from dataclasses import dataclass, field
 
 import numpy as np
+from pydantic import Field
 from scipy import sparse
 
+from gprace.config import Frozen
 from gprace.model.dynamics import NU as NUS
 from gprace.model.dynamics import NX as NXS
 from gprace.model.dynamics import State
@@ -77,18 +79,19 @@ class QPResult:
     message: str = ""
 
 
-@dataclass(frozen=True)
-class Weights:
+class Weights(Frozen):
     """Diagonal weights of the tracking cost."""
 
-    Q: tuple[float, ...] = (1.0, 2.0, 20.0, 200.0, 20.0, 0.5)   # v_x, v_y, yaw_rate, e_psi, e_y, s
-    R: tuple[float, ...] = (20.0, 0.02)                          # delta, a_x
-    r_delta: float = 2000.0                                      # (delta_k - delta_{k-1})^2
-    r_accel: float = 0.5                                         # (a_k - a_{k-1})^2
-    slack_l1: float = 2000.0
-    slack_l2: float = 2000.0
-    grip_l1: float = 1e5        # slack of the grip rows (per rad of rear slip beyond its bound): an exact penalty
-    grip_l2: float = 1e6
+    Q: tuple[float, float, float, float, float, float] = Field(
+        (1.0, 2.0, 20.0, 200.0, 20.0, 0.5), description="state weights: v_x, v_y, yaw_rate, e_psi, e_y, s")
+    R: tuple[float, float] = Field((20.0, 0.02), description="input weights: delta, a_x")
+    r_delta: float = Field(2000.0, ge=0, description="weight of (delta_k - delta_{k-1})^2")
+    r_accel: float = Field(0.5, ge=0, description="weight of (a_k - a_{k-1})^2")
+    slack_l1: float = Field(2000.0, ge=0, description="linear penalty of the border slack")
+    slack_l2: float = Field(2000.0, ge=0, description="quadratic penalty of the border slack")
+    grip_l1: float = Field(1e5, ge=0, description="linear penalty of the grip rows' slack (per rad of rear slip "
+                           "beyond its bound): an exact penalty")
+    grip_l2: float = Field(1e6, ge=0, description="quadratic penalty of the grip rows' slack")
 
 
 @dataclass

@@ -39,11 +39,13 @@ Each control period:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
+from pydantic import Field, model_validator
 from scipy.special import erfinv
 
+from gprace.config import CommandSettings
 from gprace.errors import ConfigError
 from gprace.gp.features import DYN_INPUTS, dyn_inputs
 from gprace.model.dynamics import Input, State
@@ -58,26 +60,31 @@ _REF = {"v_x": ("x", State.V_X), "v_y": ("x", State.V_Y), "yaw_rate": ("x", Stat
 GP_STATES = slice(State.V_Y, State.YAW_RATE + 1)  # the states the GP corrects: v_y, yaw_rate
 
 
-@dataclass(frozen=True)
-class MPCSettings:
-    N: int = 20
-    dt: float = 0.05
-    beta: float = 0.6
-    solver: str = "clarabel"
-    margin: float = 0.1            # distance kept from the border on top of half the car width [m]
-    integrator: str = "rk4"        # prediction step: "rk4" (default) or "euler" (the paper's)
-    explore_radius: float = 0.5    # exploration trust region: candidates within this scaled distance of z~
-    explore_brake: float = 0.5     # no exploration while the reference brakes harder than this share of the limit
-    grip: bool = True              # bound the rear slip angle (False: the paper's QP)
-    grip_share: float = 0.9        # share of the nominal rear tire's peak slip angle
-    weights: Weights = field(default_factory=Weights)
+class MPCSettings(CommandSettings):
+    """The tracking MPC (paper problem "tracking_problem")."""
 
-    def __post_init__(self) -> None:
-        if not 0.0 < self.grip_share <= 2.0:
-            raise ConfigError(f"grip_share must be in (0, 2], got {self.grip_share}")
-        if not self.explore_radius > 0.0:
-            raise ConfigError(f"--explore-radius must be positive (a scaled feature distance), got {self.explore_radius}")
+    OPTIONS: ClassVar[dict[str, str]] = {"explore_radius": "--explore-radius", "N": "horizon N"}
+
+    N: int = Field(20, ge=1, description="horizon [steps]")
+    dt: float = Field(0.05, gt=0, description="step [s]")
+    beta: float = Field(0.6, description="probability of each chance constraint, in (0, 1)")
+    solver: str = Field("clarabel", description="QP backend (registry gprace.solver)")
+    margin: float = Field(0.1, ge=0, description="distance kept from the border on top of half the car width [m]")
+    integrator: str = Field("rk4", description='prediction step: "rk4" (default) or "euler" (the paper\'s)')
+    explore_radius: float = Field(0.5, gt=0, description="exploration trust region: candidates within this scaled "
+                                  "distance of z~ (a scaled feature distance)")
+    explore_brake: float = Field(0.5, ge=0, description="no exploration while the reference brakes harder than this "
+                                 "share of the limit")
+    grip: bool = Field(True, description="bound the rear slip angle (False: the paper's QP)")
+    grip_share: float = Field(0.9, gt=0, le=2, description="share of the nominal rear tire's peak slip angle")
+    weights: Weights = Field(default_factory=Weights, description="weights of the tracking cost")
+
+    @model_validator(mode="after")
+    def _check(self) -> MPCSettings:
         quantile_factor(self.beta)
+        if self.integrator not in ("euler", "rk4"):
+            raise ValueError(f"unknown integrator {self.integrator!r}; available: euler, rk4")
+        return self
 
 
 def covariances(A: np.ndarray, var: np.ndarray) -> np.ndarray:
@@ -171,7 +178,7 @@ class TrackingMPC:
             raise ConfigError(f"alpha must be in [0, 1], got {alpha}")
         if alpha > 0 and grid is None:
             raise ConfigError("exploration (alpha > 0) needs a candidate grid from a trained tracking GP")
-        self.model, self.track, self.plan, self.s = model, track, plan, settings
+        self.model, self.track, self.plan, self.settings = model, track, plan, settings
         self.gp, self.grid, self.alpha = gp, grid, float(alpha)
         self.inputs = tuple(getattr(gp, "inputs", DYN_INPUTS))  # a plain callable takes the paper's inputs
         self.N, self.dt = settings.N, settings.dt
@@ -208,12 +215,12 @@ class TrackingMPC:
         # off by 0.015 rad, i.e. 0.3 rad/s of yaw rate the QP then commanded: the nominal MPC
         # spun the commonroad BMW on a plan that drives straight through the bend.
         kappa_of_s = lambda ss: k[0] + k[1] * (ss - k[2])  # noqa: E731
-        if self.s.integrator == "euler":
+        if self.settings.integrator == "euler":
             xn = x + self.dt * self.model.symbolic(x, u, kappa_of_s(x[State.S]))
-        elif self.s.integrator == "rk4":
+        elif self.settings.integrator == "rk4":
             xn = self.model.rk4_expression(x, u, kappa_of_s, self.dt)
         else:
-            raise ConfigError(f"unknown integrator {self.s.integrator!r}; available: euler, rk4")
+            raise ConfigError(f"unknown integrator {self.settings.integrator!r}; available: euler, rk4")
         # Jacobians transposed and dense: column-major A_k^T is A_k in C order (see Linearisation)
         f = ca.Function("mpc_lin", [x, u, k], [xn, ca.densify(ca.jacobian(xn, x).T), ca.densify(ca.jacobian(xn, u).T)])
         return Linearisation(compiled_function(f.map(self.N)), self.N)
@@ -237,11 +244,11 @@ class TrackingMPC:
             return xref, uref
         from gprace.explore.algorithm import CandidateGrid, select_target
 
-        if uref[:, Input.A_X].min() < self.s.explore_brake * self.u_lo[Input.A_X]:
+        if uref[:, Input.A_X].min() < self.settings.explore_brake * self.u_lo[Input.A_X]:
             return xref, uref  # braking zone: perform, do not explore
         z_tilde = dyn_inputs(xref[:1], uref[:1], self.inputs)[0]
         g = self.grid
-        near = np.linalg.norm((g.Z - z_tilde) / g.scale, axis=1) <= self.s.explore_radius
+        near = np.linalg.norm((g.Z - z_tilde) / g.scale, axis=1) <= self.settings.explore_radius
         if not near.any():
             return xref, uref
         sub = CandidateGrid(g.Z[near], g.v[near], g.scale)
@@ -308,7 +315,7 @@ class TrackingMPC:
         x0 = x_meas.copy()
         x0[State.S] = 0.0
         grip = {}
-        if self.s.grip:
+        if self.settings.grip:
             # rear slip linearised about the REFERENCE x_1..x_N: a + G (x - xref). Measured: about
             # the previous solution (as the dynamics) the rows fed back on themselves, and an
             # alternating exploration target made successive solutions flip until full lock.
@@ -322,7 +329,7 @@ class TrackingMPC:
             a_now = abs(float(rear_slip_rows(x_meas[None, :6], self.model.params.lr, self.model.params.vmin)[0][0]))
             room = np.maximum(room, a_now * (1.0 - np.arange(1, N + 1) / RECOVER_STEPS))
             grip = {"grip_G": G, "grip_lo": -room - off, "grip_hi": room - off}
-        pb = LtvProblem(A, B, c, x0, xref, uref, lo, hi, self.u_lo, self.u_hi, self.delta_prev, self.s.weights, **grip,
+        pb = LtvProblem(A, B, c, x0, xref, uref, lo, hi, self.u_lo, self.u_hi, self.delta_prev, self.settings.weights, **grip,
                         a_prev=self.a_prev, steer_step=self.steer_step)
         return pb, {"gamma": gamma, "s0": s0, "xref": xref, "uref": uref, "explored": xref is not xr0}
 

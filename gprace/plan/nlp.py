@@ -26,29 +26,37 @@ Solved with IPOPT, exact Hessian, MUMPS.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
-
 import numpy as np
+from pydantic import Field
 
+from gprace.config import CommandSettings
 from gprace.errors import ConfigError, SolverError
 from gprace.plan.plan import Plan, track_hash
 
 
-@dataclass(frozen=True)
-class PlanSettings:
-    ds: float = 6.0               # node spacing [m]
-    margin: float = 0.3           # extra distance kept from the borders [m]
-    w_steer: float = 0.5          # penalty on (delta_{k+1} - delta_k)^2 [s/rad^2]
-    w_accel: float = 1e-4         # penalty on (a_{k+1} - a_k)^2 [s^5/m^2]
-    v_low: float = 3.0            # lower speed bound [m/s]
-    grip: float | None = None     # if set: friction ellipse (a_x/a_lim)^2 + (v_x r/a_lat)^2 <= 1 at this share of the
-                                  # model's own limits (a margin for a car the model does not know; off by default)
-    grip_brake: float | None = None  # share of the braking limit inside the ellipse (default: grip)
-    limits: tuple[float, float, float] | None = None  # friction ellipse in m/s^2: (lateral, drive, brake > 0);
-                                  # overrides grip/grip_brake (the time trial widens it from measured laps)
-    max_iter: int = 1500
-    tol: float = 1e-6
-    print_level: int = 0
+class PlanSettings(CommandSettings):
+    """The minimum-lap-time NLP (paper appendix)."""
+
+    ds: float = Field(6.0, gt=0, description="node spacing [m]")
+    margin: float = Field(0.3, ge=0, description="extra distance kept from the borders [m]")
+    w_steer: float = Field(0.5, ge=0, description="penalty on (delta_{k+1} - delta_k)^2 [s/rad^2]")
+    w_accel: float = Field(1e-4, ge=0, description="penalty on (a_{k+1} - a_k)^2 [s^5/m^2]")
+    v_low: float = Field(3.0, gt=0, description="lower speed bound [m/s]")
+    grip: float | None = Field(None, gt=0, description="if set: friction ellipse (a_x/a_lim)^2 + (v_x r/a_lat)^2 <= 1 "
+                               "at this share of the model's own limits (a margin for a car the model does not know)")
+    grip_brake: float | None = Field(None, gt=0, description="share of the braking limit inside the ellipse (default: grip)")
+    limits: tuple[float, float, float] | None = Field(None, description="friction ellipse in m/s^2: (lateral, drive, "
+                                                      "brake > 0); overrides grip/grip_brake (the time trial widens it "
+                                                      "from measured laps)")
+    max_iter: int = Field(1500, ge=1, description="IPOPT iteration limit")
+    tol: float = Field(1e-6, gt=0, description="IPOPT tolerance")
+    print_level: int = Field(0, ge=0, le=12, description="IPOPT print level")
+
+
+# one node's decision variables: the five states the planner keeps (s is the independent variable)
+# and the two inputs
+VX, VY, R, EPSI, EY, DELTA, AX = range(7)
+NODE = 7
 
 
 def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: Plan | None = None,
@@ -59,8 +67,6 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
     planning GP, which builds its own inputs from them), evaluated once on the initial guess;
     ``None`` plans with the nominal model.
     """
-    import casadi as ca
-
     from gprace.plan.curvature import curvature_plan
 
     if not track.closed:
@@ -71,42 +77,60 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
     smp = track.sample(settings.ds)
     n = len(smp.s)
     h = track.length / n
-    s = smp.s
     if warm is None:
         warm = curvature_plan(track, model, ds=settings.ds, speed_scale=1.0, margin=settings.margin)
     else:
         warm.check_track(track, "warm start")
-    X0, U0 = _resample(warm, s)
+    X0, U0 = _resample(warm, smp.s)
     comp = np.zeros((n, 2))
     if mu_plan is not None:
         comp = np.asarray(mu_plan(X0, U0), dtype=float).reshape(n, 2)
         if not np.all(np.isfinite(comp)):
             raise SolverError("plan: the planning GP returned non-finite compensation")
-
-    lim = model.vehicle.limits
     half = 0.5 * model.vehicle.width + settings.margin
     lo_ey, hi_ey = -smp.wr + half, smp.wl - half
     if np.any(lo_ey >= hi_ey):
         k = int(np.argmax(lo_ey >= hi_ey))
-        raise ConfigError(f"plan: track {track.name!r} is narrower than the car plus margin at s = {s[k]:.1f} m")
+        raise ConfigError(f"plan: track {track.name!r} is narrower than the car plus margin at s = {smp.s[k]:.1f} m")
 
-    # stage functions ------------------------------------------------------------------------
+    nlp, lbg, ubg = _nlp(model, settings, n, h)
+    LB, UB, guess = _bounds_and_guess(model, settings, X0, U0, lo_ey, hi_ey)
+    args = dict(x0=guess.ravel(), lbx=LB.ravel(), ubx=UB.ravel(), lbg=lbg, ubg=ubg,
+                p=np.column_stack([smp.kappa, comp]).ravel())
+    z, stats = _solve(nlp, args, settings, track)
+    vx, vy, r, epsi, ey, delta, ax = z.reshape(n, NODE).T
+    sd = (vx * np.cos(epsi) - vy * np.sin(epsi)) / (1 - smp.kappa * ey)
+    dt = 0.5 * h * (1 / sd + 1 / np.roll(sd, -1))
+    t = np.concatenate([[0.0], np.cumsum(dt)])
+    return Plan(
+        s=smp.s, e_y=ey, e_psi=epsi, v_x=vx, v_y=vy, yaw_rate=r, delta=delta, a_x=ax, t=t[:-1], lap_time=float(t[-1]),
+        track=track.name, track_length=track.length, track_hash=track_hash(track), vehicle=model.vehicle.name,
+        method="min_time",
+        meta={"ds": h, "iterations": int(stats["iter_count"]), "solve_time": time.perf_counter() - t0,
+              "gp": mu_plan is not None, "warm": warm.method, "max_abs_mu_plan": float(np.max(np.abs(comp))) if n else 0.0},
+    )
+
+
+def _nlp(model, settings: PlanSettings, n: int, h: float) -> tuple[dict, np.ndarray, np.ndarray]:
+    """The NLP over ``n`` nodes ``h`` apart in ``s`` (trapezoidal collocation on the closed lap),
+    parameters ``(kappa, mu_vy, mu_r)`` per node; its constraint bounds."""
+    import casadi as ca
+
+    lim = model.vehicle.limits
+    # stage functions: time derivatives of the five states over ds/dt, and dt/ds
     x = ca.SX.sym("x", 5)
     u = ca.SX.sym("u", 2)
     pk = ca.SX.sym("p", 3)  # kappa, mu_vy, mu_r
-    full = ca.vertcat(x, 0.0)
-    f = model.symbolic(full, u, pk[0])
-    sdot = (x[0] * ca.cos(x[3]) - x[1] * ca.sin(x[3])) / (1 - pk[0] * x[4])
+    f = model.symbolic(ca.vertcat(x, 0.0), u, pk[0])
+    sdot = (x[VX] * ca.cos(x[EPSI]) - x[VY] * ca.sin(x[EPSI])) / (1 - pk[0] * x[EY])
     fx = ca.vertcat(f[0], f[1] + pk[1], f[2] + pk[2], f[3], f[4])
-    gfun = ca.Function("g", [x, u, pk], [fx / sdot, 1.0 / sdot])
-    gmap = gfun.map(n)
+    gmap = ca.Function("g", [x, u, pk], [fx / sdot, 1.0 / sdot]).map(n)
 
-    w = ca.MX.sym("w", 7 * n)
-    WU = ca.reshape(w, 7, n)
+    w = ca.MX.sym("w", NODE * n)
+    WU = ca.reshape(w, NODE, n)
     X, U = WU[:5, :], WU[5:, :]
     pv = ca.MX.sym("p", 3 * n)
-    P = ca.reshape(pv, 3, n)
-    G, W = gmap(X, U, P)
+    G, W = gmap(X, U, ca.reshape(pv, 3, n))
     Xn = ca.horzcat(X[:, 1:], X[:, :1])
     Gn = ca.horzcat(G[:, 1:], G[:, :1])
     defect = Xn - X - 0.5 * h * (G + Gn)
@@ -118,17 +142,41 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
     # top speed bounds the speed over ground, not v_x alone: with v_x at its bound a slide
     # (v_y != 0, e_psi against it) still adds progress, and GP-compensated plans of Budapest
     # slalomed at 70 m/s down the main straight (|v_y| up to 5.6 m/s) to gain it
-    g_all.append(ca.vec(X[0, :] ** 2 + X[1, :] ** 2))
+    g_all.append(ca.vec(X[VX, :] ** 2 + X[VY, :] ** 2))
     lbg.append(np.zeros(n))
     ubg.append(np.full(n, lim.speed_max**2))
     ellipse = ellipse_limits(model, settings)
     if ellipse is not None:
         a_lat, a_drive, a_brake = ellipse
         a_lon = ca.if_else(U[1, :] >= 0, U[1, :] / a_drive, -U[1, :] / a_brake)
-        g_all.append(ca.vec(a_lon**2 + (X[0, :] * X[2, :] / a_lat) ** 2))
+        g_all.append(ca.vec(a_lon**2 + (X[VX, :] * X[R, :] / a_lat) ** 2))
         lbg.append(np.full(n, -np.inf))
         ubg.append(np.ones(n))
     nlp = {"x": w, "p": pv, "f": lap + reg, "g": ca.vertcat(*g_all)}
+    return nlp, np.concatenate(lbg), np.concatenate(ubg)
+
+
+def _bounds_and_guess(model, settings: PlanSettings, X0: np.ndarray, U0: np.ndarray, lo_ey: np.ndarray,
+                      hi_ey: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(n, 7) lower and upper bounds per node, and the initial guess clipped into them."""
+    lim = model.vehicle.limits
+    lbx = np.array([settings.v_low, -np.inf, -np.inf, -1.0, 0.0, -lim.steering_max, lim.accel_min])
+    ubx = np.array([lim.speed_max, np.inf, np.inf, 1.0, 0.0, lim.steering_max, lim.accel_max])
+    LB = np.tile(lbx, (len(X0), 1))
+    UB = np.tile(ubx, (len(X0), 1))
+    LB[:, EY], UB[:, EY] = lo_ey, hi_ey
+    guess = np.column_stack([X0[:, :5], U0])
+    guess[:, EY] = np.clip(guess[:, EY], lo_ey, hi_ey)
+    guess[:, VX] = np.clip(guess[:, VX], settings.v_low, lim.speed_max)
+    guess[:, DELTA] = np.clip(guess[:, DELTA], -lim.steering_max, lim.steering_max)
+    guess[:, AX] = np.clip(guess[:, AX], lim.accel_min, lim.accel_max)
+    return LB, UB, guess
+
+
+def _solve(nlp: dict, args: dict, settings: PlanSettings, track) -> tuple[np.ndarray, dict]:
+    """IPOPT with the fast settings, then once more with its robust defaults if those failed."""
+    import casadi as ca
+
     opts = {
         "ipopt.print_level": settings.print_level, "print_time": 0, "ipopt.sb": "yes",
         "ipopt.max_iter": settings.max_iter, "ipopt.tol": settings.tol, "ipopt.linear_solver": "mumps",
@@ -139,19 +187,6 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
     }
     opts.update(_extra_opts())
     solver = ca.nlpsol("plan", "ipopt", nlp, opts)
-
-    lbx = np.array([settings.v_low, -np.inf, -np.inf, -1.0, 0.0, -lim.steering_max, lim.accel_min])
-    ubx = np.array([lim.speed_max, np.inf, np.inf, 1.0, 0.0, lim.steering_max, lim.accel_max])
-    LB = np.tile(lbx, (n, 1))
-    UB = np.tile(ubx, (n, 1))
-    LB[:, 4], UB[:, 4] = lo_ey, hi_ey
-    guess = np.column_stack([X0[:, :5], U0])
-    guess[:, 4] = np.clip(guess[:, 4], lo_ey, hi_ey)
-    guess[:, 0] = np.clip(guess[:, 0], settings.v_low, lim.speed_max)
-    guess[:, 5] = np.clip(guess[:, 5], -lim.steering_max, lim.steering_max)
-    guess[:, 6] = np.clip(guess[:, 6], lim.accel_min, lim.accel_max)
-    par = np.column_stack([smp.kappa, comp]).ravel()
-    args = dict(x0=guess.ravel(), lbx=LB.ravel(), ubx=UB.ravel(), lbg=np.concatenate(lbg), ubg=np.concatenate(ubg), p=par)
     sol = solver(**args)
     stats = solver.stats()
     if not stats["success"]:
@@ -162,18 +197,7 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
         stats = solver.stats()
     if not stats["success"]:
         raise SolverError(f"plan: IPOPT did not converge on {track.name!r} ({stats['return_status']}, {stats['iter_count']} iterations)")
-    z = np.asarray(sol["x"]).reshape(n, 7)
-    vx, vy, r, epsi, ey, delta, ax = z.T
-    sd = (vx * np.cos(epsi) - vy * np.sin(epsi)) / (1 - smp.kappa * ey)
-    dt = 0.5 * h * (1 / sd + 1 / np.roll(sd, -1))
-    t = np.concatenate([[0.0], np.cumsum(dt)])
-    return Plan(
-        s=s, e_y=ey, e_psi=epsi, v_x=vx, v_y=vy, yaw_rate=r, delta=delta, a_x=ax, t=t[:-1], lap_time=float(t[-1]),
-        track=track.name, track_length=track.length, track_hash=track_hash(track), vehicle=model.vehicle.name,
-        method="min_time",
-        meta={"ds": h, "iterations": int(stats["iter_count"]), "solve_time": time.perf_counter() - t0,
-              "gp": mu_plan is not None, "warm": warm.method, "max_abs_mu_plan": float(np.max(np.abs(comp))) if n else 0.0},
-    )
+    return np.asarray(sol["x"]).ravel(), stats
 
 
 def ellipse_limits(model, settings: PlanSettings) -> tuple[float, float, float] | None:

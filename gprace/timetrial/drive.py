@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
-
 import numpy as np
+from pydantic import Field
 
+from gprace.config import CommandSettings
 from gprace.errors import InputError
 from gprace.io.runs import Run
 from gprace.model.dynamics import Input, State
@@ -23,10 +23,11 @@ from gprace.mpc.tracking import MPCSettings, TrackingMPC
 from gprace.sim.stop import run_end
 
 
-@dataclass(frozen=True)
-class DriveSettings:
-    laps: float = 1.0
-    mpc: MPCSettings = MPCSettings()
+class DriveSettings(CommandSettings):
+    """One run of a plan with the tracking MPC."""
+
+    laps: float = Field(1.0, gt=0, description="laps to drive")
+    mpc: MPCSettings = Field(default_factory=MPCSettings, description="the tracking MPC")
 
 
 def start_state(plan, track, vehicle) -> tuple[np.ndarray, np.ndarray]:
