@@ -18,7 +18,7 @@ import numpy as np
 
 from gprace.report import figures as F
 from gprace.errors import GpraceError
-from gprace.report.inspect import UNREADABLE, artifact_kind, json_kind, key_results, open_artifact
+from gprace.report.inspect import COMPUTE_FAILED, UNREADABLE, artifact_kind, json_kind, key_results, open_artifact
 
 
 @dataclass
@@ -40,7 +40,7 @@ class Section:
         """Add ``make()``; a figure that fails becomes a note naming the error, never a crash."""
         try:
             self.items.append(Item(caption, figure=make(), name=name))
-        except Exception as exc:  # noqa: BLE001 - a report shows what it can
+        except COMPUTE_FAILED as exc:  # a report shows what it can
             self.missing.append(f"{caption}: could not be drawn ({type(exc).__name__}: {exc})")
 
 
@@ -604,10 +604,10 @@ def _errors_along(p: Path, art, found: Found, samples: int) -> tuple[np.ndarray,
 
     try:
         out = errors(models)
-    except Exception:  # noqa: BLE001 - fall back to the models that work
+    except COMPUTE_FAILED:  # fall back to the model that needs no file
         try:
             out = errors({"cv": None})
-        except Exception:  # noqa: BLE001
+        except COMPUTE_FAILED:
             return None
     return _error_series(art, out)
 
@@ -748,7 +748,7 @@ def _recompute_residuals(report_path: Path, d: dict) -> tuple[Any, str]:
                 sb, e = track_profile(data, starts, H, E, c)
                 out[key][ch] = e
         return (sb, out["before"], out.get("after"), None), ""
-    except Exception as exc:  # noqa: BLE001
+    except COMPUTE_FAILED as exc:
         return None, f"recomputing the residuals failed: {type(exc).__name__}: {exc}"
 
 

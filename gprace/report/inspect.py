@@ -21,6 +21,9 @@ from gprace.io.artifacts import Artifact
 RESERVED = ("kind", "schema", "gprace_version", "config_hash", "seed", "created")
 UNREADABLE = (GpraceError, OSError)  # what reading a file the report found may raise: it is skipped
 ODD_PAYLOAD = (*UNREADABLE, KeyError, IndexError, TypeError, ValueError)  # an artifact of another layout
+# what drawing a figure or recomputing from an artifact may raise besides: a missing attribute,
+# RuntimeError (CasADi, matplotlib), an overflow
+COMPUTE_FAILED = (*ODD_PAYLOAD, AttributeError, RuntimeError, ArithmeticError)
 
 
 # ----------------------------------------------------------------------------------------------
