@@ -21,7 +21,7 @@ import numpy as np
 from gprace.errors import InputError
 from gprace.io.runs import Run
 from gprace.model import Effect, NominalModel
-from gprace.model.dynamics import dynamics
+from gprace.model.dynamics import State, dynamics
 from gprace.model.ops import NP
 
 CHANNELS = ("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s")
@@ -68,7 +68,7 @@ class Dataset:
 
     def s_unwrapped(self) -> np.ndarray:
         """``s`` continued over lap wraps (per recording), for window geometry."""
-        out = self.Y[:, 5].copy()
+        out = self.Y[:, State.S].copy()
         for r in range(len(self.L)):
             m = self.rec == r
             if np.isfinite(self.L[r]):
@@ -96,7 +96,7 @@ def build_dataset(runs: list[Run], min_samples: int = 200) -> Dataset:
     lap0 = 0
     for i, r in enumerate(runs):
         Y, U = r.states(), r.inputs()
-        s = Y[:, 5]
+        s = Y[:, State.S]
         ds = np.diff(s)
         wraps = np.flatnonzero(ds < -0.5 * max(np.ptp(s), 1e-9))
         meta_L = r.meta.get("track_length") if isinstance(r.meta, dict) else None
@@ -220,13 +220,13 @@ def rk4_batch(model: NominalModel, X: np.ndarray, U: np.ndarray, kfun: Callable[
     """:meth:`NominalModel.rk4` (same stages, same arithmetic) on states stored as rows ``(nx, m)``."""
     h = dt / substeps
     for _ in range(substeps):
-        k1 = _deriv(model, X, U, kfun(X[5]))
+        k1 = _deriv(model, X, U, kfun(X[State.S]))
         x2 = X + 0.5 * h * k1
-        k2 = _deriv(model, x2, U, kfun(x2[5]))
+        k2 = _deriv(model, x2, U, kfun(x2[State.S]))
         x3 = X + 0.5 * h * k2
-        k3 = _deriv(model, x3, U, kfun(x3[5]))
+        k3 = _deriv(model, x3, U, kfun(x3[State.S]))
         x4 = X + h * k3
-        k4 = _deriv(model, x4, U, kfun(x4[5]))
+        k4 = _deriv(model, x4, U, kfun(x4[State.S]))
         X = X + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
     return X
 
@@ -240,7 +240,8 @@ def errors(data: Dataset, starts: np.ndarray, pred: np.ndarray, target: np.ndarr
     L = data.L[data.rec[starts]][:, None]
     fin = np.isfinite(L)
     Ls = np.where(fin, L, 1.0)
-    E[..., 5] = np.where(fin, (E[..., 5] + 0.5 * Ls) % Ls - 0.5 * Ls, E[..., 5])
+    S = State.S
+    E[..., S] = np.where(fin, (E[..., S] + 0.5 * Ls) % Ls - 0.5 * Ls, E[..., S])
     return E
 
 

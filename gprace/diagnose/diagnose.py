@@ -34,7 +34,7 @@ from gprace.diagnose.core import CHANNELS, DYNAMIC, TESTED
 from gprace.errors import InputError
 from gprace.io.envelope import EnvelopeReport, envelope
 from gprace.io.runs import Run
-from gprace.model import EFFECTS, NominalModel
+from gprace.model import EFFECTS, Input, NominalModel, State
 
 HORIZON = 15
 """Multi-step horizon [steps] (0.75 s at 20 Hz): long enough that structured error outgrows the
@@ -518,7 +518,8 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, veh
 
 def excitation(data: core.Dataset) -> dict[str, str]:
     """Effects the recordings cannot identify, with the reason (missing excitation)."""
-    vx, r, ax, delta = data.Y[:, 0], data.Y[:, 2], data.U[:, 1], data.U[:, 0]
+    vx, r = data.Y[:, State.V_X], data.Y[:, State.YAW_RATE]
+    ax, delta = data.U[:, Input.A_X], data.U[:, Input.DELTA]
     ay = np.abs(vx * r)
     out: dict[str, str] = {}
     lateral = np.quantile(ay, 0.9) > 2.0

@@ -26,7 +26,7 @@ import numpy as np
 
 from gprace.diagnose.core import DYNAMIC, Dataset, errors, lag_states, predict
 from gprace.diagnose.locate import blocks
-from gprace.model import EFFECTS, NominalModel
+from gprace.model import EFFECTS, NominalModel, State
 
 T_GAIN = 3.0
 T_GAIN_STRONG = 2.0
@@ -137,7 +137,7 @@ def free_params(name: str) -> list[str]:
 def _bounds(name: str, free: list[str], data: Dataset):
     cls = EFFECTS[name]
     lo, hi = [], []
-    smax = float(np.nanmax(data.Y[:, 5])) + 1.0
+    smax = float(np.nanmax(data.Y[:, State.S])) + 1.0
     for k in free:
         spec = cls.params[k]
         if k in ("s_start", "s_end"):

@@ -29,6 +29,7 @@ from scipy.stats import norm
 
 from gprace.diagnose.core import CHANNELS, Dataset
 from gprace.diagnose.locate import blocks
+from gprace.model import State
 
 T_GLOBAL = 4.5
 """Paired block t of the held-out gain over all windows for a channel to be predictable."""
@@ -93,8 +94,8 @@ def features(data: Dataset, starts: np.ndarray, H: int) -> np.ndarray:
     Commands are used as recorded (no sensor noise); measured states averaged over the second
     before the window (:data:`SMOOTH_S`)."""
     k = starts
-    vx = _smooth(data, data.Y[:, 0])[k]
-    r = _smooth(data, data.Y[:, 2])[k]
+    vx = _smooth(data, data.Y[:, State.V_X])[k]
+    r = _smooth(data, data.Y[:, State.YAW_RATE])[k]
     ay = vx * r
     d0, a0 = data.U[k, 0], data.U[k, 1]
     T = H * data.dt

@@ -20,7 +20,7 @@ import numpy as np
 
 from gprace.config import G, EffectConfig, NoiseConfig, PlantConfig, VehicleConfig
 from gprace.io.runs import Run
-from gprace.model import Effect
+from gprace.model import INPUT, Effect, Input, State
 from gprace.plants.frenet import FrenetPlant
 
 DEFAULT_NOISE = NoiseConfig(v_x=0.05, v_y=0.03, yaw_rate=0.005, e_psi=0.003, e_y=0.03, s=0.1)
@@ -144,19 +144,21 @@ def record(vehicle: VehicleConfig, track, effects: Sequence[EffectConfig | Effec
         u = drv(y)
         Y[k], U[k], lap[k] = y, u, plant.lap
         x = plant.state
-        if plant.lap * L + x[5] - s0 >= laps * L:
+        if plant.lap * L + x[State.S] - s0 >= laps * L:
             k += 1
             break
-        if abs(x[4]) > 15.0 or x[0] < 2.0 or abs(x[1]) > 0.25 * max(x[0], 1.0):
+        vx = x[State.V_X]
+        if abs(x[State.E_Y]) > 15.0 or vx < 2.0 or abs(x[State.V_Y]) > 0.25 * max(vx, 1.0):
             k = max(k - int(2.0 / dt), 2)  # spun or left the track: keep what came before
             break
         y = plant.step(u)
     else:
         k = n
     Y, U = Y[:k], U[:k]
-    s = track.wrap(Y[:, 5]) if track.closed else Y[:, 5]
-    data = {"t": dt * np.arange(k), "s": s, "e_y": Y[:, 4], "e_psi": Y[:, 3], "v_x": Y[:, 0],
-            "v_y": Y[:, 1], "yaw_rate": Y[:, 2], "delta": U[:, 0], "a_x": U[:, 1],
+    s = track.wrap(Y[:, State.S]) if track.closed else Y[:, State.S]
+    states = ("e_y", "e_psi", "v_x", "v_y", "yaw_rate")  # the recording's column order
+    data = {"t": dt * np.arange(k), "s": s, **{n: Y[:, State[n.upper()]] for n in states},
+            **{n: U[:, Input[n.upper()]] for n in INPUT},
             "kappa": track.kappa(s), "lap": lap[:k]}
     meta = {"vehicle_toml": vehicle.to_toml(), "track": str(getattr(track, "source", None) or track.name),
             "dt": dt, "plant": cfg.kind, "track_length": float(L)}
