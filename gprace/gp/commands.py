@@ -14,6 +14,8 @@ import typer
 from gprace.console import console
 
 JSON = typer.Option(False, "--json", help="Print the result as JSON.")
+
+
 def select_data_cmd(
     inputs: list[Path] = typer.Argument(..., help="Runs (HDF5 or CSV) and optionally one dataset (data.h5) to continue."),
     output: Path = typer.Option(..., "--output", "-o", help="Dataset to write (HDF5, kind 'dataset')."),
@@ -53,6 +55,7 @@ def select_data_cmd(
     console.result(f"wrote {res['output']}: {res['points']} of at most {res['max_points']} points "
                    f"({res['feature_map']}, {selection}) from {res['new_samples']} new samples{extra}")
 
+
 def retrain_cmd(
     data: Path = typer.Argument(..., help="Dataset from select-data."),
     output: Path = typer.Option(..., "--output", "-o", help="Model file to write (kind 'gp_model')."),
@@ -78,6 +81,7 @@ def retrain_cmd(
     console.table(f"{res['backend']} GP ({res['kernel']}) on {res['points']} points, {res['seconds']:.1f} s",
                   ["output", "length scales", "signal std", "noise std"], rows)
     console.result(f"wrote {res['output']}")
+
 
 def evaluate_gp_cmd(
     model: Path = typer.Argument(..., help="GP model (tracking or planning)."),

@@ -212,6 +212,7 @@ def head2head_cmd(
                    scheduler=scheduler, resume=resume, seeds=parse_seeds(seeds))
     print_table(run(st, out), as_json)
 
+
 def collect_cmd(
     out: Path = OUT,
     runs: int = RUNS, init_runs: int = INIT_RUNS, points_per_run: int = POINTS_PER_RUN,
@@ -227,6 +228,7 @@ def collect_cmd(
     paths = run(st, out)
     res = {k: {"path": str(v), "points": len(read_dataset(v)[0])} for k, v in paths.items()}
     console.json(res) if as_json else [console.result(f"{k}: {v['path']} ({v['points']} points)") for k, v in res.items()]
+
 
 def train_cmd(
     dataset: Path = typer.Argument(..., help="An h2h_dataset file."),
@@ -257,6 +259,7 @@ def train_cmd(
         console.table(f"Fit quality (held-out: {q.heldout_points} points, {q.heldout_source}; exact GP on "
                       f"{q.reference_points} points; attempts {q.attempts})", COLUMNS, q.rows())
     console.result(f"{res['model']}: {res['backend']} GP on {res['points']} points")
+
 
 def explore_cmd(
     out: Path = OUT,

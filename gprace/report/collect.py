@@ -483,6 +483,7 @@ def _first_race(paths: list[Path]):
             return p, art
     return None
 
+
 def h2h_section(found: Found, max_error_samples: int = 20) -> Section | None:
     tables = found.of("h2h_table")
     records = found.of("h2h_run")

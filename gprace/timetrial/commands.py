@@ -28,6 +28,7 @@ def _floats(text: str, what: str) -> tuple[float, ...]:
         raise ConfigError(f"{what}: expected comma-separated numbers, got {text!r}") from None
     return vals
 
+
 # options shared by iterate and eval timetrial
 PLANT = typer.Option("audi_hidden", "--plant", help="Plant config.")
 VEHICLE = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle of planner and MPC.")
@@ -103,6 +104,7 @@ def plan_cmd(
         console.json({"output": str(output), "method": plan.method, "track": tr.name, "lap_time": plan.lap_time, "nodes": plan.n})
     else:
         console.result(f"{output}: {plan.method} plan of {tr.name}, lap time {plan.lap_time:.3f} s, {plan.n} nodes")
+
 
 def run_cmd(
     plan: Path = typer.Option(..., "--plan", help="Plan file (from gprace plan)."),
@@ -183,6 +185,7 @@ def run_cmd(
     if not mt["completed"]:  # a failed run (the record is kept for inspection): exit 1
         raise RunFailedError(f"run: {mt['reason']}; the partial run is in {output}")
 
+
 def iterate_cmd(
     alpha: str = typer.Option("0.857,0.714,0", "--alpha", help="Exploration alphas per iteration; the last repeats."),
     iterations: int = typer.Option(7, "--iterations", help="GP iterations after the nominal iteration 0."),
@@ -213,6 +216,7 @@ def iterate_cmd(
     check_execution(executor, workers, scheduler)
     summary = iterate(st, out, executor=executor, workers=workers, scheduler=scheduler)
     _print_summary(summary, as_json)
+
 
 def eval_timetrial(
     plant: str = PLANT,
@@ -247,6 +251,7 @@ def eval_timetrial(
         console.result(format_table(res))
     if res["error"]:
         raise RunFailedError(res["error"])
+
 
 def evaluate_iterate(
     folder: Path = typer.Argument(..., help="An iterate --out folder."),

@@ -55,6 +55,7 @@ from gprace.console import console, jsonable
 from gprace.errors import InputError, RunFailedError, SolverError
 from gprace.timetrial.record import IterationRecord, read_record, write_record
 
+
 class IterateSettings(CommandSettings):
     """The iterative double-GP time trial (``gprace iterate``; defaults: the paper's schedule)."""
 
