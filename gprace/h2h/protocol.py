@@ -378,7 +378,7 @@ def calib_tasks(st: Settings, predictor: str = "oracle", model: Path | None = No
         return [{"id": f"calib-{sd - base}", "track": _track_spec(st, sd), "seed": sd, "predictor": "oracle",
                  "config": st.race_config()} for sd in seeds]
     return [{**t, "id": f"calib-{predictor}-{sd - base}", "track": _track_spec(st, sd), "seed": sd}
-            for t, sd in zip(eval_tasks(st.model_copy(update={'tracks': len(seeds)}), predictor, model, calibration), seeds)]
+            for t, sd in zip(eval_tasks(st.model_copy(update={"tracks": len(seeds)}), predictor, model, calibration), seeds)]
 
 
 def collect(st: Settings, out: Path) -> dict[str, Path]:
@@ -396,13 +396,13 @@ def collect(st: Settings, out: Path) -> dict[str, Path]:
     if _cached(paths["collect"], key) and _cached(paths["init"], key_init) and _cached(paths["validation"], key_val):
         return paths
     # the datasets are reused whatever --resume says; so are the finished runs behind them
-    reuse = st.model_copy(update={'resume': True}) if _cached(paths["collect"], key) else st
+    reuse = st.model_copy(update={"resume": True}) if _cached(paths["collect"], key) else st
     recs = run_tasks(tasks, out / "collect" / "runs", reuse, "collect")
     Z, Y, R = dataset_from_records(recs, st.points_per_run)
     n_failed = sum(not r["attrs"].get("ok") for r in recs)
     _write_dataset(paths["collect"], Z, Y, R, key, {"runs": len(recs), "failed": n_failed, "source": "collect"})
     if own_init:
-        init_reuse = st.model_copy(update={'resume': True}) if _cached(paths["init"], key_init) else st
+        init_reuse = st.model_copy(update={"resume": True}) if _cached(paths["init"], key_init) else st
         Zi, Yi, Ri = dataset_from_records(run_tasks(init_tasks, out / "init" / "runs", init_reuse, "collect init"),
                                           st.points_per_run)
     else:
@@ -851,7 +851,7 @@ def head2head(st: Settings, out: Path) -> dict:
 
     tables, data, fits = {}, [], {}
     for s in st.seeds:
-        tab, td, fit = run_chain(st.model_copy(update={'seed': s}), chain_dir(out, s))
+        tab, td, fit = run_chain(st.model_copy(update={"seed": s}), chain_dir(out, s))
         tables[str(s)], fits[str(s)] = tab, fit
         data.append(td)
     spread = summarise(data)
