@@ -52,7 +52,8 @@ def checks(res: dict) -> dict:
 def main(trials: int = 5, iterations: int = 7, plants=tuple(PLANTS)) -> None:
     from gprace.errors import GpraceError
     from gprace.timetrial.compare import compare
-    from gprace.timetrial.iterate import IterateSettings, jsonable
+    from gprace.console import jsonable
+    from gprace.timetrial.iterate import IterateSettings
 
     table = {}
     for plant in plants:

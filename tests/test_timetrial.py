@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from gprace.errors import InputError, RunFailedError
-from gprace.timetrial.iterate import IterateSettings, Steps, build_summary, iterate, jsonable
+from gprace.console import jsonable
+from gprace.timetrial.iterate import IterateSettings, Steps, build_summary, iterate
 
 pytest.importorskip("gprace.gp")
 

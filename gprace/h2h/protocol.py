@@ -122,7 +122,7 @@ QUALITY_VERSION = 2  # models fitted before the quality reports are refitted (an
 class Settings(CommandSettings):
     """The protocol of ``gprace eval head2head`` (defaults: the paper's comparison, REFERENCE.md)."""
 
-    OPTIONS: ClassVar[dict[str, str]] = {"backend": "--gp-backend", "raced": "--predictors", "config": "--config"}
+    OPTIONS: ClassVar[dict[str, str]] = {"backend": "--gp-backend", "raced": "--predictors"}
 
     tracks: int = Field(100, ge=1, description="evaluation tracks (one race per predictor on each)")
     runs: int = Field(500, ge=1, description="collection races of the baseline's data")

@@ -217,10 +217,8 @@ class TrackingMPC:
         kappa_of_s = lambda ss: k[0] + k[1] * (ss - k[2])  # noqa: E731
         if self.settings.integrator == "euler":
             xn = x + self.dt * self.model.symbolic(x, u, kappa_of_s(x[State.S]))
-        elif self.settings.integrator == "rk4":
+        else:  # "rk4" (MPCSettings admits no other)
             xn = self.model.rk4_expression(x, u, kappa_of_s, self.dt)
-        else:
-            raise ConfigError(f"unknown integrator {self.settings.integrator!r}; available: euler, rk4")
         # Jacobians transposed and dense: column-major A_k^T is A_k in C order (see Linearisation)
         f = ca.Function("mpc_lin", [x, u, k], [xn, ca.densify(ca.jacobian(xn, x).T), ca.densify(ca.jacobian(xn, u).T)])
         return Linearisation(compiled_function(f.map(self.N)), self.N)

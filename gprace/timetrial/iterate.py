@@ -51,9 +51,9 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from gprace.config import CommandSettings
-from gprace.console import console, jsonable
+from gprace.console import console
 from gprace.errors import InputError, RunFailedError, SolverError
-from gprace.timetrial.record import IterationRecord, read_record, write_record
+from gprace.timetrial.record import IterationRecord, read_record, write_json, write_record
 
 
 class IterateSettings(CommandSettings):
@@ -130,12 +130,6 @@ class Steps:
         os.replace(tmp, p)
 
 
-def _write_json(path: Path, obj) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(jsonable(obj), indent=1, allow_nan=False))
-    os.replace(tmp, path)
-
-
 # ------------------------------------------------------------------------------------------------
 # the loop
 
@@ -174,7 +168,7 @@ def iterate_many(experiments, executor: str = "local", workers: int = 1, schedul
     summaries = []
     for _, out, _ in prepared:
         summary = build_summary(out)
-        _write_json(out / "summary.json", summary)
+        write_json(out / "summary.json", summary)
         summaries.append(summary)
     failed = [r for r in results if not r.ok]
     if failed:
@@ -205,7 +199,7 @@ def _prepare(settings: IterateSettings, out: Path, share: Path | None = None) ->
             raise InputError(f"{out}: holds an experiment with other settings ({', '.join(diff)}); use another --out")
     else:
         out.mkdir(parents=True, exist_ok=True)
-        _write_json(sfile, mine)
+        write_json(sfile, mine)
     steps = Steps(out)
     for name in REFERENCE_RUNS:
         if not steps.done(name) and (name != "calib" or settings.calib_weave > 0):
@@ -340,7 +334,7 @@ def _oracle_task(task: dict) -> list[dict]:
     out = Path(task["out"])
     st = _task_settings(task)
     res = oracle_lap(st, out)
-    _write_json(out / "oracle.json", res)
+    write_json(out / "oracle.json", res)
     Steps(out).mark("oracle")
     return [res]
 

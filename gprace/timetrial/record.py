@@ -16,11 +16,11 @@ import os
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, model_validator
 
-from gprace.config import Frozen
+from gprace.config import Frozen, validate
 from gprace.console import console, jsonable
-from gprace.errors import InputError
+from gprace.errors import ConfigError, InputError
 
 RECORD_VERSION = 1
 NAN = float("nan")
@@ -61,19 +61,26 @@ class IterationRecord(Frozen):
     def _null_is_nan(cls, data: Any) -> Any:
         """JSON ``null`` in a number field is NaN (as :func:`gprace.console.jsonable` writes it)."""
         if isinstance(data, dict):
-            floats = {k for k, f in cls.model_fields.items() if f.annotation is float}
-            data = {k: NAN if v is None and k in floats else v for k, v in data.items()}
+            data = {k: NAN if v is None and k in _FLOATS else v for k, v in data.items()}
             if "gap" not in data and all(isinstance(data.get(k), (int, float)) for k in ("driven", "planned")):
                 data["gap"] = data["driven"] - data["planned"]
         return data
 
 
-def write_record(path: Path, record: IterationRecord) -> None:
-    """Write atomically (a killed run leaves the old file or the new one, never half of one)."""
+_FLOATS = frozenset(k for k, f in IterationRecord.model_fields.items() if f.annotation is float)
+
+
+def write_json(path: Path, obj) -> None:
+    """``obj`` as JSON (NaN as ``null``), atomically: a killed run leaves the old file or the new
+    one, never half of one. Every JSON file of an iterate folder is written by it."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(jsonable(record.model_dump()), indent=1, allow_nan=False))
+    tmp.write_text(json.dumps(jsonable(obj), indent=1, allow_nan=False))
     os.replace(tmp, path)
+
+
+def write_record(path: Path, record: IterationRecord) -> None:
+    write_json(path, record.model_dump())
 
 
 def read_record(path: Path, migrate: bool = True) -> dict:
@@ -92,11 +99,9 @@ def read_record(path: Path, migrate: bool = True) -> dict:
         raise InputError(f"{path}: record version {data['version']} is newer than this gprace reads "
                          f"({RECORD_VERSION}); update gprace")
     try:
-        rec = IterationRecord.model_validate({**data, "version": RECORD_VERSION})
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(p) for p in err["loc"]) or "(record)"
-        raise InputError(f"{path}: {where}: {err['msg']}") from None
+        rec = validate(IterationRecord, {**data, "version": RECORD_VERSION}, str(path))
+    except ConfigError as exc:  # a record is input data, not configuration
+        raise InputError(str(exc)) from None
     if old:
         console.warn(f"{path}: record of the layout before version {RECORD_VERSION}; missing fields set to "
                      "their defaults" + ("; migrated" if migrate else ""))
