@@ -83,7 +83,7 @@ def test_offline_errors_are_recorded_and_reused(tmp_path, monkeypatch):
 
 
 def test_report_reads_the_stored_errors_of_a_race(tmp_path, monkeypatch):
-    from gprace.report import collect
+    from gprace.report.sections import h2h as collect
     from gprace.report.inspect import open_artifact
 
     st = P.Settings(**{**TINY, "workers": 1})

@@ -465,6 +465,7 @@ def _laps():
 
 def test_lap_tables_count_and_place_failed_laps(capsys, tmp_path):
     from gprace.report import collect
+    from gprace.report.sections.timetrial import timetrial_section
     from gprace.timetrial.commands import _print_summary
     from gprace.timetrial.compare import COLUMNS, format_table
     from gprace.timetrial.iterate import failed_laps_text
@@ -488,7 +489,7 @@ def test_lap_tables_count_and_place_failed_laps(capsys, tmp_path):
     res = strict(capsys.readouterr().out)["results"]
     assert res["laps completed per iteration"] == "0: 2/2, 1: 1/2" and res["failed laps"] == [want]
     # the report's lap table: a count per iteration in its title, and where in the failed row
-    sec = collect.timetrial_section(collect.scan(tmp_path))
+    sec = timetrial_section(collect.scan(tmp_path))
     item = next(it for it in sec.items if it.caption.startswith("Lap times per iteration and trial"))
     assert "failed laps per iteration: exploration iteration 1: 1/2" in item.caption
     assert f"failed: {SPIN}" in item.html and item.html.count("completed") == 3

@@ -293,7 +293,7 @@ def test_report_recomputes_residuals_from_recording_and_augmented_vehicle(tmp_pa
     from gprace.config import EffectConfig, load_vehicle
     from gprace.diagnose.synth import record
     from gprace.io.runs import write_run
-    from gprace.report.collect import _recompute_residuals
+    from gprace.report.sections.diagnosis import _recompute_residuals
     from gprace.tracks import load_track
 
     veh = load_vehicle("audi_tt_cup")
@@ -352,7 +352,8 @@ def test_show_plots_unknown_kinds_generically(tmp_path, capsys):
 def test_report_reads_interrupted_iterate_layout(tmp_path):
     """The `gprace iterate` layout (settings.json, trial_<j>/iter_<i>/ with record.json), killed
     before its summary: a baseline variant, lap times from the records, the missing iterations named."""
-    from gprace.report.collect import scan, timetrial_variants
+    from gprace.report.collect import scan
+    from gprace.report.sections.timetrial import timetrial_variants
 
     root = tmp_path / "loop"
     root.mkdir()

@@ -298,7 +298,8 @@ def test_eval_timetrial_runs_both_variants_and_resumes(capsys, tmp_path):
     assert json.loads(capsys.readouterr().out)["variants"] == res["variants"]
     assert (out / "double_gp" / "trial_0" / "iter_01" / "run.h5").stat().st_mtime_ns == stamp
     # the report draws both variants side by side (Double GP shows as the random-selection baseline)
-    from gprace.report.collect import scan, timetrial_variants
+    from gprace.report.collect import scan
+    from gprace.report.sections.timetrial import timetrial_variants
 
     names = {v["name"] for v in timetrial_variants(scan(out)).values()}
     assert names == {"exploration", "baseline"}

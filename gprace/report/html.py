@@ -19,9 +19,13 @@ from gprace import __version__
 from gprace.errors import InputError
 from gprace.io.artifacts import check_folder
 from gprace.report import collect
-from gprace.report.collect import Section, _table
+from gprace.report.collect import Section, table
 from gprace.report.figures import png_bytes
 from gprace.report.inspect import ODD_PAYLOAD, key_results, open_artifact
+from gprace.report.sections.diagnosis import diagnosis_section
+from gprace.report.sections.gp import gp_section
+from gprace.report.sections.h2h import h2h_section
+from gprace.report.sections.timetrial import timetrial_section
 
 CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0;color:#1d2330;background:#f6f7f9}
@@ -95,8 +99,8 @@ def _collect_with_progress(folder, track, features, prog):
     found = collect.scan(folder)
     prog.advance()
     sections = []
-    for make in (lambda: collect.timetrial_section(found, track), lambda: collect.h2h_section(found),
-                 lambda: collect.diagnosis_section(found), lambda: collect.gp_section(found, features)):
+    for make in (lambda: timetrial_section(found, track), lambda: h2h_section(found),
+                 lambda: diagnosis_section(found), lambda: gp_section(found, features)):
         sec = make()
         if sec is not None:
             sections.append(sec)
@@ -149,7 +153,7 @@ def _index_html(found: collect.Found) -> str:
                 "<div class='missing'>No gprace results under this folder.</div></section>")
     total = sum(len(v) for v in found.files.values())
     return (f"<section id='artifacts' data-section='artifacts'><h2>Artifacts ({total})</h2>"
-            + _table(["file", "kind", "key results"], rows) + "</section>")
+            + table(["file", "kind", "key results"], rows) + "</section>")
 
 
 def _fmt(v: Any) -> str:
