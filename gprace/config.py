@@ -229,8 +229,10 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: not a text file") from None
 
 
-def validate(model: type[M], data: dict[str, Any], where: str) -> M:
-    data = _effects_from_toml(data)
+def validate(model: type[M], data: dict[str, Any], where: str, toml: bool = True) -> M:
+    """``data`` as ``model``, or a one-line :class:`ConfigError` naming ``where`` and the first bad
+    field. ``toml``: accept a vehicle's effects written flat in TOML (records pass False)."""
+    data = _effects_from_toml(data) if toml else data
     try:
         return model.model_validate(data)
     except ValidationError as exc:

@@ -12,6 +12,7 @@ from gprace.h2h import protocol as P
 from gprace.h2h.config import H2HConfig, opponent_mpc
 from gprace.h2h.predictors import Context, make_predictor
 from gprace.h2h.race import PROCESS_STREAM, SENSOR_STREAM, state_noise
+from gprace.h2h.records import RaceAttrs, read_record
 from gprace.h2h.spread import CALIB_LEVEL, at_least, band_coverage, fit_calibration, settled
 
 
@@ -226,8 +227,8 @@ def test_calibration_reaches_the_races_and_the_coverage_table(tmp_path):
     for i, h in enumerate(history):
         assert h["drove_with"]["cv"] == drove
         folder = tmp_path / "calib" / ("cv" if i == 0 else f"pass{i + 2}/cv")
-        own = [P._read_record(f) for f in sorted((folder / "runs").glob("*.h5"))]
-        tasks = [P.json.loads(r["attrs"]["task"]) for r in own]
+        own = [read_record(f, RaceAttrs) for f in sorted((folder / "runs").glob("*.h5"))]
+        tasks = [r.attrs.task for r in own]
         assert len(own) == 2 and all(t["calibration"]["floor"] == drove["floor"] and t["predictor"] == "cv" for t in tasks)
         assert seen.isdisjoint(t["seed"] for t in tasks)
         seen |= {t["seed"] for t in tasks}
@@ -241,7 +242,7 @@ def test_calibration_reaches_the_races_and_the_coverage_table(tmp_path):
     floor = np.asarray(cal["cv"]["floor"])
     assert floor.shape == (H2HConfig().pred_steps, 2) and np.all(floor > 0) and np.all(np.diff(floor[:, 1]) >= 0)
     raced = P.race_predictors(st, tmp_path, {}, cal)
-    assert all(P.json.loads(r["attrs"]["task"])["calibration"]["floor"] == cal["cv"]["floor"] for r in raced["cv"])
+    assert all(r.attrs.task["calibration"]["floor"] == cal["cv"]["floor"] for r in raced["cv"])
     errors, _, spread = P.offline_error_data(st, tmp_path, raced, {})
     cov = P.coverage(spread, errors, cal)["cv"]
     assert cov["points"] == errors["cv"].shape[1] > 0

@@ -12,6 +12,7 @@ from gprace.cli import main
 from gprace.errors import InputError, UnknownBackendError
 from gprace.h2h import protocol as P
 from gprace.h2h.predictors import make_predictor, read_opponent_gp
+from gprace.h2h.records import ErrorAttrs, RaceAttrs, read_record
 
 TINY = dict(tracks=2, raced=("cv",), offline=("cv",), max_time=1.5, samples=5)
 
@@ -38,13 +39,13 @@ def test_local_and_dask_give_identical_tables(tmp_path):
         dask, rec_dask = _batch(tmp_path / "dask", executor="dask", scheduler=cluster.scheduler_address)
     assert _comparable(local) == _comparable(dask)
     for a, b in zip(rec_local["cv"], rec_dask["cv"]):
-        np.testing.assert_array_equal(a["arrays"]["ego"], b["arrays"]["ego"])
-        np.testing.assert_array_equal(a["arrays"]["opp"], b["arrays"]["opp"])
+        np.testing.assert_array_equal(a.arrays["ego"], b.arrays["ego"])
+        np.testing.assert_array_equal(a.arrays["opp"], b.arrays["opp"])
     assert local["racing"]["cv"]["runs"] == 2 and local["racing"]["cv"]["failed"] == 0
     assert local["ey_error"]["cv"]["points"] > 0
     # per-run records are HDF5 artifacts
-    rec = P._read_record(tmp_path / "local" / "eval" / "cv" / "run_00000.h5")
-    assert rec["attrs"]["ok"] and rec["arrays"]["ego"].shape[1] == 6
+    rec = read_record(tmp_path / "local" / "eval" / "cv" / "run_00000.h5", RaceAttrs)
+    assert rec.attrs.ok and rec.arrays["ego"].shape[1] == 6
 
 
 def test_tasks_run_with_one_blas_thread_from_the_first_one():
@@ -82,29 +83,38 @@ def test_offline_errors_are_recorded_and_reused(tmp_path, monkeypatch):
     np.testing.assert_array_equal(first["cv"], again["cv"])
 
 
-def test_report_reads_the_stored_errors_of_a_race(tmp_path, monkeypatch):
+def test_report_draws_the_errors_of_a_race_from_its_stored_record_only(tmp_path, monkeypatch):
+    from gprace.report.collect import scan
     from gprace.report.sections import h2h as collect
-    from gprace.report.inspect import open_artifact
 
     st = P.Settings(**{**TINY, "workers": 1})
     raced = P.race_predictors(st, tmp_path, {})
-    race = tmp_path / "eval" / "cv" / "run_00001.h5"
-    art = open_artifact(race, "h2h_run")
-    recomputed = collect._errors_along(race, art, None, samples=5)  # no errors/ yet: computed here
+
+    def no_simulation(task):  # the report computes nothing
+        raise AssertionError("the report ran an offline error task")
+
+    race = tmp_path / "eval" / "cv" / "run_00000.h5"
+    rec = read_record(race, RaceAttrs)
+    with monkeypatch.context() as m:
+        m.setattr(P, "offline_errors_task", no_simulation)
+        # no errors/ yet: no figure, and one note naming the race and the command that stores them
+        assert collect._errors_along(race, rec, [])[0] is None
+        sec = collect.h2h_section(scan(tmp_path))
+    notes = [n for n in sec.missing if "no stored offline errors" in n]
+    assert len(notes) == 1 and "cv/run_00000.h5" in notes[0] and "gprace eval head2head" in notes[0]
+    assert "error_along_run" not in {i.name for i in sec.items}
     P.offline_errors(st, tmp_path, raced, {})
-
-    def no_recompute(task):  # fails the way a recomputation can (the report then has no errors)
-        raise RuntimeError("recomputed")
-
-    monkeypatch.setattr(P, "offline_errors_task", no_recompute)
-    t, E = collect._errors_along(race, art, None, samples=5)
-    np.testing.assert_array_equal(E["cv"], recomputed[1]["cv"])
-    np.testing.assert_array_equal(E["cv"], P._read_record(tmp_path / "errors" / "cv" / "run_00001.h5")["arrays"]["cv"])
-    assert len(t) == E["cv"].shape[1]
-    # the stored record of another race is not taken for this one (and recomputing fails here)
-    other = tmp_path / "errors" / "cv" / "run_00000.h5"
-    other.replace(tmp_path / "errors" / "cv" / "run_00001.h5")
-    assert collect._errors_along(race, art, None, samples=5) is None
+    monkeypatch.setattr(P, "offline_errors_task", no_simulation)
+    (t, E), why = collect._errors_along(race, rec, [])
+    stored = read_record(tmp_path / "errors" / "cv" / "run_00000.h5", ErrorAttrs)
+    np.testing.assert_array_equal(E["cv"], stored.arrays["cv"])
+    assert len(t) == E["cv"].shape[1] and why == ""
+    assert "error_along_run" in {i.name for i in collect.h2h_section(scan(tmp_path)).items}
+    # the stored record of another race is not taken for this one
+    other = tmp_path / "errors" / "cv" / "run_00001.h5"
+    other.replace(tmp_path / "errors" / "cv" / "run_00000.h5")
+    errs, why = collect._errors_along(race, rec, [])
+    assert errs is None and "of another race" in why
 
 
 def test_task_hash_follows_file_contents_not_locations():
@@ -120,10 +130,10 @@ def test_failed_run_is_recorded_skipped_and_resumed(tmp_path):
     tasks = P.eval_tasks(st, "cv", None)
     tasks[1].update(predictor="gp", model=str(tmp_path / "missing.h5"))  # this run raises
     recs = P.run_tasks(tasks, tmp_path / "runs", st, "test")
-    assert [r["attrs"]["ok"] for r in recs] == [True, False, True]
-    assert "missing.h5" in recs[1]["attrs"]["error"]
-    on_disk = P._read_record(tmp_path / "runs" / "run_00001.h5")
-    assert on_disk["attrs"]["ok"] is False or on_disk["attrs"]["ok"] == 0
+    assert [r.attrs.ok for r in recs] == [True, False, True]
+    assert "missing.h5" in recs[1].attrs.error
+    on_disk = read_record(tmp_path / "runs" / "run_00001.h5", RaceAttrs)
+    assert on_disk.attrs.ok is False and on_disk.attrs.error == recs[1].attrs.error
     tab = P.table(st, {"cv": recs}, {})
     assert tab["racing"]["cv"]["failed"] == 1 and tab["racing"]["cv"]["runs"] == 3
     # resume: only the failed run is attempted again
@@ -136,7 +146,7 @@ def test_failed_run_is_recorded_skipped_and_resumed(tmp_path):
     st = st.model_copy(update={"resume": True})
     again = P.run_tasks(tasks, tmp_path / "runs", st, "test", fn=counting)
     assert calls == [tasks[1]["seed"]]
-    np.testing.assert_array_equal(again[0]["arrays"]["ego"], recs[0]["arrays"]["ego"])
+    np.testing.assert_array_equal(again[0].arrays["ego"], recs[0].arrays["ego"])
 
 
 def test_unknown_predictor():
@@ -194,10 +204,11 @@ def test_exploration_width_outside_the_loop_validity(capsys, tmp_path):
 def _hand_made(times_e, times_b, err_e, err_b, hits_e=(0, 0, 0, 0)):
     """4 tracks, raced explore and baseline; offline errors with K = 1 and one column per track
     (track 3 two columns)."""
+    from gprace.h2h.records import RaceAttrs, Record
     from gprace.h2h.spread import track_data
 
     def recs(times, hits):
-        return [{"attrs": {"ok": True, "border_hit": bool(h), "collision": False, "overtake_time": t}}
+        return [Record({}, RaceAttrs(ok=True, border_hit=bool(h), collision=False, overtake_time=t))
                 for t, h in zip(times, hits)]
 
     tracks = np.array([0, 1, 2, 3, 3])

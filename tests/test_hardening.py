@@ -468,7 +468,8 @@ def test_lap_tables_count_and_place_failed_laps(capsys, tmp_path):
     from gprace.report.sections.timetrial import timetrial_section
     from gprace.timetrial.commands import _print_summary
     from gprace.timetrial.compare import COLUMNS, format_table
-    from gprace.timetrial.iterate import failed_laps_text
+    from gprace.timetrial.iterate import IterateSettings, build_summary, failed_laps_text
+    from gprace.timetrial.record import IterationRecord, write_json, write_record
 
     rows, by_it = _laps()
     want = f"iteration 1: 1 of 2 laps failed: trial 0: {SPIN}"
@@ -481,10 +482,16 @@ def test_lap_tables_count_and_place_failed_laps(capsys, tmp_path):
     text = format_table({"plant": "p", "track": "t", "trials": 2, "iterations": 1, "features": "full", "oracle": None,
                          "variants": {"exploration": vrows}})
     assert f"  {want}" in text
-    # show summary.json
+    # show summary.json (the folder of `gprace iterate`: settings, records, the summary built from them)
     d = tmp_path / "exploration"
     d.mkdir()
-    (d / "summary.json").write_text(json.dumps({"rows": rows, "by_iteration": by_it}))
+    write_json(d / "settings.json", IterateSettings(alphas=(0.0,), iterations=1, trials=2).model_dump(mode="json"))
+    for r in rows:
+        (d / f"trial_{r['trial']}" / f"iter_{r['iteration']:02d}").mkdir(parents=True)
+        write_record(d / f"trial_{r['trial']}" / f"iter_{r['iteration']:02d}" / "record.json",
+                     IterationRecord(**{**r, "driven": float("nan") if r["driven"] is None else r["driven"]}))
+    write_json(d / "summary.json", build_summary(d))
+    assert build_summary(d)["by_iteration"][1]["failed"] == by_it[1]["failed"]
     assert main(["show", str(d / "summary.json"), "--json"]) == 0
     res = strict(capsys.readouterr().out)["results"]
     assert res["laps completed per iteration"] == "0: 2/2, 1: 1/2" and res["failed laps"] == [want]

@@ -1,4 +1,5 @@
-"""The time trial's iteration record: one schema, versioned; an old layout migrates once (issue 18)."""
+"""The time trial's records: the iteration record (one schema, versioned; an old layout migrates once)
+and the run summary built from them (issue 18)."""
 
 from __future__ import annotations
 
@@ -9,8 +10,10 @@ from pathlib import Path
 
 import pytest
 
+from gprace.console import jsonable
 from gprace.errors import InputError
-from gprace.timetrial.record import RECORD_VERSION, IterationRecord, read_record, write_record
+from gprace.timetrial.record import (RECORD_VERSION, SUMMARY_VERSION, IterationRecord, read_record, read_summary,
+                                    write_json, write_record)
 
 OLD = Path(__file__).parent / "data" / "record_before_schema.json"
 
@@ -56,3 +59,55 @@ def test_a_bad_record_is_one_line_naming_the_field(tmp_path, change, words):
     p.write_text(json.dumps({**json.loads(OLD.read_text()), **change}))
     with pytest.raises(InputError, match=words):
         read_record(p)
+
+
+# ------------------------------------------------------------------------------------------------
+# the run summary (summary.json): built from the records, read through its schema, never guessed
+
+OLD_SUMMARY = Path(__file__).parent / "data" / "summary_before_schema.json"
+
+
+def _folder_with_records(root: Path) -> Path:
+    """An iterate folder: settings.json and the records of two laps of trial 1 (one failed)."""
+    from gprace.timetrial.iterate import IterateSettings
+
+    root.mkdir()
+    write_json(root / "settings.json", IterateSettings(iterations=2, trials=2).model_dump(mode="json"))
+    old = json.loads(OLD.read_text())
+    for rec in (dict(old, iteration=0, alpha=0.0, driven=62.8, completed=True, reason=""), old):
+        d = root / f"trial_{rec['trial']}" / f"iter_{rec['iteration']:02d}"
+        d.mkdir(parents=True)
+        write_record(d / "record.json", IterationRecord(**{k: v for k, v in rec.items() if k != "gap"}))
+    return root
+
+
+def test_a_summary_round_trips_through_its_schema(tmp_path):
+    from gprace.timetrial.iterate import build_summary
+
+    out = _folder_with_records(tmp_path / "exp")
+    summary = build_summary(out)
+    assert summary["version"] == SUMMARY_VERSION and [r["iteration"] for r in summary["rows"]] == [0, 2]
+    it2 = summary["by_iteration"][1]
+    assert it2["completed"] == 0 and it2["failed"][0]["trial"] == 1 and math.isnan(it2["driven_mean"])
+    assert it2["err_tracking"] == pytest.approx(0.41) and summary["per_trial"][0]["best_iteration"] is None
+    write_json(out / "summary.json", summary)
+    assert json.dumps(jsonable(read_summary(out / "summary.json"))) == json.dumps(jsonable(summary))  # NaN as null
+
+
+@pytest.mark.parametrize("version", [None, SUMMARY_VERSION + 1])
+def test_a_summary_of_another_layout_is_refused_and_the_report_reads_the_records(tmp_path, capsys, version):
+    from gprace.cli import main
+    from gprace.report.collect import scan
+    from gprace.report.sections.timetrial import timetrial_variants
+
+    out = _folder_with_records(tmp_path / "exp")
+    old = json.loads(OLD_SUMMARY.read_text())
+    (out / "summary.json").write_text(json.dumps(old if version is None else {**old, "version": version}))
+    with pytest.raises(InputError, match="summary of layout .* `gprace eval iterate .*` summarises the records"):
+        read_summary(out / "summary.json")
+    assert main(["show", str(out / "summary.json")]) == 2  # one line, exit code 2
+    assert "summary of layout" in capsys.readouterr().err
+    v = timetrial_variants(scan(tmp_path))[out]
+    assert v["rows_from"] == "record.json files" and [r["iteration"] for r in v["rows"]] == [0, 2]
+    assert v["name"] == "exploration" and any("summary of layout" in n for n in v["notes"])
+    assert (out / "summary.json").read_text() == json.dumps(old if version is None else {**old, "version": version})

@@ -154,9 +154,9 @@ def test_fig_residual_channels_parameters():
 # gprace show
 def test_show_every_kind_json(everything, tmp_path, capsys):
     files = {
-        "plan": everything / "exploration" / "iter_01" / "plan.h5",
-        "run": everything / "exploration" / "iter_01" / "trial_0" / "run.h5",
-        "gp_model": everything / "exploration" / "iter_02" / "tracking_gp.h5",
+        "plan": everything / "exploration" / "trial_0" / "iter_01" / "plan.h5",
+        "run": everything / "exploration" / "trial_0" / "iter_01" / "run.h5",
+        "gp_model": everything / "exploration" / "trial_0" / "iter_02" / "gp_tracking.h5",
         "dataset": everything / "gp" / "dataset.h5",
         "h2h_run": everything / "h2h" / "eval" / "explore" / "run_00000.h5",
         "diagnosis": everything / "diagnosis" / "diagnosis.json",
@@ -237,9 +237,9 @@ def test_report_partial_folder_says_what_is_missing(tmp_path, capsys):
     root = tmp_path / "partial"
     d = make_iterate(root, "exploration", iterations=2, trials=1, summary=False)
     # an interrupted atomic write and an iteration that never finished a run
-    (d / "iter_01" / ".run.h5.tmp").write_bytes(b"\x89HDF partial")
-    (d / "iter_02").mkdir()
-    make_plan(d / "iter_02" / "plan.h5")
+    (d / "trial_0" / "iter_01" / ".run.h5.tmp").write_bytes(b"\x89HDF partial")
+    (d / "trial_0" / "iter_02").mkdir()
+    make_plan(d / "trial_0" / "iter_02" / "plan.h5")
     out = tmp_path / "r.html"
     assert main(["report", str(root), "-o", str(out)]) == 0
     cap = capsys.readouterr()
@@ -250,7 +250,7 @@ def test_report_partial_folder_says_what_is_missing(tmp_path, capsys):
     assert "report: collecting results" in err and re.search(r"report: rendering \d+ figures", err)
     assert cap.out.startswith("report ") and "collecting" not in cap.out and "━" not in err
     assert "exploration vs baseline comparison needs both" in html
-    assert len(_data_uri_images(html)) >= 2  # lap times from the run files, driven line
+    assert len(_data_uri_images(html)) >= 2  # lap times from the records, driven line
 
 
 def test_report_empty_and_bad_folder(tmp_path, capsys):
@@ -287,36 +287,45 @@ def test_h2h_only_report(tmp_path):
     assert len(_data_uri_images(html)) == 2  # the race and the errors along it
 
 
-def test_report_recomputes_residuals_from_recording_and_augmented_vehicle(tmp_path):
-    """A recording with a hidden road grade, the augmented vehicle carrying exactly that grade:
-    the recomputed v_x residual inside the window is large before and near zero after."""
+def test_report_draws_the_residual_the_diagnosis_stored_without_simulating(tmp_path, capsys, monkeypatch):
+    """A recording with a hidden road grade, diagnosed through the CLI: the JSON stores the residual
+    along the track (the v_x residual inside the window is large before and near zero after), and
+    the report draws it from the JSON alone: no recording next to it, the prediction code broken."""
     from gprace.config import EffectConfig, load_vehicle
+    from gprace.diagnose import core
     from gprace.diagnose.synth import record
     from gprace.io.runs import write_run
-    from gprace.report.sections.diagnosis import _recompute_residuals
     from gprace.tracks import load_track
 
-    veh = load_vehicle("audi_tt_cup")
-    grade = EffectConfig(name="road_grade", params={"angle": 0.08, "s_start": 200.0, "s_end": 350.0})
-    run = record(veh, load_track("circle_100"), [grade], laps=1.2, seed=1)
+    grade = EffectConfig(name="road_grade", params={"angle": 0.06, "s_start": 200.0, "s_end": 350.0})
+    run = record(load_vehicle("audi_tt_cup"), load_track("circle_100"), [grade], laps=2, seed=3)
+    rec = write_run(run, tmp_path / "rec.h5")
+    capsys.readouterr()
+    assert main(["-q", "diagnose", str(rec), "--vehicle", "audi_tt_cup", "--json"]) == 0
+    out_json = capsys.readouterr().out
+    prof = json.loads(out_json)["residual_profile"]
+    s = np.array(prof["s"])
+    before = np.array(prof["before"]["v_x"], dtype=float)
+    after = np.array(prof["after"]["v_x"], dtype=float)
+    inside = (s > 230) & (s < 330) & np.isfinite(before)
+    outside = ((s < 170) | (s > 400)) & np.isfinite(before)
+    # uphill: the car is slower than the flat-road model predicts, by about g sin(angle) * horizon time / 2
+    assert np.mean(before[inside]) < -0.15
+    assert abs(np.mean(before[outside])) < 0.05
+    assert np.max(np.abs(after[inside])) < 0.25 * abs(np.mean(before[inside]))
     d = tmp_path / "diag"
-    write_run(run, d / "rec.h5")
-    (d / "aug.toml").write_text(veh.model_copy(update={"effects": (grade,)}).to_toml())
-    rep = {"verdict": "mismatch", "channels": [], "regions": [], "horizon": 15, "augmented_vehicle": "aug.toml",
-           "effects": [{"name": "road_grade", "parameters": {}}]}
-    (d / "diagnosis.json").write_text(json.dumps(rep))
-    res, why = _recompute_residuals(d / "diagnosis.json", rep)
-    assert res is not None, why
-    s, before, after, _ = res
-    inside = (s > 230) & (s < 330) & np.isfinite(before["v_x"])
-    outside = ((s < 170) | (s > 400)) & np.isfinite(before["v_x"])
-    # uphill: the car is slower than the flat-road model predicts, by about g sin(angle) * horizon time
-    assert np.mean(before["v_x"][inside]) < -0.3
-    assert abs(np.mean(before["v_x"][outside])) < 0.1
-    assert np.max(np.abs(after["v_x"][inside])) < 0.25 * abs(np.mean(before["v_x"][inside]))
+    d.mkdir()
+    (d / "diagnosis.json").write_text(out_json)
+
+    def no_simulation(*a, **k):
+        raise AssertionError("the report must not simulate")
+
+    monkeypatch.setattr(core, "predict", no_simulation)
+    monkeypatch.setattr(core, "build_dataset", no_simulation)
     out = tmp_path / "r.html"
     assert main(["report", str(d), "-o", str(out), "--png", str(tmp_path / "png")]) == 0
     assert (tmp_path / "png" / "diagnosis_residual_diagnosis.png").exists()
+    assert "residual-along-track plot not drawn" not in out.read_text()
 
 
 @pytest.mark.skipif(__import__("shutil").which("script") is None, reason="needs util-linux `script` for a pseudo-terminal")

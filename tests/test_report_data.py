@@ -78,29 +78,41 @@ def make_dataset(path: Path, seed: int = 0) -> Path:
 
 def make_iterate(root: Path, name: str, iterations: int = 3, trials: int = 2, explore: bool = True,
                  summary: bool = True, gain: float = 0.6) -> Path:
-    d = root / name
-    rows = []
-    for it in range(iterations):
-        plan_p = make_plan(d / f"iter_{it:02d}" / "plan.h5", v=20.0 + gain * it)
-        for tr in range(trials):
-            alpha = (0.857 if it == 1 else 0.714 if it == 2 else 0.0) if explore else 0.0
-            v = 19.0 + gain * it + 0.2 * tr
-            from gprace.io.artifacts import read_artifact
+    """An iterate folder in the layout of ``gprace iterate``: settings.json, per trial and iteration
+    a plan, a run and the iteration record, a tracking GP in the last iteration, summary.json."""
+    from gprace.io.artifacts import read_artifact
+    from gprace.timetrial.iterate import IterateSettings, build_summary
+    from gprace.timetrial.record import IterationRecord, write_json, write_record
 
-            pl = float(read_artifact(plan_p, "plan").attrs["lap_time"])
-            make_run(d / f"iter_{it:02d}" / f"trial_{tr}" / "run.h5", v, alpha=alpha, seed=tr, planned=pl,
-                     hits=2 if (it == iterations - 1 and tr == 0) else 0)
-            rows.append({"iteration": it, "trial": tr, "planned_lap_time": pl, "driven_lap_time": float(L / v),
-                         "gp_error": {"planning": 0.3 / (1 + it), "tracking": 0.05 / (1 + it + tr)}})
+    d = root / name
+    alphas = (0.857, 0.714, 0.0) if explore else (0.0,)
+    st = IterateSettings(alphas=alphas, selection="diverse" if explore else "random", iterations=max(iterations - 1, 1),
+                         trials=trials, track=TRACK)
+    d.mkdir(parents=True, exist_ok=True)
+    write_json(d / "settings.json", st.model_dump(mode="json"))
+    for tr in range(trials):
+        for it in range(iterations):
+            folder = d / f"trial_{tr}" / f"iter_{it:02d}"
+            pl = float(read_artifact(make_plan(folder / "plan.h5", v=20.0 + gain * it), "plan").attrs["lap_time"])
+            alpha = st.alpha(it) if it else 0.0
+            v = 19.0 + gain * it + 0.2 * tr
+            hits = 2 if (it == iterations - 1 and tr == 0) else 0
+            make_run(folder / "run.h5", v, alpha=alpha, seed=tr, planned=pl, hits=hits)
+            nan = float("nan")
+            write_record(folder / "record.json", IterationRecord(
+                iteration=it, trial=tr, alpha=alpha, planned=pl, driven=float(L / v), completed=True, border_hits=hits,
+                err_planning=0.3 / (1 + it) if it else nan, err_tracking=0.05 / (1 + it + tr) if it else nan))
     if iterations > 1:
-        make_gp_model(d / f"iter_{iterations - 1:02d}" / "tracking_gp.h5")
+        make_gp_model(d / "trial_0" / f"iter_{iterations - 1:02d}" / "gp_tracking.h5")
     if summary:
-        (d / "summary.json").write_text(json.dumps({"alpha": [0.857, 0.714, 0.0] if explore else [0.0],
-                                                    "selection": "diverse" if explore else "random", "rows": rows}))
+        write_json(d / "summary.json", build_summary(d))
     return d
 
 
 def make_h2h(root: Path, steps: int = 60) -> Path:
+    """A head-to-head folder: one evaluation race with its offline-error record, and table.json."""
+    from gprace.h2h.records import ErrorAttrs, RaceAttrs, record_of, write_record
+
     d = root / "h2h"
     t = 0.1 * np.arange(steps + 1)
     # two cars on the built-in loop, the ego catching up and passing on the left
@@ -112,10 +124,18 @@ def make_h2h(root: Path, steps: int = 60) -> Path:
                            -0.2 * np.sin(0.3 * t), s_o])
     task = {"id": "eval-explore-0", "track": {"kind": "loop"}, "seed": 0, "predictor": "gp", "label": "explore",
             "config": {"samples": 5}}
-    attrs = {"track": "h2h_loop", "predictor": "explore", "ok": True, "error": "", "end_reason": "overtaken",
-             "overtake_time": 3.1, "border_hit": False, "collision": False, "steps": steps, "task": json.dumps(task)}
-    write_artifact(d / "eval" / "explore" / "run_00000.h5", Artifact("h2h_run", arrays={
-        "t": t, "ego": ego, "opp": opp, "border_ego": np.zeros(len(t), bool)}, attrs=attrs))
+    attrs = {"track": "h2h_loop", "predictor": "explore", "end_reason": "overtaken", "overtake_time": 3.1,
+             "border_hit": False, "collision": False, "steps": steps}
+    race = d / "eval" / "explore" / "run_00000.h5"
+    write_record(race, record_of(RaceAttrs, task, "race0", True, {"arrays": {
+        "t": t, "ego": ego, "opp": opp, "border_ego": np.zeros(len(t), bool)}, "attrs": attrs}, ""))
+    # the protocol's offline errors of that race: (K, start times) per predictor
+    k = np.arange(1, 10)[:, None]
+    starts = np.arange(steps - 8)[None, :]
+    errors = {"cv": 0.01 * k * (1 + 0.1 * np.sin(starts)), "explore": 0.002 * k ** 1.2 * (1 + 0.1 * np.cos(starts))}
+    write_record(d / "errors" / "explore" / "run_00000.h5", record_of(
+        ErrorAttrs, {"id": "errors-explore-0", "record": str(race), "record_hash": "race0", "seed": 0}, "err0", True,
+        {"arrays": errors, "attrs": {}}, ""))
     K = 9
     steps_k = np.arange(1, K + 1)
     table = {"settings": {"tracks": 1, "config": {"dt": 0.1}}, "common_inside": 1,

@@ -15,14 +15,16 @@ Each stage is a function returning a small frozen result (see ``docs/decisions.m
   reported as ambiguous), re-evaluates the augmented model and withdraws a name whose channels stay
   structured (reported as unexplained, never misnamed).
 
-:func:`diagnose` runs the stages and returns the JSON-ready report of the issue's contract plus the
-augmented :class:`~gprace.config.VehicleConfig`.
+:func:`diagnose` runs the stages and returns the result (:class:`~gprace.diagnose.result.DiagnosisResult`,
+the issue's contract plus the residual profile along the track) and the augmented
+:class:`~gprace.config.VehicleConfig`.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any, Callable
 
 import numpy as np
@@ -31,6 +33,7 @@ from scipy.stats import norm
 from gprace.config import EffectConfig, VehicleConfig
 from gprace.diagnose import core, locate, name as nm, screen as scr
 from gprace.diagnose.core import CHANNELS, DYNAMIC, TESTED
+from gprace.diagnose.result import DiagnosisResult, residual_profile
 from gprace.errors import InputError
 from gprace.io.envelope import EnvelopeReport, envelope
 from gprace.io.runs import Run
@@ -61,9 +64,15 @@ _ALIAS = {3: 2, 4: 1}  # e_psi error comes from yaw rate, e_y error from v_y
 
 @dataclass
 class Diagnosis:
-    report: dict[str, Any]
+    """What :func:`diagnose` found, and the vehicle with the named effects added."""
+
+    result: DiagnosisResult
     vehicle: VehicleConfig  # augmented (equal to the input when nothing was named)
-    plot_data: dict[str, Any]
+
+    @cached_property
+    def report(self) -> dict[str, Any]:
+        """The result as a dict (NaN where a number is not one): what ``--json`` prints."""
+        return self.result.model_dump()
 
 
 # --------------------------------------------------------------------------------------------
@@ -427,13 +436,26 @@ def _diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int, seed: in
     named = fit(ctx, name(p, s, loc, ctx, log))
     ver = verify(p, s, ctx, named, vehicle, seed, log)
     report = _report(p, s, ctx, named, ver, vehicle, augmented_name)
+    report["residual_profile"] = residual_along_track(p, s.nominal, ver.augmented)
     report["runtime_s"] = round(time.perf_counter() - t0, 2)
-    effects = ver.effects if report["verdict"] == "mismatch" else ()
+    result = DiagnosisResult.model_validate(report)  # a failure here is a bug of the pipeline, not bad input
+    effects = ver.effects if result.verdict == "mismatch" else ()
     aug_vehicle = vehicle.model_copy(update={"effects": tuple(vehicle.effects) + tuple(
         EffectConfig(name=e.name, params={k: float(v) for k, v in e.fit.values().items()}) for e in effects)})
-    plot_data = {"data": data, "starts": p.starts, "H": p.H, "Ed0": s.nominal.Ed, "Et0": s.nominal.Et,
-                 "Ed1": ver.augmented.Ed, "structured": set(s.nominal.structured), "effects": [e.name for e in effects]}
-    return Diagnosis(report, aug_vehicle, plot_data)
+    return Diagnosis(result, aug_vehicle)
+
+
+def residual_along_track(p: Prepared, nominal: Evaluation, augmented: Evaluation) -> dict[str, Any]:
+    """The residual along the track, computed once so that no reader simulates it again: per
+    dynamic channel the binned mean multi-step error of the nominal and the augmented model
+    (:func:`~gprace.diagnose.locate.track_profile`) and the noise twin's RMS error (1 sigma)."""
+    before, after, noise = {}, {}, {}
+    for c in DYNAMIC:
+        ch = CHANNELS[c]
+        s, before[ch] = locate.track_profile(p.data, p.starts, p.H, nominal.Ed, c)
+        _, after[ch] = locate.track_profile(p.data, p.starts, p.H, augmented.Ed, c)
+        noise[ch] = float(np.sqrt(np.mean(nominal.Et[..., c] ** 2)))
+    return residual_profile(s, before, after, noise, locate.BIN_METRES)
 
 
 def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, vehicle: VehicleConfig,

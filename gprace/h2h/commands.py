@@ -13,11 +13,10 @@ from typing import Optional
 import typer
 
 from gprace.console import console
+from gprace.options import EXECUTOR, SCHEDULER
 
 OUT = typer.Option(Path("h2h_out"), "--out", help="Folder of cached artifacts and per-run HDF5 records.")
 WORKERS = typer.Option(os.cpu_count() or 1, "--workers", help="Local worker processes (default: one per core).")
-EXECUTOR = typer.Option("local", "--executor", help="local | dask")
-SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address tcp://HOST:PORT (with --executor dask).")
 RESUME = typer.Option(False, "--resume", help="Keep finished runs; rerun only missing or failed ones.")
 JSON = typer.Option(False, "--json", help="Print the result as JSON.")
 EXPLORE_WIDTH = typer.Option(

@@ -28,6 +28,8 @@ Layout of ``--out DIR`` (every file an HDF5 artifact, written atomically)::
 Every batch of runs goes through :func:`gprace.executor.run_batch`. Each run record stores a hash
 of its task; with ``resume`` a record whose hash matches is kept and only missing or failed runs
 are rerun. A run that raises is recorded (``ok = False`` and its error) and skipped by the table.
+Records are written and read only through their schemas (:mod:`gprace.h2h.records`: a race, the
+offline errors of a race); a reused record of an older layout is migrated.
 Datasets and models are reused when present and built from the same inputs (their ``config_hash``).
 
 Every GP fit goes through :func:`gprace.gp.quality.checked_fit`: its quality report (noise,
@@ -83,11 +85,12 @@ from gprace.config import CommandSettings, config_hash
 from gprace.errors import InputError
 from gprace.h2h.config import opponent_mpc
 from gprace.h2h.predictors import FEATURE_MAP, FEATURES, OUTPUTS
+from gprace.h2h.records import (ErrorAttrs, RaceAttrs, Record, RecordAttrs, migrate, read_record, record_of,
+                                warn_old, write_record)
 
 if TYPE_CHECKING:
     from gprace.h2h.spread import TrackData
 
-RUN_KIND = "h2h_run"
 DATASET_KIND = "h2h_dataset"
 SEED_EVAL, SEED_COLLECT, SEED_EXPLORE, SEED_CALIB = 0, 100_000, 200_000, 300_000
 # Noise of 1:10 cars, std per state [v_x m/s, v_y m/s, yaw_rate rad/s, e_psi rad, e_y m, s m]
@@ -228,27 +231,6 @@ def _record_path(run_dir: Path, i: int) -> Path:
     return run_dir / f"run_{i:05d}.h5"
 
 
-def _read_record(path: Path) -> dict | None:
-    from gprace.io.artifacts import read_artifact
-
-    try:
-        art = read_artifact(path, RUN_KIND)
-    except InputError:
-        return None
-    return {"arrays": art.arrays, "attrs": art.attrs}
-
-
-def _write_record(path: Path, task: dict, ok: bool, value: dict | None, error: str) -> dict:
-    """Write one run record (the task's result, or its error) and return it as read back later."""
-    from gprace.io.artifacts import Artifact, write_artifact
-
-    attrs = dict(value["attrs"]) if value else {}
-    attrs.update({"ok": bool(ok), "error": error, "task_hash": _task_hash(task), "task": json.dumps(task)})
-    arrays = dict(value["arrays"]) if value else {}
-    write_artifact(path, Artifact(RUN_KIND, arrays=arrays, attrs=attrs, seed=int(task.get("seed", 0))))
-    return {"arrays": arrays, "attrs": attrs}
-
-
 def race_with_data(task: dict) -> dict:
     """:func:`run_race` plus the GP training pairs of the run (computed in the worker)."""
     from gprace.h2h.geometry import make_track
@@ -266,27 +248,49 @@ def race_with_data(task: dict) -> dict:
     return out
 
 
+def _reusable(tasks: list[dict], run_dir: Path, schema: type[RecordAttrs], what: str) -> dict[int, Record]:
+    """The records in ``run_dir`` that finished their task as it is now (same hash), by task index;
+    one of an older layout is migrated. One warning for all old records, one for all unreadable
+    ones (their tasks are rerun, and so rewritten, like those of the other records not reused)."""
+    from gprace.console import console
+    from gprace.errors import ArtifactError
+
+    reused, old, unreadable = {}, [], []
+    for i, t in enumerate(tasks):
+        p = _record_path(run_dir, i)
+        if not p.exists():
+            continue
+        try:
+            rec = read_record(p, schema, warn=False)
+        except ArtifactError as exc:
+            unreadable.append(str(exc))
+            continue
+        old += [p] if rec.old else []
+        if rec.attrs.ok and rec.attrs.task_hash == _task_hash(t):
+            reused[i] = migrate(p, rec)
+    warn_old(old, migrated=True)
+    if unreadable:
+        console.warn(f"{what}: {len(unreadable)} unreadable record(s) rerun; the first: {unreadable[0]}")
+    return reused
+
+
 def run_tasks(tasks: list[dict], run_dir: Path, st: Settings, what: str,
-              fn: Callable[[dict], dict] = race_with_data) -> list[dict]:
-    """Run (or reuse) every task; returns one record per task: ``{"arrays", "attrs"}`` with
-    ``attrs["ok"]`` and ``attrs["error"]``."""
+              fn: Callable[[dict], dict] = race_with_data, schema: type[RecordAttrs] = RaceAttrs) -> list[Record]:
+    """Run (or reuse, with ``resume``) every task; returns one record per task, written and typed
+    by ``schema`` (:mod:`gprace.h2h.records`; ``attrs.ok`` and ``attrs.error`` say how it ran)."""
     from gprace.console import console
     from gprace.executor import run_batch
 
     run_dir.mkdir(parents=True, exist_ok=True)
-    records: list[dict | None] = [None] * len(tasks)
-    todo = []
-    for i, t in enumerate(tasks):
-        p = _record_path(run_dir, i)
-        rec = _read_record(p) if (st.resume and p.exists()) else None
-        if rec is not None and rec["attrs"].get("ok") and rec["attrs"].get("task_hash") == _task_hash(t):
-            records[i] = rec
-        else:
-            todo.append(i)
+    records: list[Record | None] = [None] * len(tasks)
+    for i, rec in (_reusable(tasks, run_dir, schema, what) if st.resume else {}).items():
+        records[i] = rec
+    todo = [i for i, r in enumerate(records) if r is None]
 
     def done(r) -> None:
         i = todo[r.index]
-        records[i] = _write_record(_record_path(run_dir, i), tasks[i], r.ok, r.value, r.error)
+        p = _record_path(run_dir, i)
+        records[i] = write_record(p, record_of(schema, tasks[i], _task_hash(tasks[i]), r.ok, r.value, r.error, str(p)))
         if not r.ok:
             console.warn(f"{what}: run {i} failed and is skipped: {r.error.splitlines()[0]}")
 
@@ -333,15 +337,15 @@ def _kept_steps(n: int, per_run: int | None) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, per_run).round().astype(int))
 
 
-def dataset_from_records(records: list[dict], per_run: int | None = None,
+def dataset_from_records(records: list[Record], per_run: int | None = None,
                          held_out: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stack the (Z, Y) pairs of the successful runs; ``per_run`` keeps that many evenly spaced
     steps of each run (the paper's baseline: about 5000 points from 500 runs); ``held_out`` keeps
     the other steps instead (points no model of the protocol is trained on)."""
     Zs, Ys, R = [], [], []
     for i, r in enumerate(records):
-        if r["attrs"].get("ok") and "Z" in r["arrays"] and len(r["arrays"]["Z"]):
-            Z, Y = r["arrays"]["Z"], r["arrays"]["Y"]
+        if r.attrs.ok and "Z" in r.arrays and len(r.arrays["Z"]):
+            Z, Y = r.arrays["Z"], r.arrays["Y"]
             keep = _kept_steps(len(Z), per_run)
             if held_out:
                 keep = np.setdiff1d(np.arange(len(Z)), keep)
@@ -399,7 +403,7 @@ def collect(st: Settings, out: Path) -> dict[str, Path]:
     reuse = st.model_copy(update={"resume": True}) if _cached(paths["collect"], key) else st
     recs = run_tasks(tasks, out / "collect" / "runs", reuse, "collect")
     Z, Y, R = dataset_from_records(recs, st.points_per_run)
-    n_failed = sum(not r["attrs"].get("ok") for r in recs)
+    n_failed = sum(not r.attrs.ok for r in recs)
     _write_dataset(paths["collect"], Z, Y, R, key, {"runs": len(recs), "failed": n_failed, "source": "collect"})
     if own_init:
         init_reuse = st.model_copy(update={"resume": True}) if _cached(paths["init"], key_init) else st
@@ -508,7 +512,7 @@ def explore(st: Settings, out: Path, init_model: Path, init_data: Path) -> Path:
         return path
     recs = run_tasks(tasks, out / "explore" / "runs", st, "explore")
     Ze, Ye, Re = dataset_from_records(recs)
-    stal = sum(int(r["attrs"].get("stalemates", 0)) for r in recs if r["attrs"].get("ok"))
+    stal = sum(r.attrs.stalemates for r in recs if r.attrs.ok)
     _write_dataset(path, Ze, Ye, Re, key, {"episodes": n_ep, "stalemates": stal, "source": "explore"})
     return path
 
@@ -561,7 +565,7 @@ def eval_tasks(st: Settings, predictor: str, model: Path | None, calibration: di
 
 
 def race_predictors(st: Settings, out: Path, model_paths: dict[str, Path],
-                    calibration: dict[str, dict] | None = None) -> dict[str, list[dict]]:
+                    calibration: dict[str, dict] | None = None) -> dict[str, list[Record]]:
     res = {}
     for p in st.raced:
         tasks = eval_tasks(st, p, model_paths.get(p), (calibration or {}).get(p))
@@ -592,7 +596,7 @@ def _offline_errors(task: dict) -> dict:
     cfg = H2HConfig(**task.get("config", {}))
     K = cfg.pred_steps
     track = make_track(task["track"])
-    a = _read_record(Path(task["record"]))["arrays"]
+    a = read_record(Path(task["record"]), RaceAttrs, warn=False).arrays  # run_tasks read (and migrated) it before
     O = a["opp"]
     E, Om = a.get("ego_meas", a["ego"]), a.get("opp_meas", O)
     T = len(O) - K
@@ -621,19 +625,19 @@ def _offline_errors(task: dict) -> dict:
     return {"arrays": out, "attrs": {}}
 
 
-def offline_errors(st: Settings, out: Path, raced: dict[str, list[dict]], model_paths: dict[str, Path]) -> dict:
+def offline_errors(st: Settings, out: Path, raced: dict[str, list[Record]], model_paths: dict[str, Path]) -> dict:
     """Offline e_y errors ``{offline predictor: (K, start times)}`` over every closed-loop race;
     one task per race, recorded under ``errors/`` and reused like the races."""
     return offline_error_columns(st, out, raced, model_paths)[0]
 
 
-def offline_error_columns(st: Settings, out: Path, raced: dict[str, list[dict]],
+def offline_error_columns(st: Settings, out: Path, raced: dict[str, list[Record]],
                           model_paths: dict[str, Path]) -> tuple[dict, np.ndarray]:
     """:func:`offline_errors` and the evaluation track of every column (start time)."""
     return offline_error_data(st, out, raced, model_paths)[:2]
 
 
-def _rollout_errors(st: Settings, records: list[dict], rec_dir: Path, err_dir: Path, names: list[str],
+def _rollout_errors(st: Settings, records: list[Record], rec_dir: Path, err_dir: Path, names: list[str],
                     model_paths: dict[str, Path], what: str) -> tuple[list[int], list[dict]]:
     """Offline errors of the predictors ``names`` on every successful record (one recorded task
     per record, reused like the races): the indices of those records and their error arrays."""
@@ -641,15 +645,15 @@ def _rollout_errors(st: Settings, records: list[dict], rec_dir: Path, err_dir: P
     hashes = {p: _hash_file(Path(v)) for p, v in models.items() if v is not None}
     tasks, index = [], []
     for i, rec in enumerate(records):
-        if rec["attrs"].get("ok"):
-            t = json.loads(rec["attrs"]["task"])
+        if rec.attrs.ok:
+            t = rec.attrs.task
             tasks.append({"id": f"errors-{rec_dir.name}-{i}", "record": str(_record_path(rec_dir, i)),
-                          "record_hash": rec["attrs"]["task_hash"], "track": t["track"], "seed": t["seed"],
+                          "record_hash": rec.attrs.task_hash, "track": t["track"], "seed": t["seed"],
                           "config": t["config"], "models": models, "model_hashes": hashes,
                           "version": ERRORS_VERSION})
             index.append(i)
-    recs = run_tasks(tasks, err_dir, st, what, fn=offline_errors_task)
-    ok = [(i, r["arrays"]) for i, r in zip(index, recs) if r["attrs"].get("ok")]
+    recs = run_tasks(tasks, err_dir, st, what, fn=offline_errors_task, schema=ErrorAttrs)
+    ok = [(i, r.arrays) for i, r in zip(index, recs) if r.attrs.ok]
     return [i for i, _ in ok], [a for _, a in ok]
 
 
@@ -658,7 +662,7 @@ def _stack(arrays: list[dict], key: str, empty: tuple[int, ...]) -> np.ndarray:
     return np.concatenate(got, axis=-1) if got else np.zeros(empty)
 
 
-def offline_error_data(st: Settings, out: Path, raced: dict[str, list[dict]],
+def offline_error_data(st: Settings, out: Path, raced: dict[str, list[Record]],
                        model_paths: dict[str, Path]) -> tuple[dict, np.ndarray, dict]:
     """:func:`offline_errors`, the evaluation track of every column (start time) and the spread
     data ``{offline predictor: (3, K, columns)}`` (|s error|, raw std of s and of e_y)."""
@@ -776,35 +780,35 @@ def H2H_K(st: Settings) -> int:
     return H2HConfig(**st.race_config()).pred_steps
 
 
-def table(st: Settings, raced: dict[str, list[dict]], errors: dict[str, np.ndarray]) -> dict:
+def _racing_row(recs: list[Record[RaceAttrs]], inside: np.ndarray) -> dict:
+    """One raced predictor's row of the table; overtake times over the scenarios ``inside``."""
+    ok = [r.attrs for r in recs if r.attrs.ok]
+    ot = np.array([r.attrs.overtake_time if r.attrs.ok else np.nan for r in recs], float)
+    common = ot[inside]
+    common = common[np.isfinite(common)]
+    ms = np.concatenate([np.asarray(r.arrays.get("ego_solve_ms", [])) for r in recs if r.attrs.ok]) if ok else np.zeros(0)
+    return {
+        "runs": len(recs), "failed": len(recs) - len(ok),
+        "failed_where": [{"scenario": i, "reason": (r.attrs.error or "failed").strip().splitlines()[0]}
+                         for i, r in enumerate(recs) if not r.attrs.ok],
+        "border_hits": sum(a.border_hit for a in ok),
+        "collisions": sum(a.collision for a in ok),
+        "overtakes": int(np.isfinite(ot).sum()),
+        "overtake_time_mean": float(common.mean()) if len(common) else None,
+        "overtake_time_std": float(common.std()) if len(common) else None,
+        "overtake_scenarios": int(len(common)),
+        "fallbacks_ego": sum(a.fallbacks_ego for a in ok),
+        "ego_solve_ms_median": float(np.median(ms)) if len(ms) else None,
+    }
+
+
+def table(st: Settings, raced: dict[str, list[Record[RaceAttrs]]], errors: dict[str, np.ndarray]) -> dict:
     """The paper's table: racing results per raced predictor and offline e_y errors per predictor."""
-    n = st.tracks
-    inside = np.ones(n, dtype=bool)
+    inside = np.ones(st.tracks, dtype=bool)
     for p in st.raced:
         for i, r in enumerate(raced[p]):
-            a = r["attrs"]
-            inside[i] &= bool(a.get("ok")) and not bool(a.get("border_hit"))
-    rows = {}
-    for p in st.raced:
-        recs = raced[p]
-        ok = [r for r in recs if r["attrs"].get("ok")]
-        ot = np.array([r["attrs"].get("overtake_time", np.nan) if r["attrs"].get("ok") else np.nan for r in recs], float)
-        common = ot[inside]
-        common = common[np.isfinite(common)]
-        ms = np.concatenate([np.asarray(r["arrays"].get("ego_solve_ms", [])) for r in ok]) if ok else np.zeros(0)
-        rows[p] = {
-            "runs": len(recs), "failed": len(recs) - len(ok),
-            "failed_where": [{"scenario": i, "reason": (r["attrs"].get("error") or "failed").strip().splitlines()[0]}
-                             for i, r in enumerate(recs) if not r["attrs"].get("ok")],
-            "border_hits": int(sum(bool(r["attrs"].get("border_hit")) for r in ok)),
-            "collisions": int(sum(bool(r["attrs"].get("collision")) for r in ok)),
-            "overtakes": int(np.isfinite(ot).sum()),
-            "overtake_time_mean": float(common.mean()) if len(common) else None,
-            "overtake_time_std": float(common.std()) if len(common) else None,
-            "overtake_scenarios": int(len(common)),
-            "fallbacks_ego": int(sum(int(r["attrs"].get("fallbacks_ego", 0)) for r in ok)),
-            "ego_solve_ms_median": float(np.median(ms)) if len(ms) else None,
-        }
+            inside[i] &= r.attrs.ok and not r.attrs.border_hit
+    rows = {p: _racing_row(raced[p], inside) for p in st.raced}
     err = {}
     for p, E in errors.items():
         err[p] = {"mean": E.mean(axis=1).tolist() if E.shape[1] else [], "std": E.std(axis=1).tolist() if E.shape[1] else [],

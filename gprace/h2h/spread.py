@@ -18,8 +18,12 @@ otherwise (the difference is within the spread).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from gprace.h2h.records import RaceAttrs, Record
 
 BOOTSTRAP = 2000
 LEVEL = 0.95
@@ -41,17 +45,17 @@ class TrackData:
         return len(self.inside)
 
 
-def track_data(raced: dict[str, list[dict]], errors: dict[str, np.ndarray], tracks: np.ndarray, n: int) -> TrackData:
+def track_data(raced: dict[str, list[Record[RaceAttrs]]], errors: dict[str, np.ndarray], tracks: np.ndarray, n: int) -> TrackData:
     """From the run records of each raced predictor (one per track) and the offline errors
     ``{predictor: (K, columns)}`` with the track of every column ``tracks (columns,)``."""
     border, collision, ot = {}, {}, {}
     inside = np.ones(n, dtype=bool)
     for p, recs in raced.items():
-        ok = np.array([bool(r["attrs"].get("ok")) for r in recs], dtype=bool)
-        a = [r["attrs"] for r in recs]
-        border[p] = np.array([bool(x.get("border_hit")) for x in a], float) * ok
-        collision[p] = np.array([bool(x.get("collision")) for x in a], float) * ok
-        ot[p] = np.where(ok, np.array([x.get("overtake_time", np.nan) for x in a], float), np.nan)
+        a = [r.attrs for r in recs]
+        ok = np.array([x.ok for x in a], dtype=bool)
+        border[p] = np.array([x.border_hit for x in a], float) * ok
+        collision[p] = np.array([x.collision for x in a], float) * ok
+        ot[p] = np.where(ok, np.array([x.overtake_time for x in a], float), np.nan)
         inside &= ok & (border[p] == 0)
     tracks = np.asarray(tracks, int)
     count = np.bincount(tracks, minlength=n).astype(float)

@@ -220,11 +220,14 @@ def _describe_json(path: Path) -> dict[str, Any]:
     info["groups"] = {}
     res: dict[str, Any] = {}
     if kind == "diagnosis":
-        res["verdict"] = obj.get("verdict")
-        res["structured_channels"] = [c.get("name") for c in obj.get("channels", []) if c.get("structured")]
-        res["regions"] = len(obj.get("regions", []))
-        res["effects"] = [e.get("name") for e in obj.get("effects", [])]
-        res["augmented_vehicle"] = obj.get("augmented_vehicle")
+        from gprace.diagnose.result import parse_result
+
+        d = parse_result(obj, str(path))  # through its schema: a bad or newer file is one line
+        res["verdict"] = d.verdict
+        res["structured_channels"] = [c.name for c in d.channels if c.structured]
+        res["regions"] = len(d.regions)
+        res["effects"] = [e.name for e in d.effects]
+        res["augmented_vehicle"] = d.augmented_vehicle
     elif kind == "h2h_table":
         for p, row in (obj.get("racing") or {}).items():
             from gprace.h2h.protocol import failed_races_text
@@ -237,12 +240,12 @@ def _describe_json(path: Path) -> dict[str, Any]:
             if m:
                 res[f"{p}: e_y error 1-step [m]"] = m[0]
                 res[f"{p}: e_y error {len(m)}-step [m]"] = m[-1]
-    elif kind == "timetrial_summary" and isinstance(obj, dict) and isinstance(obj.get("by_iteration"), list):
+    elif kind == "timetrial_summary" and isinstance(obj, dict) and "by_iteration" in obj:
         from gprace.timetrial.iterate import failed_laps_text
+        from gprace.timetrial.record import read_summary
 
-        agg = obj["by_iteration"]
-        res["laps completed per iteration"] = ", ".join(f"{a.get('iteration')}: {a.get('completed')}/{a.get('trials')}"
-                                                        for a in agg)
+        agg = read_summary(path)["by_iteration"]  # an old layout: one line saying how to rebuild it
+        res["laps completed per iteration"] = ", ".join(f"{a['iteration']}: {a['completed']}/{a['trials']}" for a in agg)
         res["failed laps"] = failed_laps_text(agg) or "none"
     elif isinstance(obj, dict):
         res["keys"] = sorted(obj)[:30]

@@ -13,13 +13,16 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gprace.errors import InputError
 from gprace.report import figures as F
 from gprace.report.inspect import UNREADABLE, artifact_kind, json_kind, open_artifact
+
+if TYPE_CHECKING:
+    from gprace.h2h.records import RaceAttrs
 
 
 def try_track(name: Any):
@@ -34,14 +37,12 @@ def try_track(name: Any):
         return None
 
 
-def h2h_track(attrs: dict[str, Any]):
-    """The track of a head-to-head run record (from its task's track spec), or None."""
+def h2h_track(attrs: RaceAttrs):
+    """The track of a head-to-head race record (from its task's track spec), or None."""
     try:
-        task = attrs.get("task")
-        task = json.loads(task) if isinstance(task, str) else task
         from gprace.h2h.geometry import make_track
 
-        return make_track(task["track"])
+        return make_track(attrs.task["track"])
     except (*UNREADABLE, ValueError, KeyError, TypeError):  # no task, or one of another layout: no map
         return None
 
@@ -115,6 +116,8 @@ def figures_for(path: str | Path, features: tuple[str, str] | None = None, again
     kind = artifact_kind(path)
     if kind is None:
         open_artifact(path)  # raises the precise error
+    if kind == "h2h_run":
+        return _race_figure(path)
     art = open_artifact(path)
     a, at = art.arrays, art.attrs
     if kind == "run":
@@ -147,11 +150,6 @@ def figures_for(path: str | Path, features: tuple[str, str] | None = None, again
         names_out = [str(x) for x in at.get("outputs", at.get("output_names", []))]
         i, j = pick_features(names_in or [f"z{k}" for k in range(np.shape(Z)[1])], features)
         return [(f"{path.name}: inputs", F.fig_dataset(Z, Y, names_in, names_out, i, j, title=path.name))]
-    if kind == "h2h_run":
-        track = h2h_track(at)
-        if track is None or "ego" not in a:
-            raise InputError(f"{path}: race record without a loadable track or trajectories")
-        return [(f"{path.name}: race", F.fig_race(track, a["ego"], a["opp"], a.get("border_ego"), title=path.name))]
     # any other kind: points Z coloured by a per-point array, or columns against t or s
     Z = a.get("Z")
     if Z is not None and np.ndim(Z) == 2 and len(Z):
@@ -168,6 +166,17 @@ def figures_for(path: str | Path, features: tuple[str, str] | None = None, again
             if len(cols) > 1:
                 return [(f"{path.name}: arrays", F.fig_run(cols, x, title=f"{path.name} ({kind})"))]
     raise InputError(f"{path}: no figure for artifacts of kind {kind!r} (no point set Z and no t or s column)")
+
+
+def _race_figure(path: Path) -> list[tuple[str, Any]]:
+    """A head-to-head race on its track, read through the race record's schema."""
+    from gprace.h2h.records import RaceAttrs, read_record
+
+    rec = read_record(path, RaceAttrs)
+    track, a = h2h_track(rec.attrs), rec.arrays
+    if track is None or "ego" not in a:
+        raise InputError(f"{path}: race record without a loadable track or trajectories")
+    return [(f"{path.name}: race", F.fig_race(track, a["ego"], a["opp"], a.get("border_ego"), title=path.name))]
 
 
 def save_figures(figs: list[tuple[str, Any]], png: str | Path) -> list[Path]:

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import typer
 
+from gprace.options import EXECUTOR, SCHEDULER
+
 
 def eval_group(app: typer.Typer) -> typer.Typer:
     """The ``eval`` sub-app shared by the stages (created by whichever registers first): they add
@@ -35,9 +37,7 @@ VEHICLE = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle of plan
 DICTIONARY = typer.Option(1000, "--dictionary-size", help="GP dictionary size M per GP.")
 FEATURES = typer.Option("full", "--features", help="GP inputs: full (v_x, v_y, yaw_rate, delta, a_x) or paper (v_y, yaw_rate, delta).")
 SEED = typer.Option(0, "--seed", help="Base seed.")
-EXECUTOR = typer.Option("local", "--executor", help="local or dask.")
 WORKERS = typer.Option(2, "--workers", help="Parallel trials.")
-SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address.")
 
 
 EVAL_HELP = ("Evaluate: run the paper's protocols (timetrial, head2head) or score finished results (iterate: "
@@ -199,9 +199,7 @@ def iterate_cmd(
     grip: bool = typer.Option(True, "--grip/--no-grip", help="Rear-slip (grip) constraint in the tracking MPC; --no-grip is the paper's QP."),
     solver: str = typer.Option("clarabel", "--solver", help="QP backend."),
     seed: int = SEED,
-    executor: str = EXECUTOR,
-    workers: int = WORKERS,
-    scheduler: str | None = SCHEDULER,
+    workers: int = WORKERS, executor: str = EXECUTOR, scheduler: str | None = SCHEDULER,
     out: Path = typer.Option(Path("iterate_out"), "--out", help="Folder for every artifact (rerun to resume)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
@@ -227,9 +225,7 @@ def eval_timetrial(
     features: str = FEATURES,
     dictionary: int = DICTIONARY,
     seed: int = SEED,
-    executor: str = EXECUTOR,
-    workers: int = WORKERS,
-    scheduler: str | None = SCHEDULER,
+    workers: int = WORKERS, executor: str = EXECUTOR, scheduler: str | None = SCHEDULER,
     out: Path = typer.Option(Path("timetrial_out"), "--out", help="Folder of both variants (rerun to resume)."),
     as_json: bool = typer.Option(False, "--json", help="Print the table as JSON."),
 ) -> None:

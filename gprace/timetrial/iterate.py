@@ -53,7 +53,7 @@ from pydantic import Field, model_validator
 from gprace.config import CommandSettings
 from gprace.console import console
 from gprace.errors import InputError, RunFailedError, SolverError
-from gprace.timetrial.record import IterationRecord, read_record, write_json, write_record
+from gprace.timetrial.record import IterateSummary, IterationRecord, read_record, write_json, write_record
 
 
 class IterateSettings(CommandSettings):
@@ -602,7 +602,8 @@ def _record(i, alpha, trial, plan, run, gps, sizes, H, extra) -> IterationRecord
 
 
 def build_summary(out: str | Path) -> dict:
-    """All finished records of a folder, by iteration and trial (what ``evaluate iterate`` prints)."""
+    """All finished records of a folder, by iteration and trial (what ``evaluate iterate`` prints),
+    as a dict of the :class:`~gprace.timetrial.record.IterateSummary` layout."""
     out = Path(out)
     if not (out / "settings.json").exists():
         raise InputError(f"{out}: not a gprace iterate folder (no settings.json)")
@@ -626,17 +627,14 @@ def build_summary(out: str | Path) -> dict:
     for i, rs in sorted(by_iter.items()):
         d = np.array([r["driven"] for r in rs], float)
         pl = np.array([r["planned"] for r in rs], float)
+        g = rs if i else []  # the laps driven with GPs (none at iteration 0)
         agg.append({
             "iteration": i, "alpha": rs[0]["alpha"], "trials": len(rs),
-            "planned_mean": float(np.nanmean(pl)), "planned_std": float(np.nanstd(pl)),
-            "driven_mean": float(np.nanmean(d)) if np.isfinite(d).any() else float("nan"),
-            "driven_std": float(np.nanstd(d)) if np.isfinite(d).any() else float("nan"),
-            "gap_mean": float(np.nanmean(d - pl)) if np.isfinite(d).any() else float("nan"),
-            "err_tracking": float(np.nanmean([r["err_tracking"] for r in rs])) if i else float("nan"),
-            "err_planning": float(np.nanmean([r["err_planning"] for r in rs])) if i else float("nan"),
-            "cov_tracking": float(np.nanmin([r.get("cov_tracking", np.nan) for r in rs])) if i else float("nan"),
-            "cov_planning": float(np.nanmin([r.get("cov_planning", np.nan) for r in rs])) if i else float("nan"),
-            "gap_closed_min": float(np.nanmin([r["gap_closed"] for r in rs])) if i and o_lap is not None else float("nan"),
+            "planned_mean": _finite(np.mean, pl), "planned_std": _finite(np.std, pl),
+            "driven_mean": _finite(np.mean, d), "driven_std": _finite(np.std, d), "gap_mean": _finite(np.mean, d - pl),
+            **{f"err_{k}": _finite(np.mean, [r[f"err_{k}"] for r in g]) for k in ("tracking", "planning")},
+            **{f"cov_{k}": _finite(np.min, [r[f"cov_{k}"] for r in g]) for k in ("tracking", "planning")},
+            "gap_closed_min": _finite(np.min, [r["gap_closed"] for r in g]),
             "completed": int(sum(r["completed"] for r in rs)),
             "failed": [{"trial": r["trial"], "reason": r.get("reason") or "lap not completed"}
                        for r in rs if not r["completed"]],
@@ -650,8 +648,16 @@ def build_summary(out: str | Path) -> dict:
         per_trial.append({"trial": j, "iteration0": b, "best_alpha0": best["driven"] if best else float("nan"),
                           "best_iteration": best["iteration"] if best else None,
                           "gap_closed_best": best["gap_closed"] if best else float("nan")})
-    return {"settings": json.loads((out / "settings.json").read_text()), "oracle": oracle, "rows": rows, "by_iteration": agg,
-            "per_trial": per_trial}
+    summary = {"settings": json.loads((out / "settings.json").read_text()), "oracle": oracle, "rows": rows,
+               "by_iteration": agg, "per_trial": per_trial}
+    return IterateSummary.model_validate(summary).model_dump()
+
+
+def _finite(stat, values) -> float:
+    """``stat`` over the finite values, NaN if there is none (an iteration of failed laps)."""
+    a = np.asarray(values, float)
+    a = a[np.isfinite(a)]
+    return float(stat(a)) if a.size else float("nan")
 
 
 def failed_laps_text(by_iteration: list[dict]) -> list[str]:

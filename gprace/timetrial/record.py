@@ -1,5 +1,12 @@
-"""The time trial's iteration record (``trial_J/iter_II/record.json``): one schema, written and read
-only through :func:`write_record` and :func:`read_record`.
+"""The time trial's records, one schema each, written and read only through this module:
+
+* the iteration record (``trial_J/iter_II/record.json``): :class:`IterationRecord`, through
+  :func:`write_record` and :func:`read_record`;
+* the run summary (``summary.json``, what ``gprace iterate --json`` and ``eval iterate`` print):
+  :class:`IterateSummary`, built by :func:`gprace.timetrial.iterate.build_summary`, read by
+  :func:`read_summary`. It is derived from the records: a summary of another layout is not
+  migrated; readers (the report, ``gprace eval iterate FOLDER``) summarise the records instead,
+  and the next ``gprace iterate`` into the folder rewrites it.
 
 The file is JSON with ``null`` for a number that is not one (a lap not completed has no driven
 time); :func:`read_record` gives it back as NaN. ``version`` is :data:`RECORD_VERSION`. A record
@@ -18,12 +25,13 @@ from typing import Any
 
 from pydantic import Field, model_validator
 
-from gprace.config import Frozen, validate
+from gprace.config import Frozen
 from gprace.console import console, jsonable
-from gprace.errors import ConfigError, InputError
+from gprace.errors import InputError
+from gprace.io.records import NAN, Num, check_version, read_json, validated
 
 RECORD_VERSION = 1
-NAN = float("nan")
+SUMMARY_VERSION = 1
 
 
 class IterationRecord(Frozen):
@@ -32,42 +40,91 @@ class IterationRecord(Frozen):
     version: int = Field(RECORD_VERSION, description="layout version of the record")
     iteration: int = Field(ge=0, description="0: the nominal model's lap; i >= 1: after i GP updates")
     trial: int = Field(ge=0, description="independent repetition")
-    alpha: float = Field(description="exploration weight the lap was driven with")
-    planned: float = Field(description="the plan's lap time [s]")
-    driven: float = Field(description="the driven lap time [s]; NaN if the lap was not completed")
+    alpha: Num = Field(description="exploration weight the lap was driven with")
+    planned: Num = Field(description="the plan's lap time [s]")
+    driven: Num = Field(description="the driven lap time [s]; NaN if the lap was not completed")
     completed: bool = Field(description="the lap was completed")
     reason: str = Field("", description="why the run stopped early (empty if it did not)")
-    gap: float = Field(NAN, description="driven minus planned [s] (an old record without it: computed)")
-    solve_median_ms: float = Field(NAN, description="median QP solve time of the tracking MPC [ms]")
-    solve_p99_ms: float = Field(NAN, description="99th percentile of the QP solve time [ms]")
+    gap: Num = Field(NAN, description="driven minus planned [s] (an old record without it: computed)")
+    solve_median_ms: Num = Field(NAN, description="median QP solve time of the tracking MPC [ms]")
+    solve_p99_ms: Num = Field(NAN, description="99th percentile of the QP solve time [ms]")
     border_hits: int = Field(0, ge=0, description="steps with a wheel outside a border")
     fallbacks: int = Field(0, ge=0, description="steps driven on the previous solution (a QP failed)")
     samples: int = Field(0, ge=0, description="samples of the run")
     replan_failed: bool = Field(False, description="the re-plan failed and an earlier plan was driven")
-    err_tracking: float = Field(NAN, description="tracking GP: normalised RMS error on the held-out run")
+    err_tracking: Num = Field(NAN, description="tracking GP: normalised RMS error on the held-out run")
     dict_tracking: int = Field(0, ge=0, description="tracking GP: dictionary size")
-    cov_tracking: float = Field(NAN, description="tracking GP: share of held-out errors in its 95 % band")
-    err_planning: float = Field(NAN, description="planning GP: normalised RMS error on the held-out run")
+    cov_tracking: Num = Field(NAN, description="tracking GP: share of held-out errors in its 95 % band")
+    err_planning: Num = Field(NAN, description="planning GP: normalised RMS error on the held-out run")
     dict_planning: int = Field(0, ge=0, description="planning GP: dictionary size")
-    cov_planning: float = Field(NAN, description="planning GP: share of held-out errors in its 95 % band")
+    cov_planning: Num = Field(NAN, description="planning GP: share of held-out errors in its 95 % band")
     limits: list[float] = Field(default_factory=list, description="friction ellipse the plan used: lateral, "
                                 "drive, brake [m/s^2]")
     envelope: list[float] = Field(default_factory=list, description="measured lateral, drive and brake "
                                   "accelerations of the in-control samples [m/s^2]")
-    utilisation: float = Field(NAN, description="robust peak rear slip over the nominal tire's peak slip")
+    utilisation: Num = Field(NAN, description="robust peak rear slip over the nominal tire's peak slip")
 
     @model_validator(mode="before")
     @classmethod
-    def _null_is_nan(cls, data: Any) -> Any:
-        """JSON ``null`` in a number field is NaN (as :func:`gprace.console.jsonable` writes it)."""
-        if isinstance(data, dict):
-            data = {k: NAN if v is None and k in _FLOATS else v for k, v in data.items()}
-            if "gap" not in data and all(isinstance(data.get(k), (int, float)) for k in ("driven", "planned")):
-                data["gap"] = data["driven"] - data["planned"]
+    def _gap_of_old_record(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "gap" not in data and all(
+                isinstance(data.get(k), (int, float)) for k in ("driven", "planned")):
+            data = {**data, "gap": data["driven"] - data["planned"]}
         return data
 
 
-_FLOATS = frozenset(k for k, f in IterationRecord.model_fields.items() if f.annotation is float)
+class SummaryRow(IterationRecord):
+    """An iteration record in the summary, with the share of the gap to the oracle it closed."""
+
+    gap_closed: Num = Field(NAN, description="(iteration-0 lap - this lap) / (iteration-0 lap - oracle lap) "
+                              "of the trial; NaN without an oracle")
+
+
+class FailedLap(Frozen):
+    trial: int = Field(ge=0, description="the trial whose lap failed")
+    reason: str = Field(description="where and why (the lap's record)")
+
+
+class IterationSummary(Frozen):
+    """One iteration over all trials: means and spreads of the laps, the GPs' worst coverage."""
+
+    iteration: int = Field(ge=0, description="the iteration")
+    alpha: Num = Field(description="exploration weight of the iteration")
+    trials: int = Field(ge=0, description="trials with a record for this iteration")
+    planned_mean: Num = Field(description="mean planned lap time [s]")
+    planned_std: Num = Field(description="its standard deviation over trials [s]")
+    driven_mean: Num = Field(description="mean driven lap time of the completed laps [s]")
+    driven_std: Num = Field(description="its standard deviation [s]")
+    gap_mean: Num = Field(description="mean driven minus planned lap time [s]")
+    err_tracking: Num = Field(description="mean held-out error of the tracking GP (NaN at iteration 0)")
+    err_planning: Num = Field(description="mean held-out error of the planning GP (NaN at iteration 0)")
+    cov_tracking: Num = Field(description="worst 95 %-band coverage of the tracking GP over trials")
+    cov_planning: Num = Field(description="worst 95 %-band coverage of the planning GP over trials")
+    gap_closed_min: Num = Field(description="smallest share of the gap to the oracle closed over trials")
+    completed: int = Field(ge=0, description="completed laps")
+    failed: list[FailedLap] = Field(description="the laps not completed")
+
+
+class TrialSummary(Frozen):
+    """One trial: its iteration-0 lap and its best racing lap (alpha 0, after exploring)."""
+
+    trial: int = Field(ge=0, description="the trial")
+    iteration0: Num = Field(description="driven lap time of iteration 0 [s]")
+    best_alpha0: Num = Field(description="best completed alpha-0 lap after iteration 0 [s]")
+    best_iteration: int | None = Field(description="the iteration of that lap (None: none completed)")
+    gap_closed_best: Num = Field(description="share of the gap to the oracle that lap closed")
+
+
+class IterateSummary(Frozen):
+    """``summary.json`` of an iterate folder: the experiment, the oracle lap, every record, and the
+    aggregates by iteration and by trial."""
+
+    version: int = Field(SUMMARY_VERSION, description="layout version of the summary")
+    settings: dict[str, Any] = Field(description="the experiment (settings.json)")
+    oracle: dict[str, Any] | None = Field(description="oracle.json (None before the oracle lap is done)")
+    rows: list[SummaryRow] = Field(description="every finished record, by iteration and trial")
+    by_iteration: list[IterationSummary] = Field(description="aggregates per iteration")
+    per_trial: list[TrialSummary] = Field(description="aggregates per trial")
 
 
 def write_json(path: Path, obj) -> None:
@@ -88,23 +145,25 @@ def read_record(path: Path, migrate: bool = True) -> dict:
     A record of the layout before the schema is read with a warning and, with ``migrate``,
     rewritten in the current layout (a reader that only looks, like the report, passes False)."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: not a readable iteration record ({exc})") from None
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: not an iteration record (a JSON object)")
-    old = "version" not in data
-    if isinstance(data.get("version"), int) and data["version"] > RECORD_VERSION:
-        raise InputError(f"{path}: record version {data['version']} is newer than this gprace reads "
-                         f"({RECORD_VERSION}); update gprace")
-    try:
-        rec = validate(IterationRecord, {**data, "version": RECORD_VERSION}, str(path))
-    except ConfigError as exc:  # a record is input data, not configuration
-        raise InputError(str(exc)) from None
+    data = read_json(path, "iteration record")
+    old = check_version(data, RECORD_VERSION, str(path), "iteration record")
+    rec = validated(IterationRecord, {"version": RECORD_VERSION, **data}, str(path))
     if old:
         console.warn(f"{path}: record of the layout before version {RECORD_VERSION}; missing fields set to "
                      "their defaults" + ("; migrated" if migrate else ""))
         if migrate:
             write_record(path, rec)
     return rec.model_dump()
+
+
+def read_summary(path: Path) -> dict:
+    """``summary.json`` as a dict validated by :class:`IterateSummary` (NaN for ``null``). A summary
+    of another layout (written before its schema, or by a newer gprace) is an :class:`InputError`
+    saying how to rebuild it from the records."""
+    path = Path(path)
+    data = read_json(path, "summary")
+    version = data.get("version") if isinstance(data, dict) else None
+    if version != SUMMARY_VERSION:
+        raise InputError(f"{path}: summary of layout {version or 'before version 1'}, this gprace reads "
+                         f"{SUMMARY_VERSION}; `gprace eval iterate {path.parent}` summarises the records instead")
+    return validated(IterateSummary, data, str(path)).model_dump()

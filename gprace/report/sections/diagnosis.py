@@ -7,9 +7,11 @@ from typing import Any
 
 import numpy as np
 
+from gprace.diagnose.result import DiagnosisResult, Effect, parse_result
+from gprace.errors import InputError
 from gprace.report import figures as F
 from gprace.report.collect import Found, Item, Section, table
-from gprace.report.inspect import COMPUTE_FAILED, UNREADABLE, artifact_kind, open_artifact
+from gprace.report.inspect import UNREADABLE, open_artifact
 
 
 def diagnosis_section(found: Found) -> Section | None:
@@ -19,126 +21,76 @@ def diagnosis_section(found: Found) -> Section | None:
         return None
     sec = Section("diagnosis", "Diagnosis")
     for rp in reports:
-        d = found.json[rp]
-        eff = d.get("effects") or []
-        sec.items.append(Item(f"{rp.name}: verdict", html=_diag_summary(d)))
-        res = _residual_data(rp, residuals)
-        why = ""
-        if res is None:
-            res, why = _recompute_residuals(rp, d)
-        if res is not None:
-            s, before, after, length = res
-            sec.add_figure(f"residual_{rp.stem}", "Residual along the track, nominal model and augmented model "
-                           "(located windows shaded)", lambda: F.fig_residual_track(s, before, after, d.get("regions", [])))
-        else:
-            sec.missing.append(f"{rp.name}: residual-along-track plot not drawn ({why or 'no residual data'})")
-        sec.add_figure(f"channels_{rp.stem}", "Channels with structured error and the windows where it sits",
-                       lambda d=d: F.fig_channels(d.get("channels", []), d.get("regions", [])))
-        if eff:
-            sec.add_figure(f"parameters_{rp.stem}", "Fitted parameters with 95 % intervals",
-                           lambda eff=eff: F.fig_parameters(eff))
+        _add_result(sec, rp, found.json[rp], residuals)
     if not reports:
         sec.missing.append("no diagnosis JSON (`gprace diagnose --json > diagnosis.json`)")
     return sec
 
 
-def _diag_summary(d: dict) -> str:
+def _add_result(sec: Section, rp: Path, data: Any, residuals: list[Path]) -> None:
+    """One diagnosis JSON, read through its schema: the summary, the residual along the track (a
+    residual artifact next to it, else the profile the result stores; never recomputed), the
+    channels and the fitted parameters. A JSON the schema refuses is one line in ``missing``."""
+    try:
+        r = parse_result(data, str(rp))
+    except InputError as exc:
+        sec.missing.append(f"{rp.name}: not read as a diagnosis result ({exc})")
+        return
+    d = r.model_dump()
+    sec.items.append(Item(f"{rp.name}: verdict", html=_diag_summary(r)))
+    res = _residual_data(rp, residuals) or _stored_profile(r)
+    if res is not None:
+        s, before, after, _ = res
+        sec.add_figure(f"residual_{rp.stem}", "Residual along the track, nominal model and augmented model "
+                       "(located windows shaded)", lambda: F.fig_residual_track(s, before, after, d["regions"]))
+    else:
+        sec.missing.append(f"{rp.name}: residual-along-track plot not drawn (the result predates the stored "
+                           "residual profile; rerun `gprace diagnose ... --json`)")
+    sec.add_figure(f"channels_{rp.stem}", "Channels with structured error and the windows where it sits",
+                   lambda: F.fig_channels(d["channels"], d["regions"]))
+    if d["effects"]:
+        sec.add_figure(f"parameters_{rp.stem}", "Fitted parameters with 95 % intervals",
+                       lambda: F.fig_parameters(d["effects"]))
+
+
+def _stored_profile(r: DiagnosisResult):
+    """``(s, before, after, None)`` from the residual profile the result stores, or None."""
+    prof = r.residual_profile
+    return None if prof is None else (prof.s, prof.before, prof.after, None)
+
+
+def _diag_summary(r: DiagnosisResult) -> str:
     import html
 
-    parts = [f"<p><b>verdict:</b> {html.escape(str(d.get('verdict')))}"]
-    if "explained_share" in d:
-        parts.append(f"; share of the structured error explained: {100 * float(d['explained_share']):.0f} %")
-    if d.get("augmented_vehicle"):
-        parts.append(f"; augmented vehicle: <code>{html.escape(str(d['augmented_vehicle']))}</code>")
+    parts = [f"<p><b>verdict:</b> {html.escape(r.verdict)}",
+             f"; share of the structured error explained: {100 * r.explained_share:.0f} %"]
+    if r.augmented_vehicle:
+        parts.append(f"; augmented vehicle: <code>{html.escape(r.augmented_vehicle)}</code>")
     parts.append("</p>")
-    rows = [[c.get("name"), "yes" if c.get("structured") else "no", c.get("statistic"), c.get("rmse_nominal"),
-             c.get("heldout_rmse_nominal", "-"), c.get("heldout_rmse_augmented", "-")] for c in d.get("channels", [])]
+    rows = [[c.name, "yes" if c.structured else "no", c.statistic, c.rmse_nominal, _or_dash(c.heldout_rmse_nominal),
+             _or_dash(c.heldout_rmse_augmented)] for c in r.channels]
     parts.append(table(["channel", "structured", "statistic", "RMSE nominal", "held-out RMSE before",
                         "held-out RMSE after"], rows))
-    erow = []
-    for e in d.get("effects", []):
-        ps = "; ".join(f"{k} = {float(v['value']):.4g} [{float(v['ci95'][0]):.4g}, {float(v['ci95'][1]):.4g}] {v.get('unit', '')}"
-                       for k, v in (e.get("parameters") or {}).items() if isinstance(v, dict) and "ci95" in v)
-        erow.append([e.get("name"), ps, ", ".join(e.get("channels", [])), e.get("improvement"),
-                     ", ".join(e.get("ambiguous_with", [])) or "-"])
+    erow = [[e.name, _parameters_text(e), ", ".join(e.channels), e.improvement, ", ".join(e.ambiguous_with) or "-"]
+            for e in r.effects]
     if erow:
         parts.append(table(["effect", "parameters (95 % interval)", "channels", "improvement", "ambiguous with"], erow))
-    if d.get("unexplained"):
-        parts.append("<p><b>unexplained:</b> " + html.escape(", ".join(f"{k}: {v:.3g}" for k, v in d["unexplained"].items()))
+    if r.unexplained:
+        parts.append("<p><b>unexplained:</b> " + html.escape(", ".join(f"{k}: {v:.3g}" for k, v in r.unexplained.items()))
                      + "</p>")
-    rg = d.get("regions") or []
-    if rg:
+    if r.regions:
         parts.append(table(["channel", "s start [m]", "s end [m]", "description"],
-                           [[r.get("channel"), r.get("s_start"), r.get("s_end"), r.get("description", "")] for r in rg]))
-    for n in d.get("notes", []) or []:
-        parts.append(f"<p class='note'>{html.escape(str(n))}</p>")
+                           [[g.channel, g.s_start, g.s_end, g.description] for g in r.regions]))
+    parts += [f"<p class='note'>{html.escape(n)}</p>" for n in r.notes]
     return "".join(parts)
 
 
-def _recompute_residuals(report_path: Path, d: dict) -> tuple[Any, str]:
-    """Mean multi-step prediction error along the track, nominal and augmented model, from the
-    recordings next to the diagnosis JSON (run artifacts or CSV runs in the same folder).
+def _or_dash(v: float | None) -> Any:
+    return "-" if v is None else v
 
-    The nominal vehicle is the one the recordings embed (else the augmented file without the
-    named effects); the augmented one is the JSON's ``augmented_vehicle`` file (looked up next
-    to the JSON, then from the working folder). Returns ``((s, before, after, None), "")`` or
-    ``(None, reason)``.
-    """
-    try:
-        from gprace.config import load_vehicle
-        from gprace.diagnose import core
-        from gprace.diagnose.locate import track_profile
-        from gprace.io.runs import read_run
-        from gprace.model import NominalModel
-    except ImportError as exc:
-        return None, f"diagnosis code unavailable: {exc}"
-    folder = report_path.parent
-    recs = sorted(p for p in folder.iterdir() if p.is_file() and (
-        (p.suffix.lower() in (".h5", ".hdf5") and artifact_kind(p) == "run") or p.suffix.lower() == ".csv"))
-    runs = []
-    for p in recs:
-        try:
-            runs.append(read_run(p))
-        except UNREADABLE:  # a CSV that is not a run
-            continue
-    if not runs:
-        return None, f"no recordings next to {report_path.name}"
-    aug = None
-    name = d.get("augmented_vehicle")
-    if name:
-        for cand in (Path(name), folder / Path(name).name, folder / name):
-            if cand.exists():
-                try:
-                    aug = load_vehicle(str(cand))
-                except UNREADABLE:
-                    aug = None
-                break
-    try:
-        nom = runs[0].vehicle()
-    except UNREADABLE:
-        nom = None
-    if nom is None and aug is not None:
-        k = len(d.get("effects") or [])
-        nom = aug.model_copy(update={"effects": tuple(aug.effects)[: len(aug.effects) - k]})
-    if nom is None:
-        return None, "the recordings embed no vehicle and no augmented vehicle file was found"
-    try:
-        H = int(d.get("horizon", 15))
-        data = core.build_dataset(runs, min_samples=max(2 * H, 10))
-        starts = data.windows(H)
-        starts = starts[:: max(1, len(starts) // 4000)]
-        out = {}
-        for key, veh in (("before", nom), ("after", aug)):
-            if veh is None:
-                continue
-            E = core.errors(data, starts, core.predict(NominalModel(veh), data, starts, H, 2))
-            out[key] = {}
-            for c, ch in enumerate(("v_x", "v_y", "yaw_rate")):
-                sb, e = track_profile(data, starts, H, E, c)
-                out[key][ch] = e
-        return (sb, out["before"], out.get("after"), None), ""
-    except COMPUTE_FAILED as exc:
-        return None, f"recomputing the residuals failed: {type(exc).__name__}: {exc}"
+
+def _parameters_text(e: Effect) -> str:
+    return "; ".join(f"{k} = {p.value:.4g} [{p.ci95[0]:.4g}, {p.ci95[1]:.4g}] {p.unit}" for k, p in e.parameters.items())
 
 
 def _residual_data(report_path: Path, residuals: list[Path]):

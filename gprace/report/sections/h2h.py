@@ -1,31 +1,38 @@
-"""The report's head-to-head section: the results table, error curves, one race."""
+"""The report's head-to-head section: the results table, error curves, one race.
+
+It reads what the protocol stored (the table, the race records, their offline error records,
+through :mod:`gprace.h2h.records`) and simulates nothing: a race without its stored errors gets a
+note instead of the error figure. Records of an older layout are read as they are (one warning).
+"""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from gprace.h2h.records import ErrorAttrs, RaceAttrs, Record, read_record, warn_old
 from gprace.report import figures as F
 from gprace.report.collect import Found, Item, Section, table
-from gprace.report.inspect import COMPUTE_FAILED, UNREADABLE, artifact_kind, open_artifact
+from gprace.report.inspect import UNREADABLE
 
 
-def _first_race(paths: list[Path]):
-    """(path, artifact) of the first readable race record that finished and holds the ego's states."""
+def _first_race(paths: list[Path], old: list[Path]) -> tuple[Path, Record[RaceAttrs]] | None:
+    """(path, record) of the first readable race record that finished and holds the ego's states;
+    the paths of records of an older layout read on the way go to ``old``."""
     for p in paths:
         try:
-            art = open_artifact(p, "h2h_run")
+            rec = read_record(p, RaceAttrs, warn=False)
         except UNREADABLE:
             continue
-        if art.attrs.get("ok", True) and "ego" in art.arrays:
-            return p, art
+        old += [p] if rec.old else []
+        if rec.attrs.ok and "ego" in rec.arrays:
+            return p, rec
     return None
 
 
-def h2h_section(found: Found, max_error_samples: int = 20) -> Section | None:
+def h2h_section(found: Found) -> Section | None:
     tables = found.of("h2h_table")
     records = found.of("h2h_run")
     if not tables and not records:
@@ -64,29 +71,36 @@ def h2h_section(found: Found, max_error_samples: int = 20) -> Section | None:
     evals = [p for p in records if "eval" in p.relative_to(found.root).parts]
     # prefer a race of the exploring predictor, else the first evaluation race, else any race
     evals = sorted(evals, key=lambda q: ("explore" not in q.parent.name, str(q)))[:20]
-    shown = _first_race(evals) or _first_race(records[:20])
+    old: list[Path] = []
+    shown = _first_race(evals, old) or _first_race(records[:20], old)
     if shown:
-        p, art = shown
-        from gprace.report.single import h2h_track
-
-        track = h2h_track(art.attrs)
-        if track is not None:
-            sec.add_figure("race", f"One race on its track ({p.parent.name}/{p.name}, predictor "
-                           f"{art.attrs.get('predictor')}, end: {art.attrs.get('end_reason')})",
-                           lambda: F.fig_race(track, art.arrays["ego"], art.arrays["opp"], art.arrays.get("border_ego"),
-                                              title=f"{art.attrs.get('predictor')}"))
-            errs = _errors_along(p, art, found, max_error_samples)
-            if errs is not None:
-                t, E = errs
-                sec.add_figure("error_along_run", "1-step and 9-step opponent e_y error along that run",
-                               lambda: F.fig_error_along_run(t, E, (1, min(9, min(e.shape[0] for e in E.values())))))
-            else:
-                sec.missing.append("error along one run: no opponent models found next to the run records")
-        else:
-            sec.missing.append(f"{p}: cannot rebuild the race's track from its task")
+        _race_figures(sec, *shown, old)
     else:
         sec.missing.append("no finished race record (eval/<predictor>/run_*.h5)")
+    warn_old(old, migrated=False)
     return sec
+
+
+def _race_figures(sec: Section, p: Path, rec: Record[RaceAttrs], old: list[Path]) -> None:
+    """One race on its track and the stored offline errors along it (or notes saying what is missing)."""
+    from gprace.report.single import h2h_track
+
+    track = h2h_track(rec.attrs)
+    if track is None:
+        sec.missing.append(f"{p}: cannot rebuild the race's track from its task")
+        return
+    a = rec.attrs
+    sec.add_figure("race", f"One race on its track ({p.parent.name}/{p.name}, predictor {a.predictor}, end: {a.end_reason})",
+                   lambda: F.fig_race(track, rec.arrays["ego"], rec.arrays["opp"], rec.arrays.get("border_ego"),
+                                      title=a.predictor))
+    errs, why = _errors_along(p, rec, old)
+    if errs is not None:
+        t, E = errs
+        sec.add_figure("error_along_run", "1-step and 9-step opponent e_y error along that run",
+                       lambda: F.fig_error_along_run(t, E, (1, min(9, min(e.shape[0] for e in E.values())))))
+    else:
+        sec.missing.append(f"error along {p.parent.name}/{p.name}: the folder holds no stored offline errors for this "
+                           f"race ({why}); `gprace eval head2head` writes them")
 
 
 def _pm(m: Any, s: Any) -> str:
@@ -97,67 +111,36 @@ def _pm(m: Any, s: Any) -> str:
     return "-" if not np.isfinite(m) else f"{m:.3f} +- {s:.3f}"
 
 
-def _task_of(attrs) -> dict:
-    """A run record's task (stored as JSON text; the artifact reader may already have parsed it)."""
-    task = attrs.get("task")
-    return json.loads(task) if isinstance(task, str) else task if isinstance(task, dict) else {}
+def _error_path(p: Path) -> Path | None:
+    """Where the protocol stores the offline errors of the evaluation race ``p``
+    (``eval/<predictor>/run_i.h5`` -> ``errors/<predictor>/run_i.h5``)."""
+    return p.parents[2] / "errors" / p.parent.name / p.name if len(p.parents) > 2 else None
 
 
-def _stored_errors(p: Path, art) -> dict[str, np.ndarray] | None:
-    """The protocol's own error record of race ``p`` (``errors/<predictor>/``), if it is that race's."""
-    q = p.parents[2] / "errors" / p.parent.name / p.name if len(p.parents) > 2 else None
+def _errors_along(p: Path, rec: Record[RaceAttrs], old: list[Path]) -> tuple[tuple | None, str]:
+    """k-step e_y errors along race ``p`` from the protocol's stored error record of that race:
+    ``((t, {predictor: (K, start times)}), "")``, or ``(None, why there are none)``. Computes
+    nothing (the report never simulates)."""
+    q = _error_path(p)
     if q is None or not q.exists():
-        return None
+        return None, f"no {q.relative_to(p.parents[2]) if q else 'errors/ folder'}"
     try:
-        rec = open_artifact(q, "h2h_run")
-        if _task_of(rec.attrs).get("record_hash") != art.attrs.get("task_hash"):
-            return None
-    except (*UNREADABLE, ValueError, KeyError):  # unreadable or older record: recompute
-        return None
-    return dict(rec.arrays)
+        err = read_record(q, ErrorAttrs, warn=False)
+    except UNREADABLE as exc:
+        return None, f"unreadable: {exc}"
+    old += [q] if err.old else []
+    if not err.attrs.ok:
+        return None, f"{q.name}: the error computation failed"
+    if err.attrs.record_hash != rec.attrs.task_hash:
+        return None, f"{q.name} is of another race"
+    series = _error_series(rec, err.arrays)
+    return (series, "") if series is not None else (None, f"{q.name} holds no error arrays")
 
 
-def _errors_along(p: Path, art, found: Found, samples: int) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
-    """k-step e_y errors along one record for the constant-velocity predictor and every opponent
-    GP model of the same experiment: the protocol's stored errors, else the head-to-head stage's
-    offline evaluation run here with fewer samples."""
-    out = _stored_errors(p, art)
-    if out is not None:
-        return _error_series(art, out)
-    try:
-        from gprace.h2h.protocol import offline_errors_task
-    except ImportError:
-        return None
-    root = next((a for a in p.parents if (a / "models").is_dir()), None)
-    models: dict[str, Any] = {"cv": None}
-    if root is not None:
-        for m in sorted((root / "models").glob("*.h5")):
-            if m.stem in ("baseline", "explore", "select") and artifact_kind(m) in ("gp_model",):
-                models[m.stem] = str(m)
-    task = _task_of(art.attrs)
-    if not task:
-        return None
-    cfg = dict(task.get("config", {}))
-    cfg["samples"] = min(int(cfg.get("samples", samples)), samples)
-
-    def errors(models: dict) -> dict:
-        return offline_errors_task({"record": str(p), "track": task["track"], "seed": task.get("seed", 0),
-                                    "config": cfg, "models": models})["arrays"]
-
-    try:
-        out = errors(models)
-    except COMPUTE_FAILED:  # fall back to the model that needs no file
-        try:
-            out = errors({"cv": None})
-        except COMPUTE_FAILED:
-            return None
-    return _error_series(art, out)
-
-
-def _error_series(art, out: dict) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
+def _error_series(rec: Record, out: dict) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
     E = {k: np.asarray(v) for k, v in out.items() if np.ndim(v) == 2 and np.shape(v)[1]}
     if not E:
         return None
     T = next(iter(E.values())).shape[1]
-    t = np.asarray(art.arrays.get("t", np.arange(T + 10) * 0.1))[:T]
+    t = np.asarray(rec.arrays.get("t", np.arange(T + 10) * 0.1))[:T]
     return t, E

@@ -31,7 +31,7 @@ def _trial_of(path: Path, meta: dict) -> int:
     return int(meta.get("seed", 0) or 0)
 
 
-def _variant_name(root: Path, settings: Any, summary: Any) -> str:
+def _variant_name(root: Path, settings: dict | None) -> str:
     """``baseline`` for random selection without exploration, ``exploration`` when alphas > 0,
     else the folder name (a folder named *baseline* or *explor* says it directly)."""
     name = root.name.lower()
@@ -39,77 +39,41 @@ def _variant_name(root: Path, settings: Any, summary: Any) -> str:
         return "baseline"
     if "explor" in name:
         return "exploration"
-    st = settings if isinstance(settings, dict) else (summary or {}).get("settings") if isinstance(summary, dict) else None
-    if isinstance(st, dict):
-        alphas = st.get("alphas", st.get("alpha"))
-        alphas = alphas if isinstance(alphas, (list, tuple)) else [alphas] if isinstance(alphas, (int, float)) else []
-        if st.get("selection") == "random" and not any(float(x) > 0 for x in alphas):
+    if settings is not None:
+        explores = any(float(x) > 0 for x in settings["alphas"])
+        if settings["selection"] == "random" and not explores:
             return "baseline"
-        if any(float(x) > 0 for x in alphas):
+        if explores:
             return "exploration"
     return root.name or "time trial"
 
 
-_KEYS = {
-    "iteration": ("iteration", "iter", "it"),
-    "trial": ("trial", "seed"),
-    "planned": ("planned", "planned_lap_time", "lap_time_planned", "plan_lap_time"),
-    "driven": ("driven", "driven_lap_time", "lap_time_driven", "lap_time"),
-}
+def _settings(root: Path, summary: dict | None) -> tuple[dict | None, str]:
+    """The experiment of an iterate folder (settings.json, else the summary's copy), read through
+    :class:`IterateSettings`; (None, why) if there is none or it is of another layout."""
+    from pydantic import ValidationError
 
+    from gprace.timetrial.iterate import IterateSettings
 
-def _rows_in(obj: Any) -> list[dict]:
-    """The longest list of dicts inside a summary JSON that carries an iteration field."""
-    best: list[dict] = []
-
-    def visit(o: Any) -> None:
-        nonlocal best
-        if isinstance(o, list) and o and all(isinstance(x, dict) for x in o):
-            if any(any(k in x for k in _KEYS["iteration"]) for x in o) and len(o) > len(best):
-                best = o
-            for x in o:
-                visit(x)
-        elif isinstance(o, dict):
-            for v in o.values():
-                visit(v)
-
-    visit(obj)
-    return best
-
-
-def _get(row: dict, what: str) -> Any:
-    for k in _KEYS[what]:
-        if k in row:
-            return row[k]
-    return None
-
-
-def _gp_errors(row: dict) -> dict[str, float]:
-    """``{"planning": e, "tracking": e}`` from a summary row's GP-error fields (``err_tracking``,
-    or nested ``{"gp_error": {"tracking": e}}``)."""
-    out: dict[str, float] = {}
-    for k, v in row.items():
-        kl = k.lower()
-        if isinstance(v, dict) and ("err" in kl or "rmse" in kl):
-            for g, e in v.items():
-                if isinstance(e, (int, float)):
-                    out[str(g)] = float(e)
-                elif isinstance(e, dict):  # per output: average
-                    vals = [float(x) for x in e.values() if isinstance(x, (int, float))]
-                    if vals:
-                        out[str(g)] = float(np.mean(vals))
-        elif isinstance(v, (int, float)) and ("err" in kl or "rmse" in kl):
-            for g in ("planning", "tracking"):
-                if g in kl:
-                    out[g] = float(v)
-    return out
-
-
-def _read_json(p: Path) -> Any:
+    p = root / "settings.json"
     try:
-        return json.loads(p.read_text())
-    except (OSError, UnicodeDecodeError, ValueError):
-        return None
+        data = json.loads(p.read_text()) if p.exists() else summary["settings"] if summary else None
+        return (None, "") if data is None else (IterateSettings.model_validate(data).model_dump(), "")
+    except (OSError, ValueError, ValidationError) as exc:  # a ValidationError is a ValueError; named for the reader
+        return None, f"{p}: not readable as the settings of this gprace ({str(exc).splitlines()[0]})"
+
+
+def _summary(root: Path) -> tuple[dict | None, str]:
+    """summary.json through its schema; (None, why) if missing or of another layout."""
+    from gprace.timetrial.record import read_summary
+
+    p = root / "summary.json"
+    if not p.exists():
+        return None, ""
+    try:
+        return read_summary(p), ""
+    except UNREADABLE as exc:
+        return None, str(exc)
 
 
 def _iteration_record(p: Path) -> dict | None:
@@ -156,10 +120,11 @@ def timetrial_variants(found: Found) -> dict[Path, dict[str, Any]]:
             roots.setdefault(r, {})
     for root, v in roots.items():
         v["root"] = root
-        v["summary"] = _read_json(root / "summary.json") if (root / "summary.json").exists() else None
-        settings = _read_json(root / "settings.json") if (root / "settings.json").exists() else None
-        v["name"] = _variant_name(root, settings, v["summary"])
-        v["rows"] = _rows_in(v["summary"]) if v["summary"] is not None else []
+        v["summary"], why_summary = _summary(root)
+        v["settings"], why_settings = _settings(root, v["summary"])
+        v["notes"] = [w for w in (why_summary, why_settings) if w]
+        v["name"] = _variant_name(root, v["settings"])
+        v["rows"] = v["summary"]["rows"] if v["summary"] is not None else []
         v["rows_from"] = "summary.json" if v["rows"] else ""
         if not v["rows"]:
             recs = [_iteration_record(q) for q in sorted(root.glob("**/record.json"))]
@@ -220,28 +185,20 @@ def _iteration_rows(sec: Section, variants: dict) -> tuple[dict, dict, list]:
         name = v["name"]
         L = lap.setdefault(name, {"iteration": [], "planned": [], "driven": []})
         E = gperr.setdefault(name, {"iteration": []})
-        for r in v["rows"]:
-            it, pl, dr = _get(r, "iteration"), _get(r, "planned"), _get(r, "driven")
-            if dr is None and r.get("completed") is False:
-                dr = float("nan")  # a failed lap stays in the figure's counts (null in summary.json)
-            if isinstance(it, (int, float)) and isinstance(pl, (int, float)) and isinstance(dr, (int, float)):
-                L["iteration"].append(float(it))
-                L["planned"].append(float(pl))
-                L["driven"].append(float(dr))
-                table_rows.append([name, int(it), _get(r, "trial"), r.get("alpha", "-"), float(pl), float(dr),
-                                   float(dr) - float(pl), r.get("border_hits", "-"), _lap_status(r)])
-            if r.get("completed") is False:
-                sec.missing.append(f"{name}, iteration {it}, trial {_get(r, 'trial')}: lap not completed"
-                                   + (f" ({r['reason']})" if r.get("reason") else ""))
-            errs = _gp_errors(r)
-            if errs and isinstance(it, (int, float)):
-                n = len(E["iteration"])
+        for r in v["rows"]:  # records (IterationRecord fields): a failed lap has a NaN driven time
+            it = r["iteration"]
+            L["iteration"].append(float(it))
+            L["planned"].append(r["planned"])
+            L["driven"].append(r["driven"])
+            table_rows.append([name, it, r["trial"], r["alpha"], r["planned"], r["driven"], r["gap"],
+                               r["border_hits"], _lap_status(r)])
+            if not r["completed"]:
+                sec.missing.append(f"{name}, iteration {it}, trial {r['trial']}: lap not completed"
+                                   + (f" ({r['reason']})" if r["reason"] else ""))
+            if it > 0:  # iteration 0 is driven without GPs
                 E["iteration"].append(float(it))
-                for g, e in errs.items():
-                    E.setdefault(g, [np.nan] * n).append(e)
-                for g in E:
-                    if g != "iteration" and len(E[g]) < n + 1:
-                        E[g].append(np.nan)
+                for g in ("tracking", "planning"):
+                    E.setdefault(g, []).append(r[f"err_{g}"])
         if not L["iteration"]:  # no records: lap times from the run artifacts
             for p, art, it, trial in v["runs"]:
                 pl, dr = art.attrs.get("planned_lap_time"), art.attrs.get("lap_time")
@@ -253,6 +210,7 @@ def _iteration_rows(sec: Section, variants: dict) -> tuple[dict, dict, list]:
                                        float(dr) - float(pl), art.attrs.get("border_hit_steps", "-"), _lap_status(art.attrs)])
             if L["iteration"]:
                 v["rows_from"] = "run files"
+        sec.missing += v["notes"]
         if v.get("summary") is None:
             sec.missing.append(f"{root}: no summary.json (loop interrupted?); lap times taken from the "
                                f"{v['rows_from'] or 'run files'}")
@@ -341,12 +299,7 @@ def _lap_status(r: dict) -> str:
 
 def _expected_iterations(v: dict) -> int | None:
     """Iterations the experiment asked for (iteration 0 included), from its settings."""
-    st = (v.get("summary") or {}).get("settings") if isinstance(v.get("summary"), dict) else None
-    if st is None and (v["root"] / "settings.json").exists():
-        st = _read_json(v["root"] / "settings.json")
-    if isinstance(st, dict) and isinstance(st.get("iterations"), int):
-        return int(st["iterations"]) + 1
-    return None
+    return v["settings"]["iterations"] + 1 if v["settings"] is not None else None
 
 
 def _nearest_plan(run_path: Path, found: Found) -> Path | None:
