@@ -86,7 +86,9 @@ def run_condition(name: str, args: list[str], out: Path, common: list[str]) -> d
     done = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
     if done.returncode != 0:
         return {"error": f"exit {done.returncode}", "command": cmd[2:]}
-    return json.loads((folder / "table.json").read_text())
+    from gprace.h2h.table import read_table
+
+    return read_table(folder / "table.json").model_dump()
 
 
 def _training_inputs(model: Path, dataset: Path | None) -> np.ndarray | None:

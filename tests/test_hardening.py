@@ -504,16 +504,16 @@ def test_lap_tables_count_and_place_failed_laps(capsys, tmp_path):
 
 def test_race_tables_count_and_place_failed_races(capsys, tmp_path):
     from gprace.h2h.commands import print_table
-    from gprace.h2h.protocol import failed_races_text
+    from gprace.h2h.table import TABLE_VERSION, RacingRow, failed_races_text
 
     row = {"runs": 3, "failed": 1, "failed_where": [{"scenario": 2, "reason": "SolverError: NMPC infeasible"}],
            "border_hits": 0, "collisions": 0, "overtakes": 1, "overtake_time_mean": 3.0, "overtake_time_std": 0.1,
            "overtake_scenarios": 1, "fallbacks_ego": 0, "ego_solve_ms_median": 2.0}
-    assert failed_races_text(row) == "1 of 3: scenario 2: SolverError: NMPC infeasible"
-    tab = {"common_inside": 2, "racing": {"explore": row}, "ey_error": {}}
+    assert failed_races_text(RacingRow(**row)) == "1 of 3: scenario 2: SolverError: NMPC infeasible"
+    tab = {"version": TABLE_VERSION, "settings": {}, "common_inside": 2, "racing": {"explore": row}, "ey_error": {}}
     print_table(tab, False)
     assert "explore: failed races 1 of 3: scenario 2: SolverError: NMPC infeasible" in capsys.readouterr().out
     (tmp_path / "table.json").write_text(json.dumps(tab))
     assert main(["show", str(tmp_path / "table.json"), "--json"]) == 0
     res = strict(capsys.readouterr().out)["results"]
-    assert res["explore: failed races"] == failed_races_text(row)
+    assert res["explore: failed races"] == failed_races_text(RacingRow(**row))

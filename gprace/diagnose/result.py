@@ -22,8 +22,8 @@ import numpy as np
 from pydantic import Field, model_serializer, model_validator
 
 from gprace.config import Frozen
-from gprace.console import console, jsonable
-from gprace.io.records import NAN, Num, check_version, read_json, validated
+from gprace.console import jsonable
+from gprace.io.records import NAN, Num, parse_record, read_json
 
 RESULT_VERSION = 1
 SIGNIFICANT = 5
@@ -213,12 +213,8 @@ def parse_result(data: Any, where: str) -> DiagnosisResult:
     """
     if isinstance(data, DiagnosisResult):
         return data
-    old = check_version(data, RESULT_VERSION, where, "diagnosis result")
-    result = validated(DiagnosisResult, {"version": RESULT_VERSION, **data}, where)
-    if old:
-        console.warn(f"{where}: diagnosis result of the layout before version {RESULT_VERSION}; missing "
-                     "fields set to their defaults, no stored residual profile")
-    return result
+    return parse_record(DiagnosisResult, data, where, "diagnosis result",
+                        "missing fields set to their defaults, no stored residual profile")[0]
 
 
 def read_result(path: str | Path) -> DiagnosisResult:

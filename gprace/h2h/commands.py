@@ -57,14 +57,15 @@ def _settings(out: Path, **kw):
     return st
 
 
-def _cell(row: dict, fmt: str) -> str:
-    """``mean ±seed std [bootstrap interval over tracks]`` of one figure of the spread."""
-    if row is None or row.get("mean") is None:
+def _cell(row, fmt: str) -> str:
+    """``mean ±seed std [bootstrap interval over tracks]`` of one figure over seeds (a
+    :class:`~gprace.h2h.table.Figure`)."""
+    if row is None or row.mean is None:
         return "-"
-    txt = format(row["mean"], fmt)
-    if row.get("seed_std") is not None:
-        txt += f" ±{format(row['seed_std'], fmt)}"
-    lo, hi = row.get("ci") or (None, None)
+    txt = format(row.mean, fmt)
+    if row.seed_std is not None:
+        txt += f" ±{format(row.seed_std, fmt)}"
+    lo, hi = row.ci
     return txt if lo is None else f"{txt} [{format(lo, fmt)}, {format(hi, fmt)}]"
 
 
@@ -102,58 +103,56 @@ def print_coverage(cov: dict) -> None:
         return
     import numpy as np
 
-    def cell(c: dict, out: str, k: int) -> str:
-        v, r = c[out][k], c[f"{out}_raw"][k]
-        return "-" if v is None or not np.isfinite(v) else f"{100 * v:.0f} % ({100 * r:.0f} %)"
+    def cell(c, out: str, k: int) -> str:
+        v, r = getattr(c, out)[k], getattr(c, f"{out}_raw")[k]
+        return "-" if not np.isfinite(v) else f"{100 * v:.0f} % ({100 * r:.0f} %)"
 
-    K = max((len(c["ey"]) for c in cov.values()), default=0)
-    rows = [[p, cell(c, "ey", K - 1), cell(c, "s", K - 1), cell(c, "ey", 0), cell(c, "s", 0), c["points"]]
-            for p, c in cov.items() if len(c["ey"]) == K]
+    K = max((len(c.ey) for c in cov.values()), default=0)
+    rows = [[p, cell(c, "ey", K - 1), cell(c, "s", K - 1), cell(c, "ey", 0), cell(c, "s", 0), c.points]
+            for p, c in cov.items() if len(c.ey) == K]
     console.table("Coverage of the errors by the predicted 2-sigma band on the evaluation races, calibrated (raw)",
-                  ["predictor", f"e_y {K} steps", f"s {K} steps",
-                                                                     "e_y 1 step", "s 1 step", "start times"], rows)
+                  ["predictor", f"e_y {K} steps", f"s {K} steps", "e_y 1 step", "s 1 step", "start times"], rows)
 
 
 def print_table(tab: dict, as_json: bool) -> None:
+    """The table of :func:`gprace.h2h.protocol.head2head` (its dump), as JSON or as text tables."""
+    from gprace.h2h.table import failed_races_text, parse_table
+
     if as_json:
         console.json(tab)
         return
-    print_conditions(tab.get("conditions", {}))
-    spread = tab.get("spread", {})
-    seeds = tab.get("seeds", [0])
+    t = parse_table(tab, "table")
+    print_conditions(t.conditions)
+    seeds = t.seeds
     how = (f"mean ±std over {len(seeds)} seeds" if len(seeds) > 1 else f"seed {seeds[0]}") + \
         " [95% bootstrap interval over tracks]"
-    print_fits(tab.get("fits", {}))
+    print_fits(t.fits)
     rows = []
-    for p, r in tab["racing"].items():
-        ot = "-" if r["overtake_time_mean"] is None else f"{r['overtake_time_mean']:.2f}±{r['overtake_time_std']:.2f}"
-        ms = "-" if r["ego_solve_ms_median"] is None else f"{r['ego_solve_ms_median']:.1f}"
-        rows.append([p, f"{r['runs']}/{r['failed']}", _cell(spread.get(f"{p}.border_hits"), ".3g"),
-                     _cell(spread.get(f"{p}.collisions"), ".3g"), _cell(spread.get(f"{p}.overtakes"), ".3g"),
-                     _cell(spread.get(f"{p}.overtake_time"), ".2f"), ot, r["overtake_scenarios"],
-                     r["fallbacks_ego"], ms])
-    console.table(f"Head-to-head racing, {how}; first seed: {tab['common_inside']} scenarios with every predictor "
+    for p, r in t.racing.items():
+        ot = "-" if r.overtake_time_mean is None else f"{r.overtake_time_mean:.2f}±{r.overtake_time_std:.2f}"
+        ms = "-" if r.ego_solve_ms_median is None else f"{r.ego_solve_ms_median:.1f}"
+        fig = {name: _cell(t.spread.get(f"{p}.{name}"), ".2f" if name == "overtake_time" else ".3g")
+               for name in ("border_hits", "collisions", "overtakes", "overtake_time")}
+        rows.append([p, f"{r.runs}/{r.failed}", *fig.values(), ot, r.overtake_scenarios, r.fallbacks_ego, ms])
+    console.table(f"Head-to-head racing, {how}; first seed: {t.common_inside} scenarios with every predictor "
                   "inside, overtake time mean±std over them", ["predictor", "runs/failed", "border", "collide",
                   "overtakes", "overtake s", "first seed s", "n", "fallbacks", "solve ms"], rows)
-    from gprace.h2h.protocol import failed_races_text
-
-    for p, r in tab["racing"].items():
-        if r.get("failed"):
+    for p, r in t.racing.items():
+        if r.failed:
             console.result(f"{p}: failed races {failed_races_text(r)}")
-    errs = {p: e for p, e in tab["ey_error"].items() if e["mean"]}
-    K = max((len(e["mean"]) for e in errs.values()), default=0)
-    erows = [[f"{k + 1}"] + [_cell(spread.get(f"{p}.ey_error_{k + 1}"), ".4f") for p in errs] for k in range(K)]
-    points = ", ".join(f"{p} {e['points']}" for p, e in errs.items())
+    errs = {p: e for p, e in t.ey_error.items() if e.mean}
+    K = max((len(e.mean) for e in errs.values()), default=0)
+    erows = [[f"{k + 1}"] + [_cell(t.spread.get(f"{p}.ey_error_{k + 1}"), ".4f") for p in errs] for k in range(K)]
+    points = ", ".join(f"{p} {e.points}" for p, e in errs.items())
     console.table(f"Opponent e_y prediction error in metres, {how}, offline on all closed-loop opponent "
                   f"trajectories (start times in the first seed: {points})", ["steps ahead", *errs], erows)
-    print_coverage(tab.get("coverage", {}))
-    claims = tab.get("claims", {})
-    if claims:
+    print_coverage(t.coverage)
+    if t.claims:
         crows = []
-        for name, c in claims.items():
+        for name, c in t.claims.items():
             fmt = ".4f" if name.startswith("ey_error") else ".3g"
             crows.append([name, _cell(c, fmt), " ".join("-" if lo is None else f"[{lo:{fmt}}, {hi:{fmt}}]"
-                                                        for lo, hi in c["seed_ci"]), c["verdict"]])
+                                                        for lo, hi in c.seed_ci), c.verdict])
         console.table("Claims: exploration - baseline (the paper: lower, except more overtakes); a claim holds only "
                       "where every seed's 95% interval over tracks is on its side", ["figure", "difference",
                       "interval per seed", "verdict"], crows)

@@ -780,51 +780,13 @@ def H2H_K(st: Settings) -> int:
     return H2HConfig(**st.race_config()).pred_steps
 
 
-def _racing_row(recs: list[Record[RaceAttrs]], inside: np.ndarray) -> dict:
-    """One raced predictor's row of the table; overtake times over the scenarios ``inside``."""
-    ok = [r.attrs for r in recs if r.attrs.ok]
-    ot = np.array([r.attrs.overtake_time if r.attrs.ok else np.nan for r in recs], float)
-    common = ot[inside]
-    common = common[np.isfinite(common)]
-    ms = np.concatenate([np.asarray(r.arrays.get("ego_solve_ms", [])) for r in recs if r.attrs.ok]) if ok else np.zeros(0)
-    return {
-        "runs": len(recs), "failed": len(recs) - len(ok),
-        "failed_where": [{"scenario": i, "reason": (r.attrs.error or "failed").strip().splitlines()[0]}
-                         for i, r in enumerate(recs) if not r.attrs.ok],
-        "border_hits": sum(a.border_hit for a in ok),
-        "collisions": sum(a.collision for a in ok),
-        "overtakes": int(np.isfinite(ot).sum()),
-        "overtake_time_mean": float(common.mean()) if len(common) else None,
-        "overtake_time_std": float(common.std()) if len(common) else None,
-        "overtake_scenarios": int(len(common)),
-        "fallbacks_ego": sum(a.fallbacks_ego for a in ok),
-        "ego_solve_ms_median": float(np.median(ms)) if len(ms) else None,
-    }
-
-
 def table(st: Settings, raced: dict[str, list[Record[RaceAttrs]]], errors: dict[str, np.ndarray]) -> dict:
-    """The paper's table: racing results per raced predictor and offline e_y errors per predictor."""
-    inside = np.ones(st.tracks, dtype=bool)
-    for p in st.raced:
-        for i, r in enumerate(raced[p]):
-            inside[i] &= r.attrs.ok and not r.attrs.border_hit
-    rows = {p: _racing_row(raced[p], inside) for p in st.raced}
-    err = {}
-    for p, E in errors.items():
-        err[p] = {"mean": E.mean(axis=1).tolist() if E.shape[1] else [], "std": E.std(axis=1).tolist() if E.shape[1] else [],
-                  "points": int(E.shape[1])}
-    return {"settings": {k: v for k, v in st.model_dump(mode="json").items() if k not in ("workers", "executor", "scheduler", "resume")},
-            "conditions": st.conditions(), "common_inside": int(inside.sum()), "racing": rows, "ey_error": err}
+    """The paper's table of one seed (:func:`gprace.h2h.table.chain_table`): racing results per
+    raced predictor and offline e_y errors per predictor, with the settings and conditions."""
+    from gprace.h2h.table import chain_table
 
-
-def failed_races_text(row: dict, most: int = 5) -> str:
-    """'k of n' failed races of one predictor's row of the table, and where (scenario and reason)."""
-    where = row.get("failed_where") or []
-    text = f"{row.get('failed', len(where))} of {row.get('runs', '?')}"
-    if where:
-        text += ": " + "; ".join(f"scenario {f['scenario']}: {f['reason']}" for f in where[:most])
-        text += f"; ... ({len(where) - most} more)" if len(where) > most else ""
-    return text
+    settings = {k: v for k, v in st.model_dump(mode="json").items() if k not in ("workers", "executor", "scheduler", "resume")}
+    return chain_table(settings, st.conditions(), {p: raced[p] for p in st.raced}, errors, st.tracks)
 
 
 def chain_dir(out: Path, seed: int) -> Path:
@@ -852,6 +814,7 @@ def head2head(st: Settings, out: Path) -> dict:
     the executor; the table of the first seed plus ``per_seed`` tables, ``fits`` (quality reports),
     ``spread`` (every figure over seeds and its bootstrap interval over tracks) and ``claims``."""
     from gprace.h2h.spread import summarise
+    from gprace.h2h.table import H2HTable, write_table
 
     tables, data, fits = {}, [], {}
     for s in st.seeds:
@@ -864,8 +827,7 @@ def head2head(st: Settings, out: Path) -> dict:
            "spread": {k: v for k, v in spread.items() if not k.startswith("diff.")},
            "claims": {k[len("diff."):]: v for k, v in spread.items() if k.startswith("diff.")}}
     tab["settings"] = {k: v for k, v in first["settings"].items() if k != "seed"}
-    (out / "table.json").write_text(json.dumps(tab, indent=2, default=_nan))
-    return tab
+    return write_table(out / "table.json", H2HTable.model_validate(tab))
 
 
 def parse_seeds(text: str | int) -> tuple[int, ...]:
@@ -883,11 +845,3 @@ def parse_seeds(text: str | int) -> tuple[int, ...]:
     if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
         raise InputError(f"--seeds: a list of distinct seeds >= 0, got {text!r}")
     return seeds
-
-
-def _nan(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)

@@ -42,7 +42,7 @@ from pydantic import Field, model_validator
 
 from gprace.config import Frozen
 from gprace.errors import ArtifactError
-from gprace.io.records import NAN, check_version, validated
+from gprace.io.records import NAN, parse_record, validated
 
 RUN_KIND = "h2h_run"
 RECORD_VERSION = 1
@@ -151,9 +151,9 @@ def read_record(path: str | Path, schema: type[A], warn: bool = True) -> Record[
     from gprace.io.artifacts import read_artifact
 
     art = read_artifact(path, RUN_KIND)
-    old = check_version(art.attrs, RECORD_VERSION, str(path), "head-to-head record")
-    data = {"version": RECORD_VERSION, **art.attrs, "seed": art.seed}  # an old record: the current version
-    rec = Record(art.arrays, validated(schema, data, str(path), ArtifactError), old=old)
+    attrs, old = parse_record(schema, {**art.attrs, "seed": art.seed}, str(path), "head-to-head record",
+                              warn=False, error=ArtifactError)
+    rec = Record(art.arrays, attrs, old=old)
     if rec.old and warn:
         warn_old([Path(path)], migrated=False)
     return rec

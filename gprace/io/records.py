@@ -4,9 +4,9 @@ the diagnosis result): NaN that JSON stores as ``null``, the version check, and 
 A record's schema is a :class:`gprace.config.Frozen` model with a ``version`` field. Its reader:
 
 * reads the file (:func:`read_json` for JSON records; HDF5 records through :mod:`gprace.io.artifacts`),
-* checks the version (:func:`check_version`): a newer one is refused, a missing one is the layout
-  of before the schema, read with the defaults of the fields it lacks (and a warning by the caller),
-* validates (:func:`validated`): a field the schema refuses is one line naming file and field.
+* checks the version and validates (:func:`parse_record`): a newer version is refused, a missing
+  one is the layout of before the schema, read with the defaults of the fields it lacks and one
+  warning; a field the schema refuses is one line naming file and field.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def read_json(path: str | Path, what: str) -> Any:
         raise InputError(f"{path}: not a readable {what} ({exc})") from None
 
 
-def check_version(data: Any, current: int, where: str, what: str) -> bool:
+def _check_version(data: Any, current: int, where: str, what: str) -> bool:
     """True if ``data`` (a record's dict) has no version: the layout of before the schema. A version
     newer than ``current`` is an :class:`InputError` (a newer gprace wrote it)."""
     if not isinstance(data, dict):
@@ -59,3 +59,18 @@ def validated(model: type[M], data: dict[str, Any], where: str, error: type[Inpu
         return validate(model, data, where, toml=False)
     except ConfigError as exc:
         raise error(str(exc)) from None
+
+
+def parse_record(model: type[M], data: Any, where: str, what: str, note: str = "missing fields set to their defaults",
+                 warn: bool = True, error: type[InputError] = InputError) -> tuple[M, bool]:
+    """``data`` as ``model`` (whose ``version`` field's default is the current layout) and whether
+    it was of the layout of before the schema (no version: read as the current one, ``note`` in
+    its warning; ``warn`` False leaves the warning to a caller reading a batch)."""
+    current = model.model_fields["version"].default
+    old = _check_version(data, current, where, what)
+    record = validated(model, {"version": current, **data}, where, error)
+    if old and warn:
+        from gprace.console import console
+
+        console.warn(f"{where}: {what} of the layout before version {current}; {note}")
+    return record, old

@@ -229,17 +229,17 @@ def _describe_json(path: Path) -> dict[str, Any]:
         res["effects"] = [e.name for e in d.effects]
         res["augmented_vehicle"] = d.augmented_vehicle
     elif kind == "h2h_table":
-        for p, row in (obj.get("racing") or {}).items():
-            from gprace.h2h.protocol import failed_races_text
+        from gprace.h2h.table import failed_races_text, parse_table
 
+        tab = parse_table(obj, str(path))  # through its schema: a bad or newer file is one line
+        for p, row in tab.racing.items():
             res[f"{p}: failed races"] = failed_races_text(row)
-            res[f"{p}: border hits"] = row.get("border_hits")
-            res[f"{p}: overtake time [s]"] = row.get("overtake_time_mean")
-        for p, e in (obj.get("ey_error") or {}).items():
-            m = e.get("mean") or []
-            if m:
-                res[f"{p}: e_y error 1-step [m]"] = m[0]
-                res[f"{p}: e_y error {len(m)}-step [m]"] = m[-1]
+            res[f"{p}: border hits"] = row.border_hits
+            res[f"{p}: overtake time [s]"] = row.overtake_time_mean
+        for p, e in tab.ey_error.items():
+            if e.mean:
+                res[f"{p}: e_y error 1-step [m]"] = e.mean[0]
+                res[f"{p}: e_y error {len(e.mean)}-step [m]"] = e.mean[-1]
     elif kind == "timetrial_summary" and isinstance(obj, dict) and "by_iteration" in obj:
         from gprace.timetrial.iterate import failed_laps_text
         from gprace.timetrial.record import read_summary

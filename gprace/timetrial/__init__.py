@@ -3,6 +3,7 @@
 Public surface::
 
     from gprace.timetrial import DriveSettings, IterateSettings, iterate_many, read_record, IterationRecord
+    from gprace.timetrial import IterateSummary, read_summary
 
 The stage functions are named like their modules: ``gprace.timetrial.drive.drive``,
 ``gprace.timetrial.iterate.iterate``, ``gprace.timetrial.compare.compare``.
@@ -17,4 +18,4 @@ from gprace._lazy import lazy_face
 
 __all__, __getattr__ = lazy_face(__name__, {
     "drive": "DriveSettings", "iterate": "iterate_many IterateSettings",
-    "record": "IterationRecord read_record", "learning": "load_predictor"})
+    "record": "IterationRecord read_record IterateSummary read_summary", "learning": "load_predictor"})

@@ -26,9 +26,9 @@ from typing import Any
 from pydantic import Field, model_validator
 
 from gprace.config import Frozen
-from gprace.console import console, jsonable
+from gprace.console import jsonable
 from gprace.errors import InputError
-from gprace.io.records import NAN, Num, check_version, read_json, validated
+from gprace.io.records import NAN, Num, parse_record, read_json, validated
 
 RECORD_VERSION = 1
 SUMMARY_VERSION = 1
@@ -146,13 +146,10 @@ def read_record(path: Path, migrate: bool = True) -> dict:
     rewritten in the current layout (a reader that only looks, like the report, passes False)."""
     path = Path(path)
     data = read_json(path, "iteration record")
-    old = check_version(data, RECORD_VERSION, str(path), "iteration record")
-    rec = validated(IterationRecord, {"version": RECORD_VERSION, **data}, str(path))
-    if old:
-        console.warn(f"{path}: record of the layout before version {RECORD_VERSION}; missing fields set to "
-                     "their defaults" + ("; migrated" if migrate else ""))
-        if migrate:
-            write_record(path, rec)
+    rec, old = parse_record(IterationRecord, data, str(path), "iteration record",
+                            "missing fields set to their defaults" + ("; migrated" if migrate else ""))
+    if old and migrate:
+        write_record(path, rec)
     return rec.model_dump()
 
 

@@ -39,33 +39,7 @@ def h2h_section(found: Found) -> Section | None:
         return None
     sec = Section("h2h", "Head-to-head")
     if tables:
-        tab = found.json[tables[0]]
-        err = tab.get("ey_error") or {}
-        err = {k: v for k, v in err.items() if v.get("mean")}
-        if err:
-            dt = (tab.get("settings") or {}).get("config", {}).get("dt", 0.1)
-            sec.add_figure("opponent_pred_errors", "Opponent e_y prediction error against steps ahead: mean and "
-                           "+-1 std over all closed-loop opponent trajectories", lambda: F.fig_pred_errors(err, dt))
-        else:
-            sec.missing.append(f"{tables[0]}: no offline prediction errors in the table")
-        racing = tab.get("racing") or {}
-        if racing:
-            from gprace.h2h.protocol import failed_races_text
-
-            rows = []
-            for p, r in racing.items():
-                e = (tab.get("ey_error") or {}).get(p, {})
-                m = e.get("mean") or []
-                rows.append([p, r.get("runs"), failed_races_text(r), r.get("border_hits"), r.get("collisions"), r.get("overtakes"),
-                             _pm(r.get("overtake_time_mean"), r.get("overtake_time_std")),
-                             m[0] if m else float("nan"), m[-1] if m else float("nan")])
-            for p, e in (tab.get("ey_error") or {}).items():
-                if p not in racing and e.get("mean"):
-                    rows.append([p, "-", "-", "-", "-", "-", "-", e["mean"][0], e["mean"][-1]])
-            sec.items.append(Item(f"Results table ({tables[0].name}; overtake time over the "
-                                  f"{tab.get('common_inside', '?')} scenarios every raced predictor finished inside the track)",
-                                  html=table(["predictor", "runs", "failed", "border hits", "collisions", "overtakes",
-                                              "overtake time [s]", "e_y error 1-step [m]", "e_y error last step [m]"], rows)))
+        _table_items(sec, tables[0], found.json[tables[0]])
     else:
         sec.missing.append("no table.json (the evaluation did not finish): no results table or error curves")
     evals = [p for p in records if "eval" in p.relative_to(found.root).parts]
@@ -101,6 +75,37 @@ def _race_figures(sec: Section, p: Path, rec: Record[RaceAttrs], old: list[Path]
     else:
         sec.missing.append(f"error along {p.parent.name}/{p.name}: the folder holds no stored offline errors for this "
                            f"race ({why}); `gprace eval head2head` writes them")
+
+
+def _table_items(sec: Section, path: Path, data: Any) -> None:
+    """The error curves and the results table of ``table.json``, read through its schema."""
+    from gprace.h2h.table import failed_races_text, parse_table
+
+    try:
+        tab = parse_table(data, str(path))
+    except UNREADABLE as exc:
+        sec.missing.append(str(exc))
+        return
+    err = {p: e.model_dump() for p, e in tab.ey_error.items() if e.mean}
+    if err:
+        dt = tab.settings.get("config", {}).get("dt", 0.1)  # the race's period (H2HConfig.dt unless set)
+        sec.add_figure("opponent_pred_errors", "Opponent e_y prediction error against steps ahead: mean and "
+                       "+-1 std over all closed-loop opponent trajectories", lambda: F.fig_pred_errors(err, dt))
+    else:
+        sec.missing.append(f"{path}: no offline prediction errors in the table")
+    if not tab.racing:
+        return
+    rows = []
+    for p, r in tab.racing.items():
+        m = tab.ey_error[p].mean if p in tab.ey_error else []
+        rows.append([p, r.runs, failed_races_text(r), r.border_hits, r.collisions, r.overtakes,
+                     _pm(r.overtake_time_mean, r.overtake_time_std), m[0] if m else np.nan, m[-1] if m else np.nan])
+    rows += [[p, "-", "-", "-", "-", "-", "-", e.mean[0], e.mean[-1]]
+             for p, e in tab.ey_error.items() if p not in tab.racing and e.mean]
+    sec.items.append(Item(f"Results table ({path.name}; overtake time over the {tab.common_inside} scenarios every "
+                          "raced predictor finished inside the track)",
+                          html=table(["predictor", "runs", "failed", "border hits", "collisions", "overtakes",
+                                      "overtake time [s]", "e_y error 1-step [m]", "e_y error last step [m]"], rows)))
 
 
 def _pm(m: Any, s: Any) -> str:
