@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
 from gprace.config import VehicleConfig
 from gprace.diagnose.result import Channel, DiagnosisResult, Effect, parse_result
 from gprace.errors import InputError
+from gprace.io.artifacts import write_text_atomic
 
 
 def write_augmented(vehicle: VehicleConfig, path: str | Path) -> Path:
@@ -17,9 +17,7 @@ def write_augmented(vehicle: VehicleConfig, path: str | Path) -> Path:
     text = "# written by gprace diagnose: the nominal vehicle plus the effects it found\n" + vehicle.to_toml()
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text(text)
-        os.replace(tmp, path)
+        write_text_atomic(path, text)
     except OSError as exc:
         raise InputError(f"{path}: cannot write the augmented vehicle ({exc.strerror})") from None
     return path

@@ -12,7 +12,6 @@ version, or a field the schema refuses, is a one-line :class:`~gprace.errors.Inp
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -170,11 +169,10 @@ def _json_default(o):
 def write_table(path: str | Path, table: H2HTable) -> dict:
     """Write ``table`` atomically (a figure that is not a number as ``NaN``, as before the schema);
     returns its dump."""
-    path = Path(path)
+    from gprace.io.artifacts import write_text_atomic
+
     dump = table.model_dump()
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(dump, indent=2, default=_json_default))
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(dump, indent=2, default=_json_default))
     return dump
 
 

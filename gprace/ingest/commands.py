@@ -73,7 +73,6 @@ def _write_meta(run, output: Path) -> None:
     """Provenance of a CSV run (CSV has no attributes): ``<name>.meta.json`` beside it, atomically."""
     import json
 
-    p = output.with_name(output.stem + ".meta.json")
-    tmp = p.with_name(f".{p.name}.tmp")
-    tmp.write_text(json.dumps(run.meta, indent=1, default=str))
-    tmp.replace(p)
+    from gprace.io.artifacts import write_text_atomic
+
+    write_text_atomic(output.with_name(output.stem + ".meta.json"), json.dumps(run.meta, indent=1, default=str))

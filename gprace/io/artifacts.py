@@ -64,6 +64,17 @@ def check_output(path: str | Path | None, option: str = "--output") -> Path | No
     return path
 
 
+def write_text_atomic(path: str | Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` through a hidden sibling and :func:`os.replace`: a killed
+    run leaves the old file or the new one, never half of one (every JSON record, marker and page
+    gprace writes goes through here; the scan skips the hidden sibling)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+    return path
+
+
 def write_artifact(path: str | Path, art: Artifact) -> Path:
     path = Path(path)
     try:

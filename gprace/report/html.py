@@ -17,7 +17,7 @@ from typing import Any
 
 from gprace import __version__
 from gprace.errors import InputError
-from gprace.io.artifacts import check_folder
+from gprace.io.artifacts import check_folder, write_text_atomic
 from gprace.report import collect
 from gprace.report.collect import Section, table
 from gprace.report.figures import png_bytes
@@ -89,9 +89,7 @@ def build_report(folder: str | Path, out: str | Path, png_dir: str | Path | None
     for sec in sections:
         rep.missing += [f"{sec.title}: {m}" for m in sec.missing]
     page = _page(folder, sections, body, rep.missing if not sections else [])
-    tmp = out.with_name(f".{out.name}.tmp")
-    tmp.write_text(page, encoding="utf-8")
-    tmp.replace(out)
+    write_text_atomic(out, page)
     return rep
 
 

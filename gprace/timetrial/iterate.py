@@ -41,7 +41,6 @@ losing data (a step interrupted half-way is simply redone: it rewrites the same 
 from __future__ import annotations
 
 import json
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -124,10 +123,9 @@ class Steps:
         return (self.dir / f"{name}.done").exists()
 
     def mark(self, name: str) -> None:
-        p = self.dir / f"{name}.done"
-        tmp = p.with_suffix(".tmp")
-        tmp.write_text(time.strftime("%Y-%m-%dT%H:%M:%S"))
-        os.replace(tmp, p)
+        from gprace.io.artifacts import write_text_atomic
+
+        write_text_atomic(self.dir / f"{name}.done", time.strftime("%Y-%m-%dT%H:%M:%S"))
 
 
 # ------------------------------------------------------------------------------------------------

@@ -19,7 +19,6 @@ folder resumes and reports.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +27,7 @@ from pydantic import Field, model_validator
 from gprace.config import Frozen
 from gprace.console import jsonable
 from gprace.errors import InputError
+from gprace.io.artifacts import write_text_atomic
 from gprace.io.records import NAN, Num, parse_record, read_json, validated
 
 RECORD_VERSION = 1
@@ -130,10 +130,7 @@ class IterateSummary(Frozen):
 def write_json(path: Path, obj) -> None:
     """``obj`` as JSON (NaN as ``null``), atomically: a killed run leaves the old file or the new
     one, never half of one. Every JSON file of an iterate folder is written by it."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(jsonable(obj), indent=1, allow_nan=False))
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(jsonable(obj), indent=1, allow_nan=False))
 
 
 def write_record(path: Path, record: IterationRecord) -> None:
