@@ -32,7 +32,7 @@ class Console:
 
     def json(self, obj: Any) -> None:
         """Strict JSON: a non-finite number is ``null``, never a bare ``NaN`` that parsers reject."""
-        sys.stdout.write(json.dumps(jsonable(obj), indent=2, default=_json_default, allow_nan=False) + "\n")
+        sys.stdout.write(json.dumps(jsonable(obj), indent=2, default=json_default, allow_nan=False) + "\n")
         sys.stdout.flush()
 
     def table(self, title: str, columns: list[str], rows: Iterable[Iterable[Any]]) -> None:
@@ -109,7 +109,8 @@ def jsonable(obj: Any) -> Any:
     return obj
 
 
-def _json_default(o: Any) -> Any:
+def json_default(o: Any) -> Any:
+    """What :func:`json.dumps` cannot write: numpy scalars and arrays as numbers and lists, the rest as text."""
     import numpy as np
 
     if isinstance(o, np.generic):

@@ -158,21 +158,14 @@ def failed_races_text(row: RacingRow, most: int = 5) -> str:
     return text
 
 
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
-
-
 def write_table(path: str | Path, table: H2HTable) -> dict:
     """Write ``table`` atomically (a figure that is not a number as ``NaN``, as before the schema);
     returns its dump."""
+    from gprace.console import json_default
     from gprace.io.artifacts import write_text_atomic
 
     dump = table.model_dump()
-    write_text_atomic(path, json.dumps(dump, indent=2, default=_json_default))
+    write_text_atomic(path, json.dumps(dump, indent=2, default=json_default))
     return dump
 
 
