@@ -265,7 +265,8 @@ def test_report_empty_and_bad_folder(tmp_path, capsys):
 
 def test_report_diagnosis_only_without_residuals(tmp_path):
     d = make_diagnosis(tmp_path / "x")
-    (d / "residuals.h5").unlink()
+    res = json.loads((d / "diagnosis.json").read_text())
+    (d / "diagnosis.json").write_text(json.dumps({k: v for k, v in res.items() if k != "residual_profile"}))
     out = tmp_path / "r.html"
     assert main(["report", str(tmp_path / "x"), "-o", str(out)]) == 0
     html = out.read_text()

@@ -4,7 +4,7 @@ test_report.py and test_report_browser.py).
 The artifacts use the real writers (write_artifact, write_run, save_model with a real GP fit) and
 the layouts of the stages: an iterate folder per time-trial variant (summary.json, iter_<k>/
 with plan and runs), a head-to-head folder (table.json, eval/<predictor>/run_*.h5, models/),
-a diagnosis JSON with its residual artifact.
+a diagnosis JSON with its stored residual profile.
 """
 
 from __future__ import annotations
@@ -151,6 +151,9 @@ def make_h2h(root: Path, steps: int = 60) -> Path:
 
 
 def make_diagnosis(root: Path) -> Path:
+    """A diagnosis result as ``gprace diagnose --json`` writes it (version 1, residual profile stored)."""
+    from gprace.diagnose.result import DiagnosisResult, residual_profile
+
     d = root / "diagnosis"
     d.mkdir(parents=True, exist_ok=True)
     rep = {"verdict": "mismatch",
@@ -165,14 +168,15 @@ def make_diagnosis(root: Path) -> Path:
                "channels": ["v_x"], "heldout_rmse_before": {"v_x": 0.21}, "heldout_rmse_after": {"v_x": 0.04},
                "improvement": 0.81, "ambiguous_with": []}],
            "unexplained": {}, "augmented_vehicle": "augmented.toml", "explained_share": 0.93}
-    (d / "diagnosis.json").write_text(json.dumps(rep))
-    s = np.linspace(0, L, 400)
+    # the residual along the track as the diagnosis stores it: large in the window before, noise after
+    s = np.arange(5.0, L, 10.0)
     win = ((s > 120) & (s < 220)).astype(float)
     rng = np.random.default_rng(3)
-    write_artifact(d / "residuals.h5", Artifact("diagnosis_residuals", arrays={
-        "s": s, "before/v_x": 0.3 * win + 0.02 * rng.standard_normal(400), "after/v_x": 0.02 * rng.standard_normal(400),
-        "before/v_y": 0.01 * rng.standard_normal(400), "after/v_y": 0.01 * rng.standard_normal(400)},
-        attrs={"track_length": L}))
+    n = len(s)
+    rep["residual_profile"] = residual_profile(
+        s, {"v_x": 0.3 * win + 0.02 * rng.standard_normal(n), "v_y": 0.01 * rng.standard_normal(n)},
+        {"v_x": 0.02 * rng.standard_normal(n), "v_y": 0.01 * rng.standard_normal(n)}, {"v_x": 0.02, "v_y": 0.01}, 10.0)
+    (d / "diagnosis.json").write_text(json.dumps(DiagnosisResult.model_validate(rep).to_json()))
     return d
 
 

@@ -5,32 +5,26 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from gprace.diagnose.result import DiagnosisResult, Effect, parse_result
 from gprace.errors import InputError
 from gprace.report import figures as F
 from gprace.report.collect import Found, Item, Section, table
-from gprace.report.inspect import UNREADABLE, open_artifact
 
 
 def diagnosis_section(found: Found) -> Section | None:
     reports = found.of("diagnosis")
-    residuals = found.kinds_like("diagnos") + found.kinds_like("residual")
-    if not reports and not residuals:
+    if not reports:
         return None
     sec = Section("diagnosis", "Diagnosis")
     for rp in reports:
-        _add_result(sec, rp, found.json[rp], residuals)
-    if not reports:
-        sec.missing.append("no diagnosis JSON (`gprace diagnose --json > diagnosis.json`)")
+        _add_result(sec, rp, found.json[rp])
     return sec
 
 
-def _add_result(sec: Section, rp: Path, data: Any, residuals: list[Path]) -> None:
-    """One diagnosis JSON, read through its schema: the summary, the residual along the track (a
-    residual artifact next to it, else the profile the result stores; never recomputed), the
-    channels and the fitted parameters. A JSON the schema refuses is one line in ``missing``."""
+def _add_result(sec: Section, rp: Path, data: Any) -> None:
+    """One diagnosis JSON, read through its schema: the summary, the residual along the track (the
+    profile the result stores; never recomputed), the channels and the fitted parameters. A JSON
+    the schema refuses is one line in ``missing``."""
     try:
         r = parse_result(data, str(rp))
     except InputError as exc:
@@ -38,9 +32,9 @@ def _add_result(sec: Section, rp: Path, data: Any, residuals: list[Path]) -> Non
         return
     d = r.model_dump()
     sec.items.append(Item(f"{rp.name}: verdict", html=_diag_summary(r)))
-    res = _residual_data(rp, residuals) or _stored_profile(r)
-    if res is not None:
-        s, before, after, _ = res
+    prof = r.residual_profile
+    if prof is not None:
+        s, before, after = prof.s, prof.before, prof.after
         sec.add_figure(f"residual_{rp.stem}", "Residual along the track, nominal model and augmented model "
                        "(located windows shaded)", lambda: F.fig_residual_track(s, before, after, d["regions"]))
     else:
@@ -51,12 +45,6 @@ def _add_result(sec: Section, rp: Path, data: Any, residuals: list[Path]) -> Non
     if d["effects"]:
         sec.add_figure(f"parameters_{rp.stem}", "Fitted parameters with 95 % intervals",
                        lambda: F.fig_parameters(d["effects"]))
-
-
-def _stored_profile(r: DiagnosisResult):
-    """``(s, before, after, None)`` from the residual profile the result stores, or None."""
-    prof = r.residual_profile
-    return None if prof is None else (prof.s, prof.before, prof.after, None)
 
 
 def _diag_summary(r: DiagnosisResult) -> str:
@@ -91,29 +79,3 @@ def _or_dash(v: float | None) -> Any:
 
 def _parameters_text(e: Effect) -> str:
     return "; ".join(f"{k} = {p.value:.4g} [{p.ci95[0]:.4g}, {p.ci95[1]:.4g}] {p.unit}" for k, p in e.parameters.items())
-
-
-def _residual_data(report_path: Path, residuals: list[Path]):
-    """``(s, before, after, length)`` from a residual artifact in the report's folder (arrays
-    ``s`` and ``before/<channel>``, ``after/<channel>``, or ``residual_before``/``residual_after``
-    of shape (n, channels) with attribute ``channels``)."""
-    for p in sorted(residuals, key=lambda q: (q.parent != report_path.parent, str(q))):
-        try:
-            art = open_artifact(p)
-        except UNREADABLE:
-            continue
-        a = dict(art.arrays)
-        for g in art.groups.values():
-            a.update(g)
-        if "s" not in a:
-            continue
-        before = {k.split("/", 1)[1]: v for k, v in a.items() if k.startswith("before/")}
-        after = {k.split("/", 1)[1]: v for k, v in a.items() if k.startswith("after/")}
-        if not before and "residual_before" in a:
-            ch = art.attrs.get("channels") or [f"c{i}" for i in range(np.shape(a["residual_before"])[1])]
-            before = {c: a["residual_before"][:, i] for i, c in enumerate(ch)}
-            if "residual_after" in a:
-                after = {c: a["residual_after"][:, i] for i, c in enumerate(ch)}
-        if before:
-            return a["s"], before, after or None, art.attrs.get("track_length")
-    return None
