@@ -86,8 +86,8 @@ def scan(root: str | Path) -> Found:
 
 # ----------------------------------------------------------------------------------------------
 # helpers
-ITER_RE = r"^it(?:er(?:ation)?)?[_-]?(\d+)$"  # iter_03, iteration-3, it3
-TRIAL_RE = r"^trial[_-]?(\d+)$"
+ITER_RE = r"^iter_(\d+)$"  # the folders of `gprace iterate`: trial_<j>/iter_<i>/
+TRIAL_RE = r"^trial_(\d+)$"
 
 
 def path_number(path: Path, pattern: str) -> int | None:

@@ -14,21 +14,16 @@ from gprace.report.collect import ITER_RE, TRIAL_RE, Found, Item, Section, load_
 from gprace.report.inspect import UNREADABLE, open_artifact
 
 
-def _iteration_of(path: Path, meta: dict) -> int | None:
-    for k in ("iteration", "iter"):
-        if k in meta and isinstance(meta[k], (int, float)):
-            return int(meta[k])
+def _iteration_of(path: Path) -> int | None:
+    """The iteration of a file of an iterate folder, from its ``iter_<i>`` folder (the layout of
+    ``gprace iterate``); None outside one."""
     return path_number(path, ITER_RE)
 
 
-def _trial_of(path: Path, meta: dict) -> int:
-    for k in ("trial",):
-        if k in meta and isinstance(meta[k], (int, float)):
-            return int(meta[k])
+def _trial_of(path: Path) -> int:
+    """The trial of a file of an iterate folder, from its ``trial_<j>`` folder (0 without one)."""
     n = path_number(path, TRIAL_RE)
-    if n is not None:
-        return n
-    return int(meta.get("seed", 0) or 0)
+    return 0 if n is None else n
 
 
 def _variant_name(root: Path, settings: dict | None) -> str:
@@ -138,9 +133,9 @@ def timetrial_variants(found: Found) -> dict[Path, dict[str, Any]]:
                     art = open_artifact(p, "run")
                 except UNREADABLE:
                     continue
-                it = _iteration_of(rel, art.attrs)
+                it = _iteration_of(rel)
                 if it is not None:  # runs outside iter_<i> (the held-out test run) are no laps of the loop
-                    v["runs"].append((p, art, it, _trial_of(rel, art.attrs)))
+                    v["runs"].append((p, art, it, _trial_of(rel)))
         v["plans"] = [p for p in found.of("plan") if root in p.parents]
     # exploration first (blue), baseline second (orange), then the rest by folder
     order = {"exploration": 0, "baseline": 1}
