@@ -184,8 +184,9 @@ def _unattr(v: Any) -> Any:
 
 
 def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
+    """numpy values as JSON (:func:`gprace.console.json_default`); nothing else is stored as text."""
+    from gprace.console import json_default
+
+    if isinstance(o, (np.generic, np.ndarray)):
+        return json_default(o)
     raise TypeError(f"cannot store {type(o).__name__} in an artifact attribute")
