@@ -124,7 +124,6 @@ class Record(Generic[A]):
     old: bool = field(default=False, compare=False)
 
 
-
 def record_of(schema: type[A], task: dict, task_hash: str, ok: bool, value: dict | None, error: str,
               where: str = "record") -> Record[A]:
     """The record of one task: its function's result ``value`` (``{"arrays", "attrs"}``) or, when
