@@ -140,6 +140,10 @@ def test_fig_residual_channels_parameters():
     assert [a.get_ylabel() for a in fig.axes] == ["v_x residual [m/s]", "yaw_rate residual [rad/s]"]
     assert fig.axes[-1].get_xlabel() == "arc length s [m]"
     assert len(fig.axes[0].patches) == 1  # the located window, shaded
+    fig = F.fig_residual_track(s, {"v_x": np.ones(100)}, noise={"v_x": 0.2})
+    band = fig.axes[0].patches[0].get_path().get_extents().transformed(fig.axes[0].patches[0].get_transform())
+    lo, hi = fig.axes[0].transData.inverted().transform([[0, band.y0], [0, band.y1]])[:, 1]
+    assert (round(lo, 6), round(hi, 6)) == (-0.2, 0.2)  # the noise twin's +-1 sigma band
     fig = F.fig_channels([{"name": "v_x", "structured": True, "statistic": 9.0},
                           {"name": "v_y", "structured": False, "statistic": 1.0}],
                          [{"channel": "v_x", "s_start": 100, "s_end": 200}])

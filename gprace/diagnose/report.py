@@ -65,52 +65,26 @@ def _effect_lines(e: Effect) -> list[str]:
     return out
 
 
-UNITS = {"v_x": "m/s", "v_y": "m/s", "yaw_rate": "rad/s"}
-
-
 def plot_residuals(res, path: str | Path) -> Path:
-    """Mean multi-step error along the track per dynamic channel: nominal vs augmented, with the
-    noise twin's +-1 sigma band (matplotlib, Agg backend). ``res`` is a
-    :class:`~gprace.diagnose.diagnose.Diagnosis` or its result; the figure is drawn from the
-    stored residual profile, nothing is simulated."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """The residual-along-track figure of the report (:func:`gprace.report.figures.fig_residual_track`:
+    nominal and augmented model, located windows, the noise twin's +-1 sigma band) as a PNG.
+    ``res`` is a :class:`~gprace.diagnose.diagnose.Diagnosis` or its result; the figure is drawn
+    from the stored residual profile, nothing is simulated."""
+    from gprace.report.figures import fig_residual_track
 
     r = getattr(res, "result", res)
     prof = r.residual_profile
     if prof is None:
         raise InputError("the diagnosis result has no stored residual profile (it predates it); "
                          "rerun `gprace diagnose ... --json`")
-    effects = [e.name for e in r.effects]
-    fig, axes = plt.subplots(len(prof.before), 1, figsize=(11, 8), sharex=True, squeeze=False)
-    for ax, ch in zip(axes[:, 0], prof.before):
-        band = prof.noise[ch]
-        ax.axhspan(-band, band, color="0.85", label="noise twin (1 sigma)")
-        ax.plot(prof.s, prof.before[ch], color="tab:red", lw=1.0, label="nominal")
-        ax.plot(prof.s, prof.after[ch], color="tab:blue", lw=1.0, label="augmented" if effects else "augmented (= nominal)")
-        ax.set_ylabel(f"{ch} error [{UNITS.get(ch, '-')}]")
-        ax.grid(alpha=0.3)
-    for g in r.regions:
-        for ax in axes[:, 0]:
-            ax.axvspan(g.s_start, g.s_end, color="gold", alpha=0.15)
-    axes[0, 0].legend(loc="upper right", fontsize=8)
-    axes[0, 0].set_title(f"multi-step ({r.horizon} steps) prediction error along the track; effects: "
-                         f"{', '.join(effects) or 'none'}")
-    axes[-1, 0].set_xlabel("s [m]")
-    fig.tight_layout()
-    return _save(fig, Path(path))
-
-
-def _save(fig, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-
+    effects = ", ".join(e.name for e in r.effects) or "none"
+    fig = fig_residual_track(prof.s, prof.before, prof.after, [g.model_dump() for g in r.regions],
+                             f"multi-step ({r.horizon} steps) prediction error along the track; effects: {effects}",
+                             noise=prof.noise)
+    path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=110)
     except OSError as exc:
         raise InputError(f"{path}: cannot write the plot ({exc.strerror})") from None
-    finally:
-        plt.close(fig)
     return path

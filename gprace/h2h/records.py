@@ -48,6 +48,9 @@ RUN_KIND = "h2h_run"
 RECORD_VERSION = 1
 
 
+OLD_NOTE = "missing fields set to their defaults; not migrated (`gprace eval head2head --resume` does)"
+
+
 class RecordAttrs(Frozen):
     """What every record holds: the task, its hash, and whether it ran."""
 
@@ -151,11 +154,8 @@ def read_record(path: str | Path, schema: type[A], warn: bool = True) -> Record[
 
     art = read_artifact(path, RUN_KIND)
     attrs, old = parse_record(schema, {**art.attrs, "seed": art.seed}, str(path), "head-to-head record",
-                              warn=False, error=ArtifactError)
-    rec = Record(art.arrays, attrs, old=old)
-    if rec.old and warn:
-        warn_old([Path(path)], migrated=False)
-    return rec
+                              OLD_NOTE, warn=warn, error=ArtifactError)
+    return Record(art.arrays, attrs, old=old)
 
 
 def migrate(path: str | Path, record: Record) -> Record:
@@ -170,5 +170,5 @@ def warn_old(paths: list[Path], migrated: bool) -> None:
     from gprace.console import console
 
     where = f"{paths[0]}" if len(paths) == 1 else f"{len(paths)} records ({paths[0]}, ...)"
-    console.warn(f"{where}: head-to-head record layout before version {RECORD_VERSION}; missing fields set to "
-                 "their defaults; " + ("migrated" if migrated else "not migrated (`gprace eval head2head --resume` does)"))
+    console.warn(f"{where}: head-to-head record of the layout before version {RECORD_VERSION}; "
+                 + ("missing fields set to their defaults; migrated" if migrated else OLD_NOTE))

@@ -405,9 +405,10 @@ def fig_race(track, ego: np.ndarray, opp: np.ndarray, border_ego: np.ndarray | N
 # ----------------------------------------------------------------------------------------------
 # diagnosis
 def fig_residual_track(s: np.ndarray, before: Mapping[str, np.ndarray], after: Mapping[str, np.ndarray] | None = None,
-                       regions: Sequence[Mapping[str, Any]] = (), title: str = "residual along the track"):
+                       regions: Sequence[Mapping[str, Any]] = (), title: str = "residual along the track",
+                       noise: Mapping[str, float] | None = None):
     """Residual (measured - model) per channel against arc length, nominal model and augmented
-    model, with the located windows shaded."""
+    model, with the located windows shaded and, with ``noise``, the noise twin's +-1 sigma band."""
     chans = list(before)
     fig, axes = _figure(len(chans), 1, size=(9.0, 2.3 * len(chans) + 0.6), sharex=True)
     s = np.asarray(s, float)
@@ -415,6 +416,8 @@ def fig_residual_track(s: np.ndarray, before: Mapping[str, np.ndarray], after: M
     # binned profiles (a few hundred points) as lines, raw residuals as dots
     style = {"ls": "-", "lw": 1.0, "marker": ".", "ms": 3} if len(s) <= 600 else {"ls": "none", "marker": ".", "ms": 2}
     for ax, c in zip(axes[:, 0], chans):
+        if noise is not None and c in noise:
+            ax.axhspan(-noise[c], noise[c], color="0.85", label="noise twin (1 sigma)")
         ax.plot(s[o], np.asarray(before[c], float)[o], color=PALETTE[1], label="nominal model", **style)
         if after is not None and c in after:
             ax.plot(s[o], np.asarray(after[c], float)[o], color=PALETTE[0], label="augmented model", **style)

@@ -34,9 +34,9 @@ def _add_result(sec: Section, rp: Path, data: Any) -> None:
     sec.items.append(Item(f"{rp.name}: verdict", html=_diag_summary(r)))
     prof = r.residual_profile
     if prof is not None:
-        s, before, after = prof.s, prof.before, prof.after
         sec.add_figure(f"residual_{rp.stem}", "Residual along the track, nominal model and augmented model "
-                       "(located windows shaded)", lambda: F.fig_residual_track(s, before, after, d["regions"]))
+                       "(located windows shaded, noise twin's +-1 sigma band grey)",
+                       lambda: F.fig_residual_track(prof.s, prof.before, prof.after, d["regions"], noise=prof.noise))
     else:
         sec.missing.append(f"{rp.name}: residual-along-track plot not drawn (the result predates the stored "
                            "residual profile; rerun `gprace diagnose ... --json`)")
