@@ -105,7 +105,8 @@ class NominalModel:
         """CasADi expression of ``x`` after ``dt`` by RK4 with ``substeps``; ``kappa_of_s(s)`` gives the
         curvature (a constant, or a CasADi lookup re-evaluated at every stage)."""
         h = dt / substeps
-        f = lambda xx: self.symbolic(xx, u, kappa_of_s(xx[State.S]))  # noqa: E731
+        F = self.casadi_f()  # built once per model; calling it on symbols inlines the same operations
+        f = lambda xx: F(xx, u, kappa_of_s(xx[State.S]))  # noqa: E731
         xn = x
         for _ in range(substeps):
             k1 = f(xn)
