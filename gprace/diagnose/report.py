@@ -70,7 +70,7 @@ def plot_residuals(res, path: str | Path) -> Path:
     nominal and augmented model, located windows, the noise twin's +-1 sigma band) as a PNG.
     ``res`` is a :class:`~gprace.diagnose.diagnose.Diagnosis` or its result; the figure is drawn
     from the stored residual profile, nothing is simulated."""
-    from gprace.report.figures import fig_residual_track
+    from gprace.report.figures import fig_residual_track, write_png
 
     r = getattr(res, "result", res)
     prof = r.residual_profile
@@ -82,9 +82,5 @@ def plot_residuals(res, path: str | Path) -> Path:
                              f"multi-step ({r.horizon} steps) prediction error along the track; effects: {effects}",
                              noise=prof.noise)
     path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot write the plot ({exc.strerror})") from None
-    return path
+    path.parent.mkdir(parents=True, exist_ok=True)  # like -o: check_output vetted the folder at the start
+    return write_png(fig, path, dpi=110)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -40,6 +41,18 @@ def _figure(nrows: int = 1, ncols: int = 1, size: tuple[float, float] = (7.0, 4.
     FigureCanvasAgg(fig)
     axes = fig.subplots(nrows, ncols, squeeze=False, **kw)
     return fig, axes
+
+
+def write_png(fig, path: str | Path, dpi: int = 100) -> Path:
+    """Write ``fig`` as a PNG to ``path`` (its folder exists); a file system refusal is one line."""
+    from gprace.errors import InputError
+
+    path = Path(path)
+    try:
+        fig.savefig(path, dpi=dpi)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write the plot ({exc.strerror or exc})") from None
+    return path
 
 
 def png_bytes(fig, dpi: int = 90) -> bytes:

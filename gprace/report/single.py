@@ -187,6 +187,5 @@ def save_figures(figs: list[tuple[str, Any]], png: str | Path) -> list[Path]:
     out = []
     for k, (_, fig) in enumerate(figs):
         p = png if k == 0 else png.with_name(f"{png.stem}_{k + 1}{png.suffix or '.png'}")
-        fig.savefig(p, dpi=100)
-        out.append(p)
+        out.append(F.write_png(fig, p))
     return out

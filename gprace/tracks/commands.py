@@ -47,6 +47,7 @@ def plot_track(track, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     from gprace.errors import InputError
+    from gprace.report.figures import write_png
 
     path = Path(path)
     if path.parent and not path.parent.exists():
@@ -79,6 +80,6 @@ def plot_track(track, path: Path) -> None:
         ax.set_title(f"{track.name}: {track.length:.1f} m, min radius {track.min_radius:.1f} m")
         ax.legend(loc="best", fontsize="small")
         fig.tight_layout()
-        fig.savefig(path, dpi=110)
+        write_png(fig, path, dpi=110)
     finally:
         plt.close(fig)
