@@ -38,19 +38,12 @@ LIN_CX, LIN_CY, LIN_TH, LIN_SIG, LIN_KAP = range(8, 13)
 OPP_X, OPP_Y, OPP_PSI, OPP_A, OPP_B, OPP_ON = range(13, 19)
 DISK_OFFSETS = (-0.135, -0.045, 0.045, 0.135)
 IPOPT_OPTIONS = {
-    # one acceptable iterate (|KKT| <= acceptable_tol) ends a solve: 17 % fewer iterations than three in a
+    # one acceptable iterate (|KKT| <= 1e-4) ends a solve: 17 % fewer iterations than three in a
     # replay of 560 race solves, first inputs within 1.6e-3 (p95) of the tight solution, no more
     # failures (docs/decisions.md, issue 17)
-    "print_level": 0, "sb": "yes", "tol": 1e-6, "acceptable_tol": 3e-4, "acceptable_iter": 1,
+    "print_level": 0, "sb": "yes", "tol": 1e-6, "acceptable_tol": 1e-4, "acceptable_iter": 1,
     "warm_start_init_point": "yes", "warm_start_bound_push": 1e-6, "warm_start_mult_bound_push": 1e-6,
     "mu_strategy": "adaptive", "linear_solver": "mumps",
-    # the NLP unscaled: IPOPT's gradient-based scaling divided the objective by about 1e3 (the
-    # border penalty's gradient), so its tolerances were loose in the cost's own units. Unscaled,
-    # with the acceptable tolerance 3e-4 instead of 1e-4: 7.23 IPOPT iterations per solve against
-    # 8.86 and 14 % less CPU over 3481 replayed race solves; objectives within 0.1 of the best of
-    # two tight local solutions in all but 33 solves (91 before); 18 failed solves (14 before).
-    # With 1e-3, 6.81 iterations, but one test solve's inputs 8e-3 off (docs/decisions.md, issue 17)
-    "nlp_scaling_method": "none",
     # without MUMPS's scaling and permuting of the KKT matrix: solutions agree to 1e-11, and the
     # solve took 5 to 13 % less CPU in two of three replays of 566 to 650 race solves (no
     # difference in the third, under heavy load; docs/decisions.md)
