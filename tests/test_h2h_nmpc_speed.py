@@ -91,3 +91,55 @@ def test_tuned_solve_agrees_with_a_tight_reference(curvy, monkeypatch):
     for a, b in zip(tuned, ref):
         assert np.max(np.abs(a.U - b.U)) < 5e-3
         assert np.all(np.abs(a.X - b.X) < tol)
+
+
+# ------------------------------------------------------------------------------------------------
+# the fallback after a failed solve
+def _failed_after(mpc: NMPC, last_U: np.ndarray, streak: int = 0) -> None:
+    """Put ``mpc`` in the state after a successful solve with plan inputs ``last_U`` and ``streak``
+    fallbacks since."""
+    N = CFG.horizon
+    x = np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    last = nmpc.Solution(X=np.tile(x, (N + 1, 1)), U=last_U, slack=np.zeros((N, NS)), ok=True, status="", seconds=0.0)
+    mpc._warm = {"x": mpc.initial_guess(x), "last": last, "streak": streak}
+
+
+def test_an_isolated_fallback_at_speed_is_the_shifted_plan():
+    mpc = NMPC(_model(), CFG.ego, CFG, collision=True)
+    U = np.column_stack([np.linspace(-0.4, 0.4, CFG.horizon), np.linspace(-1.0, 0.5, CFG.horizon)])
+    _failed_after(mpc, U)
+    sol = mpc._fallback(np.array([1.0, 0.0, 0.3, 0.2, 0.1, 5.0]), "failed", 0.0, 0.5)
+    np.testing.assert_array_equal(sol.U[:-1], U[1:])
+    assert sol.fallback and mpc._warm["streak"] == 1
+
+
+def test_a_fallback_never_brakes_below_the_nlp_speed_bound():
+    """A repeated braking input drove a car into reverse (v_x -2.7 m/s after 7 s of failed solves),
+    where every NLP, bounded by v_x >= V_X_MIN, is infeasible: the fallback brakes at most down
+    to the bound in one step, and accelerates back up to it from below."""
+    mpc = NMPC(_model(), CFG.ego, CFG, collision=True)
+    dt, (a_min, a_max) = CFG.dt, CFG.ego.accel
+    for vx in (0.12, 0.05, 0.0, -0.3):
+        _failed_after(mpc, np.tile([0.0, a_min], (CFG.horizon, 1)))
+        a = mpc._fallback(np.array([vx, 0.0, 0.0, 0.0, 0.0, 1.0]), "failed", 0.0, 0.0).U[0, 1]
+        assert a == pytest.approx(min(max(a_min, (nmpc.V_X_MIN - vx) / dt), a_max))
+        assert vx + a * dt >= nmpc.V_X_MIN - 1e-12 or a == a_max
+
+
+def test_a_run_of_fallbacks_holds_the_heading_along_the_track():
+    """After STALE_STEPS fallbacks in a row the plan is stale: its last input (here full left lock)
+    is no longer repeated; the steering turns the car parallel to the track (kinematic steering of
+    the curvature minus the heading error), a mirror image for a mirrored state."""
+    mpc = NMPC(_model(), CFG.ego, CFG, collision=True)
+    lock = np.tile([CFG.ego.steering_max, 0.0], (CFG.horizon, 1))
+    x = np.array([0.8, 0.0, 0.0, 0.3, 0.2, 4.0])  # heading 0.3 rad to the left of the track
+    _failed_after(mpc, lock, streak=nmpc.STALE_STEPS - 1)
+    assert mpc._fallback(x, "failed", 0.0, 0.0).U[0, 0] == CFG.ego.steering_max  # still the plan
+    steer = mpc._fallback(x, "failed", 0.0, 0.0).U[0, 0]  # one more: stale
+    assert steer == pytest.approx(-nmpc.HOLD_GAIN * 0.3)
+    mirrored = x * np.array([1, -1, -1, -1, -1, 1])
+    assert nmpc.heading_hold(mirrored, 0.0, 0.26, 0.435) == pytest.approx(-steer)
+    # on an arc the hold steers with the curvature: kinematic steering atan(L kappa) at e_psi = 0
+    L = _model().params.lf + _model().params.lr
+    on_arc = nmpc.heading_hold(np.zeros(6), 1.5, L, CFG.ego.steering_max)
+    assert on_arc == pytest.approx(np.arctan(L * 1.5))

@@ -50,6 +50,10 @@ IPOPT_OPTIONS = {
     "mumps_permuting_scaling": 0, "mumps_scaling": 0,
 }
 
+V_X_MIN = 0.05  # [m/s] lower bound of v_x in the NLP (the dynamic model is singular at standstill)
+STALE_STEPS = 2  # fallbacks in a row on the shifted plan before the steering holds the heading
+HOLD_GAIN = 1.0  # [rad/rad] heading error to steering of that hold
+
 
 @dataclass
 class StageData:
@@ -106,7 +110,7 @@ class NMPC:
             x = ca.SX.sym(f"x{k + 1}", NX)
             sl = ca.SX.sym(f"sl{k + 1}", NS)
             w += [u, x, sl]
-            lbw += [-c.steering_max, c.accel[0]] + [0.05, -5, -10, -np.pi, -5, -1e3] + [0, 0, 0]
+            lbw += [-c.steering_max, c.accel[0]] + [V_X_MIN, -5, -10, -np.pi, -5, -1e3] + [0, 0, 0]
             ubw += [c.steering_max, c.accel[1]] + [c.speed_max, 5, 10, np.pi, 5, 1e6] + [np.inf] * 3
             # dynamics first, then the stage's path constraints
             g.append(x - F(xk, u, q[KAPPA]))
@@ -234,7 +238,7 @@ class NMPC:
         dt = time.perf_counter() - t0
         if not ok:
             self.failures += 1
-            return self._fallback(x0, status, dt)
+            return self._fallback(x0, status, dt, float(st.kappa[0]))
         W = wv.reshape(N, self._stage_w)
         sol = Solution(
             X=np.vstack([np.asarray(x0, float)[:6], W[:, NU:NU + NX]]), U=W[:, :NU].copy(),
@@ -246,22 +250,42 @@ class NMPC:
         }
         return sol
 
-    def _fallback(self, x0: np.ndarray, status: str, seconds: float) -> Solution:
-        """Shifted previous solution (first input of the shifted plan); braking if none."""
+    def _fallback(self, x0: np.ndarray, status: str, seconds: float, kappa0: float) -> Solution:
+        """The input after a failed solve: the previous plan shifted by one step (braking if there is
+        none). Two guards keep a run of failures safe (docs/decisions.md, issue 17):
+
+        * the acceleration never takes ``v_x`` below :data:`V_X_MIN` in one step: the NLP bounds
+          ``v_x`` from below, so a car braked under it (or into reverse, as a repeated braking input
+          did) makes every following NLP infeasible;
+        * after :data:`STALE_STEPS` fallbacks in a row the plan is stale, and the steering holds the
+          heading along the track (:func:`heading_hold`) instead of repeating the plan's last input,
+          often full lock.
+        """
         N = self.h2h.horizon
         last: Solution | None = self._warm.get("last")
-        if last is None:  # nothing to shift: straight wheels, gentle braking down to a crawl
+        streak = self._warm.get("streak", 0) + 1
+        if last is None:  # nothing to shift: gentle braking down to a crawl (steering: the hold below)
             brake = self.mpc.accel[0] * 0.5 if x0[State.V_X] > 0.2 else 0.0
             U = np.tile([0.0, brake], (N, 1))
             X = np.tile(np.asarray(x0, float)[:6], (N + 1, 1))
         else:
             U = np.vstack([last.U[1:], last.U[-1:]])
             X = np.vstack([np.asarray(x0, float)[:6], last.X[2:], last.X[-1:]])
+        if last is None or streak > STALE_STEPS:
+            U[0, 0] = heading_hold(x0, kappa0, self.model.params.lf + self.model.params.lr, self.mpc.steering_max)
+        U[0, 1] = float(np.clip((V_X_MIN - x0[State.V_X]) / self.h2h.dt, U[0, 1], self.mpc.accel[1]))
         sol = Solution(X=X, U=U, slack=np.zeros((N, NS)), ok=False, status=status, seconds=seconds, fallback=True)
         # the next solve starts from the shifted guess, without duals (they belong to another problem)
         if last is not None:
-            self._warm = {"x": shift_plan(self._warm["x"], self._stage_w), "last": sol}
+            self._warm = {"x": shift_plan(self._warm["x"], self._stage_w), "last": sol, "streak": streak}
         return sol
+
+
+def heading_hold(x0: np.ndarray, kappa: float, wheelbase: float, steering_max: float) -> float:
+    """Steering that turns the car parallel to the track: the kinematic steering of the centre
+    line's curvature, minus :data:`HOLD_GAIN` times the heading error (saturated)."""
+    delta = np.arctan(wheelbase * kappa) - HOLD_GAIN * x0[State.E_PSI]
+    return float(np.clip(delta, -steering_max, steering_max))
 
 
 def _shift(v: np.ndarray, width: int) -> np.ndarray:
