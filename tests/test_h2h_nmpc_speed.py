@@ -114,7 +114,7 @@ def test_an_isolated_fallback_at_speed_is_the_shifted_plan():
 
 
 def test_a_fallback_never_brakes_below_the_nlp_speed_bound():
-    """A repeated braking input drove a car into reverse (v_x -2.7 m/s after 7 s of failed solves),
+    """A repeated braking input drove cars into reverse (down to v_x = -0.8 m/s in a default run),
     where every NLP, bounded by v_x >= V_X_MIN, is infeasible: the fallback brakes at most down
     to the bound in one step, and accelerates back up to it from below."""
     mpc = NMPC(_model(), CFG.ego, CFG, collision=True)
