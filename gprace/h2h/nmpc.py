@@ -273,7 +273,8 @@ class NMPC:
             X = np.vstack([np.asarray(x0, float)[:6], last.X[2:], last.X[-1:]])
         if last is None or streak > STALE_STEPS:
             U[0, 0] = heading_hold(x0, kappa0, self.model.params.lf + self.model.params.lr, self.mpc.steering_max)
-        U[0, 1] = float(np.clip((V_X_MIN - x0[State.V_X]) / self.h2h.dt, U[0, 1], self.mpc.accel[1]))
+        floor = min((V_X_MIN - x0[State.V_X]) / self.h2h.dt, self.mpc.accel[1])  # reaches V_X_MIN in one step
+        U[0, 1] = max(U[0, 1], floor)
         sol = Solution(X=X, U=U, slack=np.zeros((N, NS)), ok=False, status=status, seconds=seconds, fallback=True)
         # the next solve starts from the shifted guess, without duals (they belong to another problem)
         if last is not None:
