@@ -41,10 +41,10 @@ import numpy as np
 
 CONDITIONS: dict[str, list[str]] = {
     # name: options of `gprace eval head2head` that define the condition (besides --tracks/--seeds)
-    "default": [],  # realistic sensor and process noise of 1:10 cars (docs/decisions.md)
+    "default": [],  # realistic sensor and process noise of 1:10 cars, baseline on the training tracks (docs/decisions.md)
     "noiseless": ["--sensor-noise", "0", "--process-noise", "0"],
     "noise_x3": ["--sensor-noise", "3", "--process-noise", "3"],
-    "baseline_training_tracks": ["--baseline-tracks", "training"],
+    "baseline_eval_tracks": ["--baseline-tracks", "eval"],
     "no_blocking": ["--blocking-weight", "0"],
     "strong_blocking": ["--blocking-weight", "2000"],
     "explore_3min": ["--explore-minutes", "3"],

@@ -37,10 +37,13 @@ def test_each_condition_changes_exactly_the_tasks_it_affects():
         for stage in ref:  # noise and blocking act in every race
             assert not set(ref[stage]) & set(other[stage]), (kw, stage)
     # the baseline's tracks change its collection runs only; the exploration starts on eval-style runs
+    assert P.Settings().baseline_tracks == "training"  # the default: Zhu et al.'s tracks
+    on_eval = _all_tasks(P.Settings(tracks=3, calib_runs=2, baseline_tracks="eval"))
     train = P.Settings(tracks=3, calib_runs=2, baseline_tracks="training")
     other = _all_tasks(train)
-    assert not set(ref["collect"]) & set(other["collect"])
-    assert ref["init"] == other["init"] == ref["collect"][:2]
+    assert not set(on_eval["collect"]) & set(other["collect"])
+    assert on_eval["init"] == other["init"] == on_eval["collect"][:2]
+    assert ref == other
     assert ref["calib"] == other["calib"] and ref["eval"] == other["eval"]
     assert {t["track"]["kind"] for t in P.collect_tasks(train, 4)} == {"training"}
     # exploration time: only the exploration episodes (their number) change

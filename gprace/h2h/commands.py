@@ -22,7 +22,11 @@ JSON = typer.Option(False, "--json", help="Print the result as JSON.")
 EXPLORE_WIDTH = typer.Option(
     None, "--explore-width", help="Width of the exploration loop in metres (default: --width, the racing width; the loop's own is 1.5 m).")
 RUNS = typer.Option(500, "--runs", help="Baseline collection runs (oracle predictor), one random track each.")
-INIT_RUNS = typer.Option(20, "--init-runs", help="First collection runs behind the exploration's initial GP.")
+INIT_RUNS = typer.Option(20, "--init-runs", help="Collection runs on evaluation-style tracks behind the exploration's "
+                         "initial GP.")
+BASELINE_TRACKS = typer.Option(
+    "training", "--baseline-tracks", help="Tracks of the baseline's collection: training (the short curve and chicane "
+    "tracks of Zhu et al. 2022, as in the paper) or eval (random evaluation-style tracks).")
 POINTS_PER_RUN = typer.Option(10, "--points-per-run", help="Evenly spaced steps kept per collection run.")
 WIDTH = typer.Option(0.75, "--width", help="Width of the random tracks in metres (more than the car's 0.26 m footprint).")
 STRETCHES = typer.Option(5, "--stretches", help="Stretches (curve, chicane, straight) per random track.")
@@ -183,9 +187,7 @@ def head2head_cmd(
     process_noise: float = typer.Option(
         1.0, "--process-noise", help="Scale of the process noise per 0.1 s plant step (1: std v_x 0.01 m/s, "
         "v_y 0.005 m/s, yaw rate 0.02 rad/s; 0: none)."),
-    baseline_tracks: str = typer.Option(
-        "eval", "--baseline-tracks", help="Tracks of the baseline's collection: eval (random evaluation-style "
-        "tracks) or training (the short curve and chicane tracks of Zhu et al. 2022)."),
+    baseline_tracks: str = BASELINE_TRACKS,
     blocking_weight: float = typer.Option(500.0, "--blocking-weight", help="The opponent's blocking weight."),
     calib_runs: int = typer.Option(20, "--calib-runs", help="Held-out races per calibration pass of every "
                                    "predictor's spread."),
@@ -214,14 +216,15 @@ def head2head_cmd(
 def collect_cmd(
     out: Path = OUT,
     runs: int = RUNS, init_runs: int = INIT_RUNS, points_per_run: int = POINTS_PER_RUN,
-    width: float = WIDTH, stretches: int = STRETCHES, max_time: float = MAX_TIME,
+    baseline_tracks: str = BASELINE_TRACKS, width: float = WIDTH, stretches: int = STRETCHES, max_time: float = MAX_TIME,
     workers: int = WORKERS, executor: str = EXECUTOR, scheduler: Optional[str] = SCHEDULER,
     resume: bool = RESUME, as_json: bool = JSON,
 ) -> None:
-    """Race random tracks with the oracle predictor; write the (Z, Y) datasets."""
+    """Race the collection tracks with the oracle predictor; write the (Z, Y) datasets."""
     from gprace.h2h.protocol import collect as run, read_dataset
 
-    st = _settings(out, runs=runs, init_runs=init_runs, points_per_run=points_per_run, width=width, stretches=stretches, max_time=max_time,
+    st = _settings(out, runs=runs, init_runs=init_runs, points_per_run=points_per_run, baseline_tracks=baseline_tracks,
+                   width=width, stretches=stretches, max_time=max_time,
                    workers=workers, executor=executor, scheduler=scheduler, resume=resume)
     paths = run(st, out)
     res = {k: {"path": str(v), "points": len(read_dataset(v)[0])} for k, v in paths.items()}

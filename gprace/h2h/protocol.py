@@ -5,15 +5,17 @@ Layout of ``--out DIR`` (every file an HDF5 artifact, written atomically)::
     collect/runs/run_<i>.h5       one record per collection race (oracle predictor), kind h2h_run
     collect/dataset.h5            (Z, Y) of all collection runs, kind h2h_dataset
     collect/validation.h5         held-out steps of the collection runs (in no dataset): fit quality
-    init/dataset.h5               the first ``init_runs`` collection runs (the exploration's start)
+    init/runs/run_<i>.h5          the exploration's start runs (``init_runs`` oracle races on
+                                  evaluation-style tracks) when the baseline collects on the
+                                  training tracks (the default, ``--baseline-tracks training``)
+    init/dataset.h5               the exploration's start: those runs, or the first ``init_runs``
+                                  collection runs with ``--baseline-tracks eval``
     explore/runs/run_<i>.h5       exploration episodes on the closed loop (alpha = 0.9)
     explore/dataset.h5            init data + exploration data
     models/{baseline,init,explore,select}.h5   GP models (kind gp_model)
     eval/<predictor>/run_<i>.h5   the races of every predictor on the same scenarios
     errors/<predictor>/run_<i>.h5 offline e_y errors of every offline predictor on those races
                                   (and ``spread_<predictor>``: |s error|, raw std of s and e_y)
-    init/runs/run_<i>.h5          the exploration's start runs when the baseline collects on
-                                  the training tracks (``--baseline-tracks training``)
     calib/runs/run_<i>.h5         held-out races (oracle predictor, evaluation-style tracks, own
                                   seeds): the first calibration of every predictor's spread
     calib/errors/run_<i>.h5       offline errors and raw spreads of every predictor on them
@@ -45,10 +47,10 @@ its bootstrap interval over tracks and judges the paper's claims against both.
 Conditions (each in the table's settings; a changed condition changes the task hashes of exactly
 the runs it affects, so ``--resume`` reruns those): ``sensor_noise`` and ``process_noise`` scale
 :data:`SENSOR_STD` and :data:`PROCESS_STD` (both cars, every race; 0 = noiseless, the task then
-carries no noise entry); ``baseline_tracks`` (``eval``: the random evaluation-style tracks;
-``training``: the short ``curve`` and ``chicane`` tracks of Zhu et al. 2022, alternating; only
-the baseline collection runs change, the exploration's start runs stay on evaluation-style tracks
-and run in ``init/runs``); ``blocking_weight`` (the opponent's, every race; the default adds
+carries no noise entry); ``baseline_tracks`` (``training``, the default: the short ``curve`` and ``chicane`` tracks of
+Zhu et al. 2022, alternating, where the paper's baseline data come from; ``eval``: the random
+evaluation-style tracks; only the baseline collection runs change, the exploration's start runs
+are evaluation-style in both, in ``init/runs`` with ``training``); ``blocking_weight`` (the opponent's, every race; the default adds
 nothing to the tasks); ``explore_minutes``.
 
 Calibrated spread: before the evaluation, held-out races give every predictor's errors and raw
@@ -152,7 +154,7 @@ class Settings(CommandSettings):
     # conditions of the comparison (issue 17)
     sensor_noise: float = Field(1.0, ge=0, allow_inf_nan=False, description="scale of SENSOR_STD (0: noiseless)")
     process_noise: float = Field(1.0, ge=0, allow_inf_nan=False, description="scale of PROCESS_STD (0: noiseless)")
-    baseline_tracks: str = Field("eval", description="where the baseline's races run: " + " | ".join(BASELINE_TRACKS))
+    baseline_tracks: str = Field("training", description="where the baseline's races run: " + " | ".join(BASELINE_TRACKS))
     blocking_weight: float = Field(BLOCKING_WEIGHT, ge=0, allow_inf_nan=False, description="the opponent's Q_block")
     calib_runs: int = Field(20, ge=1, description="races of each calibration pass")
     calib_passes: int = Field(3, ge=1, description="at most this many driven calibration passes (:func:`calibrate`)")
@@ -818,6 +820,12 @@ def head2head(st: Settings, out: Path) -> dict:
     from gprace.h2h.spread import summarise
     from gprace.h2h.table import H2HTable, write_table
 
+    if st.workers > 1 or st.executor == "dask":
+        from gprace.executor import run_batch
+        from gprace.h2h.race import build_controller
+
+        run_batch(build_controller, [{"config": st.race_config(), "car": car} for car in ("ego", "opponent")],
+                  executor=st.executor, workers=2, scheduler=st.scheduler, label="building the two cars' NMPCs")
     tables, data, fits = {}, [], {}
     for s in st.seeds:
         tab, td, fit = run_chain(st.model_copy(update={"seed": s}), chain_dir(out, s))

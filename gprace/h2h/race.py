@@ -97,6 +97,16 @@ def controllers(cfg: H2HConfig) -> tuple[NMPC, NMPC]:
     return ego, opp
 
 
+def build_controller(task: dict) -> str:
+    """Build one car's NMPC (``task["car"]``: ego | opponent) of a race configuration
+    (``task["config"]``), which compiles its NLP once per machine. The two cars' NLPs differ in
+    their constants, so they are two libraries of 25 to 50 s of compiler each; built side by side
+    before the first batch instead of one after the other inside it (:func:`gprace.h2h.protocol.head2head`)."""
+    cfg = H2HConfig(**task["config"])
+    NMPC(_model(), getattr(cfg, task["car"]), cfg, collision=True)
+    return task["car"]
+
+
 def start_states(track, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     w = float(track.width_left(0.0) + track.width_right(0.0))
     base = rng.uniform(0.0, track.length) if track.closed else 0.0
