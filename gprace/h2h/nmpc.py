@@ -2,7 +2,8 @@
 
     min  alpha J_expl + (1 - alpha) (sum q_c e_y^2 + u'R u + du'R_d du - q_s (s_N - s_0))
          + soft-constraint penalties (+ the opponent's blocking term)
-    s.t. x_{k+1} = RK4(x_k, u_k, kappa_k)        Frenet dynamic bicycle (gprace.model), dt/substeps
+    s.t. x_{k+1} = RK4(x_k, u_k, kappa_k)        Frenet dynamic bicycle (gprace.model), dt/substeps,
+                                                 kinematic at a crawl (:func:`blended_rk4`)
          -w_r + c <= e_y <= w_l - c               soft (slack per stage)
          u_min <= u <= u_max,  v_x <= v_max,  v_x - v_soft <= slack
          1 - E_k(disk_j) <= slack                 ego only: 4 disks outside each predicted ellipse
@@ -51,8 +52,44 @@ IPOPT_OPTIONS = {
 }
 
 V_X_MIN = 0.05  # [m/s] lower bound of v_x in the NLP (the dynamic model is singular at standstill)
+# The prediction model turns kinematic at a crawl: the dynamic bicycle's lateral mode has an
+# eigenvalue of about -22/v_x per second (1:10 car), so RK4 with the NLP's 0.05 s sub-step is
+# unstable below about 0.4 m/s (|h lambda| > 2.79; 10.9 at 0.1 m/s, where one sub-step amplifies
+# an error 400 times). Blended by a smooth step of v_x between these speeds [m/s]:
+KIN_BLEND = (0.25, 0.5)
+KIN_TAU = 0.05  # [s] v_y and the yaw rate relax to their kinematic values (h / tau = 1: stable)
 STALE_STEPS = 2  # fallbacks in a row on the shifted plan before the steering holds the heading
 HOLD_GAIN = 1.0  # [rad/rad] heading error to steering of that hold
+
+
+def blended_rk4(model: NominalModel, dt: float, substeps: int):
+    """CasADi ``F(x, u, kappa)``: RK4 over ``dt`` of the Frenet dynamic bicycle blended into a
+    kinematic bicycle at low speed, ``f = w f_dyn + (1 - w) f_kin`` with ``w`` a smooth step of
+    ``v_x`` over :data:`KIN_BLEND` (racing stacks blend the same way; the kinematic model has no
+    tyre mode to go unstable). ``f_kin``: ``v_x' = a_x`` minus rolling and air resistance,
+    ``v_y`` and the yaw rate relaxing to ``v_x tan(delta) l_r / L`` and ``v_x tan(delta) / L``
+    (time constant :data:`KIN_TAU`); the Frenet rows (``e_psi``, ``e_y``, ``s``) are the same in
+    both. Above ``KIN_BLEND[1]`` it is the dynamic model's RK4, bit for bit."""
+    import casadi as ca
+
+    p, (v0, v1) = model.params, KIN_BLEND
+    x, u, kappa = ca.SX.sym("x", model.nx), ca.SX.sym("u", 2), ca.SX.sym("kappa")
+    fd = model.casadi_f()(x, u, kappa)
+    vx, L = x[State.V_X], p.lf + p.lr
+    t = ca.fmin(ca.fmax((vx - v0) / (v1 - v0), 0.0), 1.0)
+    w = t * t * (3.0 - 2.0 * t)
+    yaw_kin = vx * ca.tan(u[0]) / L
+    fk = ca.vertcat(u[1] - p.crr * p.g - p.cxw * vx * vx / p.m, (p.lr * yaw_kin - x[State.V_Y]) / KIN_TAU,
+                    (yaw_kin - x[State.YAW_RATE]) / KIN_TAU)
+    f = ca.Function("f_blend", [x, u, kappa], [ca.vertcat(w * fd[:3] + (1.0 - w) * fk, fd[3:])])
+    h, xn = dt / substeps, x
+    for _ in range(substeps):
+        k1 = f(xn, u, kappa)
+        k2 = f(xn + 0.5 * h * k1, u, kappa)
+        k3 = f(xn + 0.5 * h * k2, u, kappa)
+        k4 = f(xn + h * k3, u, kappa)
+        xn = xn + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    return ca.Function("rk4_blend", [x, u, kappa], [xn], ["x", "u", "kappa"], ["x_next"])
 
 
 @dataclass
@@ -96,7 +133,7 @@ class NMPC:
         import casadi as ca
 
         N, c, h = self.h2h.horizon, self.mpc, self.h2h
-        F = self.model.casadi_rk4(h.dt, c.substeps)
+        F = blended_rk4(self.model, h.dt, c.substeps)
         p = ca.SX.sym("p", N_GLOBAL + N_STAGE * N)
         x0, u_prev, alpha = p[0:6], p[6:8], p[8]
         w, g, lbg, ubg = [], [], [], []
