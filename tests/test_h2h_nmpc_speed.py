@@ -194,29 +194,3 @@ def test_at_a_crawl_the_prediction_turns_like_a_kinematic_bicycle():
     yaw = v * np.tan(delta) / (p.lf + p.lr)
     assert x[0] == pytest.approx(v, abs=1e-6)
     assert x[2] == pytest.approx(yaw, rel=1e-3) and x[1] == pytest.approx(p.lr * yaw, rel=1e-3)
-
-
-def _corner_plan(mpc: NMPC) -> np.ndarray:
-    """The plan of a slow car near the left border of a straight track, heading 0.9 rad into it;
-    returns the planned footprint corners' largest lateral position per stage."""
-    N = CFG.horizon
-    x = np.array([0.3, 0.0, 0.0, 0.9, 0.15, 1.0])
-    st = StageData(kappa=np.zeros(N), wl=np.full(N, 0.375), wr=np.full(N, 0.375))
-    sol = mpc.solve(x, np.zeros(2), 0.0, st)
-    assert sol.ok
-    from gprace.h2h.geometry import corner_offsets
-
-    c = corner_offsets(CFG.car_length, CFG.car_width)
-    epsi, ey = sol.X[1:, 3, None], sol.X[1:, 4, None]
-    return (ey + c[:, 0] * np.sin(epsi) + c[:, 1] * np.cos(epsi)).max(axis=1)
-
-
-def test_the_plan_keeps_the_footprint_corners_inside_at_a_large_heading_error(monkeypatch):
-    """A margin of half the car's length covers its corners only up to a heading error of about
-    0.43 rad; the corner constraints keep the plan's corners inside the border at any heading
-    (the runs of failed solves once gone, most border hits were such crawls along a border)."""
-    corners = _corner_plan(NMPC(_model(), CFG.ego, CFG, collision=True))
-    assert corners.max() <= 0.375 - nmpc.CORNER_BUFFER + 1e-3
-    monkeypatch.setattr(nmpc, "CORNER_BUFFER", -10.0)  # corners far inside: the constraints never act
-    free = CFG.ego.model_copy(update={"compiled": False})
-    assert _corner_plan(NMPC(_model(), free, CFG, collision=True)).max() > 0.375  # off the track

@@ -5,7 +5,6 @@
     s.t. x_{k+1} = RK4(x_k, u_k, kappa_k)        Frenet dynamic bicycle (gprace.model), dt/substeps,
                                                  kinematic at a crawl (:func:`blended_rk4`)
          -w_r + c <= e_y <= w_l - c               soft (slack per stage)
-         -w_r <= corner_y(e_y, e_psi) <= w_l      soft, the footprint's four corners
          u_min <= u <= u_max,  v_x <= v_max,  v_x - v_soft <= slack
          1 - E_k(disk_j) <= slack                 ego only: 4 disks outside each predicted ellipse
 
@@ -59,7 +58,6 @@ V_X_MIN = 0.05  # [m/s] lower bound of v_x in the NLP (the dynamic model is sing
 # an error 400 times). Blended by a smooth step of v_x between these speeds [m/s]:
 KIN_BLEND = (0.25, 0.5)
 KIN_TAU = 0.05  # [s] v_y and the yaw rate relax to their kinematic values (h / tau = 1: stable)
-CORNER_BUFFER = 0.02  # [m] around the footprint in the border constraint of its corners (4 x the e_y sensor std)
 STALE_STEPS = 2  # fallbacks in a row on the shifted plan before the steering holds the heading
 HOLD_GAIN = 1.0  # [rad/rad] heading error to steering of that hold
 
@@ -143,7 +141,6 @@ class NMPC:
         racing, explore, penalty = 0, 0, 0
         xk, uk_prev = x0, u_prev
         R, Rd = np.array(c.r_input), np.array(c.r_rate)
-        corner_a, corner_b = 0.5 * h.car_length + CORNER_BUFFER, 0.5 * h.car_width + CORNER_BUFFER
         for k in range(N):
             q = p[N_GLOBAL + N_STAGE * k: N_GLOBAL + N_STAGE * (k + 1)]
             u = ca.SX.sym(f"u{k}", NU)
@@ -160,14 +157,8 @@ class NMPC:
             g.append(ey - (q[WL] - c.border_margin) - sl[0])
             g.append(-(q[WR] - c.border_margin) - ey - sl[0])
             g.append(vx - c.speed_soft - sl[1])
-            # the footprint's corners (plus CORNER_BUFFER) inside too: the margin above covers the
-            # corners only up to a heading error of about 0.43 rad
-            sp, cp = ca.sin(x[State.E_PSI]), ca.cos(x[State.E_PSI])
-            for a in (corner_a, -corner_a):
-                g.append(ey + a * sp + corner_b * cp - q[WL] - sl[0])
-                g.append(-q[WR] - (ey + a * sp - corner_b * cp) - sl[0])
-            lbg += [-np.inf] * 7
-            ubg += [0.0] * 7
+            lbg += [-np.inf] * 3
+            ubg += [0.0] * 3
             if self.collision:
                 dsg = s - q[LIN_SIG]
                 th = q[LIN_TH]
