@@ -29,6 +29,7 @@ import numpy as np
 
 from gprace.h2h.config import H2HConfig, MPCConfig
 from gprace.model import NominalModel, State
+from gprace.model.nominal import rk4_expression
 
 NX, NU, NS = 6, 2, 3  # states, inputs, slacks per stage (track, speed, collision)
 N_GLOBAL = 9  # x0 (6), u_prev (2), alpha
@@ -82,13 +83,7 @@ def blended_rk4(model: NominalModel, dt: float, substeps: int):
     fk = ca.vertcat(u[1] - p.crr * p.g - p.cxw * vx * vx / p.m, (p.lr * yaw_kin - x[State.V_Y]) / KIN_TAU,
                     (yaw_kin - x[State.YAW_RATE]) / KIN_TAU)
     f = ca.Function("f_blend", [x, u, kappa], [ca.vertcat(w * fd[:3] + (1.0 - w) * fk, fd[3:])])
-    h, xn = dt / substeps, x
-    for _ in range(substeps):
-        k1 = f(xn, u, kappa)
-        k2 = f(xn + 0.5 * h * k1, u, kappa)
-        k3 = f(xn + 0.5 * h * k2, u, kappa)
-        k4 = f(xn + h * k3, u, kappa)
-        xn = xn + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    xn = rk4_expression(lambda xx: f(xx, u, kappa), x, dt, substeps)
     return ca.Function("rk4_blend", [x, u, kappa], [xn], ["x", "u", "kappa"], ["x_next"])
 
 

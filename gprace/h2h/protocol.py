@@ -47,11 +47,12 @@ its bootstrap interval over tracks and judges the paper's claims against both.
 Conditions (each in the table's settings; a changed condition changes the task hashes of exactly
 the runs it affects, so ``--resume`` reruns those): ``sensor_noise`` and ``process_noise`` scale
 :data:`SENSOR_STD` and :data:`PROCESS_STD` (both cars, every race; 0 = noiseless, the task then
-carries no noise entry); ``baseline_tracks`` (``training``, the default: the short ``curve`` and ``chicane`` tracks of
-Zhu et al. 2022, alternating, where the paper's baseline data come from; ``eval``: the random
-evaluation-style tracks; only the baseline collection runs change, the exploration's start runs
-are evaluation-style in both, in ``init/runs`` with ``training``); ``blocking_weight`` (the opponent's, every race; the default adds
-nothing to the tasks); ``explore_minutes``.
+carries no noise entry); ``baseline_tracks`` (``training``, the default: the short ``curve``
+and ``chicane`` tracks of Zhu et al. 2022, alternating, where the paper's baseline data come
+from; ``eval``: the random evaluation-style tracks; only the baseline collection runs change, the
+exploration's start runs are evaluation-style in both, in ``init/runs`` with ``training``);
+``blocking_weight`` (the opponent's, every race; the default adds nothing to the tasks);
+``explore_minutes``.
 
 Calibrated spread: before the evaluation, held-out races give every predictor's errors and raw
 spreads per step (offline rollouts as for the table's errors; ``calib_runs`` oracle races, then

@@ -104,17 +104,8 @@ class NominalModel:
     def rk4_expression(self, x, u, kappa_of_s, dt: float, substeps: int = 1):
         """CasADi expression of ``x`` after ``dt`` by RK4 with ``substeps``; ``kappa_of_s(s)`` gives the
         curvature (a constant, or a CasADi lookup re-evaluated at every stage)."""
-        h = dt / substeps
         F = self.casadi_f()  # built once per model; calling it on symbols inlines the same operations
-        f = lambda xx: F(xx, u, kappa_of_s(xx[State.S]))  # noqa: E731
-        xn = x
-        for _ in range(substeps):
-            k1 = f(xn)
-            k2 = f(xn + 0.5 * h * k1)
-            k3 = f(xn + 0.5 * h * k2)
-            k4 = f(xn + h * k3)
-            xn = xn + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
-        return xn
+        return rk4_expression(lambda xx: F(xx, u, kappa_of_s(xx[State.S])), x, dt, substeps)
 
     def jacobians(self, x: np.ndarray, u: np.ndarray, kappa: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``A = d x+/d x`` and ``B = d x+/d u`` of the Euler step at one point (CasADi AD)."""
@@ -145,6 +136,18 @@ class NominalModel:
             raise ValueError(kind)
         cache[key] = fn
         return fn
+
+
+def rk4_expression(f, x, dt: float, substeps: int = 1):
+    """``x`` after ``dt`` by classical RK4 of ``x' = f(x)`` with ``substeps`` (CasADi expressions)."""
+    h = dt / substeps
+    for _ in range(substeps):
+        k1 = f(x)
+        k2 = f(x + 0.5 * h * k1)
+        k3 = f(x + 0.5 * h * k2)
+        k4 = f(x + h * k3)
+        x = x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x
 
 
 @cache
