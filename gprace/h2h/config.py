@@ -29,7 +29,8 @@ class MPCConfig(Frozen):
     border_linear: float = Field(1e5, ge=0, description="linear penalty of the track-border slack")
     border_quadratic: float = Field(1e7, ge=0, description="quadratic penalty of the track-border slack")
     speed_slack: float = Field(200.0, ge=0, description="quadratic penalty of the soft speed excess")
-    substeps: int = Field(2, ge=1, description="RK4 sub-steps of the prediction model (dt/2 is stable)")
+    substeps: int = Field(2, ge=1, description="RK4 sub-steps of the prediction model (dt/2 is stable "
+                          "above 0.4 m/s; below, the model blends into a kinematic one)")
     max_iter: int = Field(60, ge=5, description="IPOPT iteration limit")
     compiled: bool = Field(True, description="NLP functions as compiled C, built once per machine and cached "
                            "(gprace.backends.compiled); false: CasADi's interpreter, 2 to 3 times slower")

@@ -280,6 +280,24 @@ def _reusable(tasks: list[dict], run_dir: Path, schema: type[RecordAttrs], what:
     return reused
 
 
+_BUILT: set[str] = set()  # race configurations whose NMPCs this process has had built
+
+
+def _build_controllers(config: dict, st: Settings) -> None:
+    """Build the two cars' NMPCs of a race ``config`` side by side, once per process, before the
+    first batch of races with more than one worker: each NLP compiles once per machine (25 to 50 s),
+    and workers that all start with the ego would compile the two one after the other."""
+    from gprace.executor import run_batch
+    from gprace.h2h.race import build_controller
+
+    key = json.dumps(config, sort_keys=True)
+    if key in _BUILT or (st.workers == 1 and st.executor == "local"):
+        return
+    run_batch(build_controller, [{"config": config, "car": car} for car in ("ego", "opponent")],
+              executor=st.executor, workers=2, scheduler=st.scheduler, label="building the two cars' NMPCs")
+    _BUILT.add(key)
+
+
 def run_tasks(tasks: list[dict], run_dir: Path, st: Settings, what: str,
               fn: Callable[[dict], dict] = race_with_data, schema: type[RecordAttrs] = RaceAttrs) -> list[Record]:
     """Run (or reuse, with ``resume``) every task; returns one record per task, written and typed
@@ -292,6 +310,8 @@ def run_tasks(tasks: list[dict], run_dir: Path, st: Settings, what: str,
     for i, rec in (_reusable(tasks, run_dir, schema, what) if st.resume else {}).items():
         records[i] = rec
     todo = [i for i, r in enumerate(records) if r is None]
+    if todo and schema is RaceAttrs:
+        _build_controllers(tasks[todo[0]]["config"], st)
 
     def done(r) -> None:
         i = todo[r.index]
@@ -822,12 +842,6 @@ def head2head(st: Settings, out: Path) -> dict:
     from gprace.h2h.spread import summarise
     from gprace.h2h.table import H2HTable, write_table
 
-    if st.workers > 1 or st.executor == "dask":
-        from gprace.executor import run_batch
-        from gprace.h2h.race import build_controller
-
-        run_batch(build_controller, [{"config": st.race_config(), "car": car} for car in ("ego", "opponent")],
-                  executor=st.executor, workers=2, scheduler=st.scheduler, label="building the two cars' NMPCs")
     tables, data, fits = {}, [], {}
     for s in st.seeds:
         tab, td, fit = run_chain(st.model_copy(update={"seed": s}), chain_dir(out, s))

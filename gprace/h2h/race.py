@@ -101,7 +101,7 @@ def build_controller(task: dict) -> str:
     """Build one car's NMPC (``task["car"]``: ego | opponent) of a race configuration
     (``task["config"]``), which compiles its NLP once per machine. The two cars' NLPs differ in
     their constants, so they are two libraries of 25 to 50 s of compiler each; built side by side
-    before the first batch instead of one after the other inside it (:func:`gprace.h2h.protocol.head2head`)."""
+    before the first batch instead of one after the other inside it (:func:`gprace.h2h.protocol.run_tasks`)."""
     cfg = H2HConfig(**task["config"])
     NMPC(_model(), getattr(cfg, task["car"]), cfg, collision=True)
     return task["car"]
