@@ -194,3 +194,49 @@ def test_at_a_crawl_the_prediction_turns_like_a_kinematic_bicycle():
     yaw = v * np.tan(delta) / (p.lf + p.lr)
     assert x[0] == pytest.approx(v, abs=1e-6)
     assert x[2] == pytest.approx(yaw, rel=1e-3) and x[1] == pytest.approx(p.lr * yaw, rel=1e-3)
+
+
+# ------------------------------------------------------------------------------------------------
+# the border margin at a large heading error
+def test_the_border_margin_is_the_configured_one_until_the_footprint_needs_more():
+    import casadi as ca
+
+    L, W, c = CFG.car_length, CFG.car_width, CFG.ego.border_margin
+    e = ca.SX.sym("e")
+    m = ca.Function("m", [e], [nmpc.border_margin(e, c, L, W)])
+    dm = ca.Function("dm", [e], [ca.jacobian(nmpc.border_margin(e, c, L, W), e)])
+    psi = np.linspace(-1.5, 1.5, 3001)
+    got = np.array(m(psi.reshape(1, -1))).ravel()
+    ext = 0.5 * L * np.abs(np.sin(psi)) + 0.5 * W * np.cos(psi) + nmpc.MARGIN_BUFFER
+    below = ext <= c
+    assert below[np.abs(psi) < 0.28].all() and not below[np.abs(psi) > 0.3].any()
+    np.testing.assert_array_equal(got[below], c)  # the NLP of a small heading error is unchanged
+    d = nmpc.MARGIN_SMOOTH
+    assert np.all(got >= np.maximum(c, ext - d / 2) - 1e-6) and np.all(got <= np.maximum(c, ext) + 1e-6)
+    far = ext > c + d
+    np.testing.assert_allclose(got[far], ext[far] - d / 2, atol=1e-6)  # the footprint plus the buffer
+    slope = np.array(dm(psi.reshape(1, -1))).ravel()
+    assert np.max(np.abs(np.diff(slope))) < 0.01  # once differentiable: no jump in the slope
+
+
+def _corners_of_plan(mpc: NMPC) -> np.ndarray:
+    """A slow car 0.15 m left of the centre of a straight 0.75 m track, heading 0.9 rad into the
+    left border: the plan's footprint corners' largest lateral position per stage."""
+    from gprace.h2h.geometry import corner_offsets
+
+    N = CFG.horizon
+    x = np.array([0.3, 0.0, 0.0, 0.9, 0.15, 1.0])
+    sol = mpc.solve(x, np.zeros(2), 0.0, StageData(kappa=np.zeros(N), wl=np.full(N, 0.375), wr=np.full(N, 0.375)))
+    assert sol.ok
+    c = corner_offsets(CFG.car_length, CFG.car_width)
+    epsi, ey = sol.X[1:, 3, None], sol.X[1:, 4, None]
+    return (ey + c[:, 0] * np.sin(epsi) + c[:, 1] * np.cos(epsi)).max(axis=1)
+
+
+def test_the_plan_keeps_the_footprint_inside_at_a_large_heading_error(monkeypatch):
+    corners = _corners_of_plan(NMPC(_model(), CFG.ego, CFG, collision=True))
+    assert corners.max() <= 0.375 - (nmpc.MARGIN_BUFFER - nmpc.MARGIN_SMOOTH / 2) + 1e-4  # the far branch
+    # with half the length as the only margin, the same plan's corners leave the track
+    monkeypatch.setattr(nmpc, "MARGIN_BUFFER", -1.0)
+    free = CFG.ego.model_copy(update={"compiled": False})
+    assert _corners_of_plan(NMPC(_model(), free, CFG, collision=True)).max() > 0.375

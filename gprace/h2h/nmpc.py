@@ -4,7 +4,8 @@
          + soft-constraint penalties (+ the opponent's blocking term)
     s.t. x_{k+1} = RK4(x_k, u_k, kappa_k)        Frenet dynamic bicycle (gprace.model), dt/substeps,
                                                  kinematic at a crawl (:func:`blended_rk4`)
-         -w_r + c <= e_y <= w_l - c               soft (slack per stage)
+         -w_r + c(e_psi) <= e_y <= w_l - c(e_psi) soft (slack per stage; c covers the footprint
+                                                 at any heading, :func:`border_margin`)
          u_min <= u <= u_max,  v_x <= v_max,  v_x - v_soft <= slack
          1 - E_k(disk_j) <= slack                 ego only: 4 disks outside each predicted ellipse
 
@@ -59,6 +60,10 @@ V_X_MIN = 0.05  # [m/s] lower bound of v_x in the NLP (the dynamic model is sing
 # an error 400 times). Blended by a smooth step of v_x between these speeds [m/s]:
 KIN_BLEND = (0.25, 0.5)
 KIN_TAU = 0.05  # [s] v_y and the yaw rate relax to their kinematic values (h / tau = 1: stable)
+# The border margin is the configured one (half the car's length) up to a heading error of about
+# 0.29 rad, and beyond it the footprint's lateral extent plus this buffer [m] (2 x the e_y sensor std):
+MARGIN_BUFFER = 0.01
+MARGIN_SMOOTH = 0.005  # [m] the quadratic joining the two
 STALE_STEPS = 2  # fallbacks in a row on the shifted plan before the steering holds the heading
 HOLD_GAIN = 1.0  # [rad/rad] heading error to steering of that hold
 
@@ -85,6 +90,21 @@ def blended_rk4(model: NominalModel, dt: float, substeps: int):
     f = ca.Function("f_blend", [x, u, kappa], [ca.vertcat(w * fd[:3] + (1.0 - w) * fk, fd[3:])])
     xn = rk4_expression(lambda xx: f(xx, u, kappa), x, dt, substeps)
     return ca.Function("rk4_blend", [x, u, kappa], [xn], ["x", "u", "kappa"], ["x_next"])
+
+
+def border_margin(epsi, margin: float, length: float, width: float):
+    """The distance the car's centre keeps from a border at heading error ``epsi`` (CasADi):
+    ``margin`` as long as it covers the footprint's lateral extent ``l/2 |sin e_psi| + w/2 cos e_psi``
+    plus :data:`MARGIN_BUFFER`, beyond that the extent (joined by a quadratic over
+    :data:`MARGIN_SMOOTH`, so the margin is once differentiable and exactly ``margin`` below about
+    0.29 rad: the NLP there is the one without this term). A margin of half the length alone covers
+    the corners only up to 0.43 rad, and most border hits after the runs of failed solves were gone
+    were crawls along a border at 0.5 to 0.78 rad (docs/decisions.md, issue 17)."""
+    import casadi as ca
+
+    ext = 0.5 * length * ca.sqrt(ca.sin(epsi) ** 2 + 1e-6) + 0.5 * width * ca.cos(epsi) + MARGIN_BUFFER
+    r, d = ext - margin, MARGIN_SMOOTH
+    return margin + ca.if_else(r <= 0, 0, ca.if_else(r < d, r * r / (2 * d), r - d / 2))
 
 
 @dataclass
@@ -149,8 +169,9 @@ class NMPC:
             lbg += [0.0] * NX
             ubg += [0.0] * NX
             ey, s, vx = x[State.E_Y], x[State.S], x[State.V_X]
-            g.append(ey - (q[WL] - c.border_margin) - sl[0])
-            g.append(-(q[WR] - c.border_margin) - ey - sl[0])
+            margin = border_margin(x[State.E_PSI], c.border_margin, h.car_length, h.car_width)
+            g.append(ey - (q[WL] - margin) - sl[0])
+            g.append(-(q[WR] - margin) - ey - sl[0])
             g.append(vx - c.speed_soft - sl[1])
             lbg += [-np.inf] * 3
             ubg += [0.0] * 3

@@ -108,9 +108,10 @@ BASELINE_TRACKS = ("eval", "training")
 # 2: the constant-velocity prediction advances every step; 3: the NMPC stops at its first acceptable
 # iterate, and a race ends on the one stop rule (gprace.sim.stop); 4: a failed solve's fallback
 # keeps v_x at the NLP's bound and holds the heading after two failures in a row (gprace.h2h.nmpc);
-# 5: the NLP's prediction model turns kinematic at a crawl (gprace.h2h.nmpc.blended_rk4).
-# Records of an older version are rerun.
-RACE_VERSION = 5
+# 5: the NLP's prediction model turns kinematic at a crawl (gprace.h2h.nmpc.blended_rk4); 6: the
+# border margin covers the footprint at any heading (gprace.h2h.nmpc.border_margin). Records of an
+# older version are rerun.
+RACE_VERSION = 6
 ERRORS_VERSION = 4  # 2: s errors and raw spreads; 3: one variance per start time; 4: sample_paths (step-0 rounding)
 RACED = ("baseline", "explore")
 # Backend settings of the opponent GPs (measured on the 5000-point baseline data, docs/decisions.md):
