@@ -58,11 +58,16 @@ def link_records(src_root: Path, dst: Path) -> int:
     """Hard-link (copy across file systems) the run records (collection, exploration, evaluation,
     offline errors) of the other conditions into ``dst`` where ``dst`` has none yet; the protocol
     reuses a record only if its task hash matches, and replaces the others atomically (a new file,
-    so the linked original stays as it was)."""
+    so the linked original stays as it was).
+
+    One path takes the first source's record, so ``default`` comes first: a condition shares its
+    stages with the default, not with another condition (in alphabetical order
+    ``baseline_eval_tracks`` came first, and ``explore_3min`` raced the default's 500 collection
+    races again because its linked ones were the evaluation-track races)."""
     import shutil
 
     n = 0
-    for src in sorted(p for p in src_root.iterdir() if p.is_dir() and p != dst):
+    for src in sorted((p for p in src_root.iterdir() if p.is_dir() and p != dst), key=lambda p: (p.name != "default", p.name)):
         for rec in src.glob("**/run_*.h5"):
             target = dst / rec.relative_to(src)
             if target.exists():

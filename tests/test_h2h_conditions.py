@@ -294,3 +294,26 @@ def test_constant_velocity_prediction_advances_every_step():
     np.testing.assert_allclose(mean[:, 5], 2.0 + k * sdot, rtol=1e-12)
     np.testing.assert_allclose(mean[:, 4], 0.1 + k * eydot, rtol=1e-12)
     np.testing.assert_array_equal(mean[:, [0, 1, 2, 3]], np.tile(x[:4], (K, 1)))
+
+
+def test_the_study_links_the_default_conditions_records_first(tmp_path):
+    """A condition shares its stages with the default: where two conditions hold a record of the
+    same run, the default's is the one linked (``baseline_eval_tracks`` sorts before it)."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "h2h_study.py"
+    spec = importlib.util.spec_from_file_location("h2h_study", path)
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    for cond in ("baseline_eval_tracks", "default", "no_blocking"):
+        rec = tmp_path / cond / "collect" / "runs" / "run_00000.h5"
+        rec.parent.mkdir(parents=True)
+        rec.write_text(cond)
+    only = tmp_path / "no_blocking" / "eval" / "cv" / "run_00003.h5"
+    only.parent.mkdir(parents=True)
+    only.write_text("no_blocking")
+    dst = tmp_path / "explore_3min"
+    assert study.link_records(tmp_path, dst) == 2
+    assert (dst / "collect" / "runs" / "run_00000.h5").read_text() == "default"
+    assert (dst / "eval" / "cv" / "run_00003.h5").read_text() == "no_blocking"
