@@ -6,7 +6,7 @@ Usage::
         [--explore-minutes 10] [--explore-width W] [--dict-size 600] [--workers 2] [--skip-protocol]
     python benchmarks/h2h_bench.py --models DIR     # rollout times of the GP models DIR/*.h5 only
 
-Defaults are the paper's protocol (22 to 38 minutes on 2 cores, depending on the machine's hour);
+Defaults are the paper's protocol (14 to 38 minutes on 2 cores, depending on the machine's hour);
 smaller numbers give a quick look.
 
 Prints one JSON object:
