@@ -23,7 +23,9 @@ class MPCConfig(Frozen):
     accel: tuple[float, float] = Field((-1.0, 0.55), description="a_x bounds [m/s^2]")
     steering_max: float = Field(0.435, gt=0, description="|delta| bound [rad]")
     q_block: float = Field(0.0, ge=0, description="blocking weight Q_block / (1 + ds)^2 (opponent only)")
-    border_margin: float = Field(0.13, ge=0, description="half footprint kept inside the border [m]")
+    border_margin: float = Field(0.13, ge=0, description="distance of the car's centre from a border [m] at small "
+                                 "heading errors; beyond about 0.29 rad the NLP keeps the footprint's lateral "
+                                 "extent plus 1 cm (gprace.h2h.nmpc.border_margin)")
     slack_linear: float = Field(2000.0, ge=0, description="linear penalty of the collision slack")
     slack_quadratic: float = Field(2e4, ge=0, description="quadratic penalty of the collision slack")
     border_linear: float = Field(1e5, ge=0, description="linear penalty of the track-border slack")
