@@ -67,7 +67,8 @@ def link_records(src_root: Path, dst: Path) -> int:
     import shutil
 
     n = 0
-    for src in sorted((p for p in src_root.iterdir() if p.is_dir() and p != dst), key=lambda p: (p.name != "default", p.name)):
+    sources = (p for p in src_root.iterdir() if p.is_dir() and p != dst)
+    for src in sorted(sources, key=lambda p: (p.name != "default", p.name)):
         for rec in src.glob("**/run_*.h5"):
             target = dst / rec.relative_to(src)
             if target.exists():
