@@ -61,9 +61,7 @@ def link_records(src_root: Path, dst: Path) -> int:
     so the linked original stays as it was).
 
     One path takes the first source's record, so ``default`` comes first: a condition shares its
-    stages with the default, not with another condition (in alphabetical order
-    ``baseline_eval_tracks`` came first, and ``explore_3min`` raced the default's 500 collection
-    races again because its linked ones were the evaluation-track races)."""
+    stages with the default, not with another condition (docs/decisions.md, issue 17)."""
     import shutil
 
     n = 0
