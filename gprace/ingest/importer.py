@@ -94,8 +94,10 @@ def import_recording(path, *, track=None, rmap: RecordingMap | None = None,
     if m.sum() < 2:
         raise InputError(f"{source}: no stretch of {2 * dt:g} s where every source has data (gaps everywhere?)")
     if track is None:
-        trk = path_reference(gs.x[m], gs.y[m], smoothing=10.0 if rmap.reference_smoothing is None else rmap.reference_smoothing,
-                             half_width=rmap.reference_width or 6.0, name=f"path of {paths[0].name}", source=source)
+        trk = path_reference(gs.x[m], gs.y[m], smoothing=rmap.reference_smoothing,
+                             half_width=rmap.reference_width, name=f"path of {paths[0].name}", source=source)
+        gs.notes.append(f"no track: {'a closed line averaged over the laps' if trk.closed else 'an open line along the path'} "
+                        f"({trk.length:.4g} m) is the reference")
         reference = "path"
     else:
         trk = load_track(track, smoothing=track_smoothing) if not hasattr(track, "to_frenet") else track

@@ -441,8 +441,9 @@ def project(gs: GlobalState, track, source: str, origin_at_start: bool = False) 
             ds = track._ds(s[1:], s[:-1])
         s_cont = s[0] + np.concatenate([[0.0], np.cumsum(ds)])
         s_track = track.wrap(s_cont)
-        if origin_at_start:
-            s_cont = s_cont - s_cont[0]
+        if origin_at_start:  # the lowest s before the car has gone 2 % of a lap: a standing start's jitter stays in lap 0
+            away = np.flatnonzero(s_cont - s_cont[0] > 0.02 * L)
+            s_cont = s_cont - float(np.min(s_cont[: (away[0] if len(away) else len(s_cont)) + 1]))
         s_cont = s_cont - L * np.floor((s_cont[0] + 1e-3) / L)  # lap 0 at the start, even on the line
         lap = np.floor((s_cont + 1e-3) / L)  # within 1 mm before the line is on it
         s = np.maximum(s_cont - lap * L, 0.0)
