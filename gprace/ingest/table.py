@@ -36,6 +36,15 @@ _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$|^[+-]?(nan|inf|in
 _DECIMAL_COMMA = re.compile(r"^[+-]?\d+,\d+([eE][+-]?\d+)?$")
 
 
+class CellError(InputError):
+    """A cell that is not a number: the file, its row and line, column and text (readers that
+    word it their own way catch it)."""
+
+    def __init__(self, path, row: int, line: int, column: str, text: str) -> None:
+        self.path, self.row, self.line, self.column, self.text = path, row, line, column, text
+        super().__init__(f"{path}: column {column!r} {at_row(row, line)}: {text!r} is not a number")
+
+
 def is_number(cell: str) -> bool:
     return bool(_NUMBER.match(cell.strip()))
 
@@ -290,8 +299,7 @@ def numbers(tbl: Table, columns: list[str] | None = None) -> np.ndarray:
         wrong = np.isnan(val) & (raw != "").to_numpy() & ~raw.str.lower().isin(["nan", "+nan", "-nan"]).to_numpy()
         if wrong.any():
             r = int(np.argmax(wrong))
-            raise InputError(f"{tbl.path}: column {tbl.names[j]!r} {at_row(r + 1, int(tbl.body_lines[r]))}: "
-                             f"{raw.iloc[r]!r} is not a number")
+            raise CellError(tbl.path, r + 1, int(tbl.body_lines[r]), tbl.names[j], raw.iloc[r])
         out[:, k] = val
     return out
 
