@@ -352,7 +352,7 @@ ROWS = "".join(f"{10 * np.cos(a):.6f},{10 * np.sin(a):.6f},2.0,2.5\n" for a in n
         (HEADER + ROWS.replace("2.0,2.5", "nan,2.5", 1), r"row 1 \(line 2\), column w_tr_right_m: value is not finite"),
         (HEADER + ROWS.replace("2.0,2.5", "2.0,inf", 1), r"row 1 \(line 2\), column w_tr_left_m: value is not finite"),
         (HEADER + ROWS.replace("10.000000,", "-Infinity,", 1), r"row 1 \(line 2\), column x_m: value is not finite"),
-        (HEADER + ROWS.replace("10.000000,", "abc,", 1), r"row 1 \(line 2\), column x_m: not a number: 'abc'"),
+        (HEADER + ROWS.replace("10.000000,", "abc,", 1), r"column 'x_m' row 1 \(line 2\): 'abc' is not a number"),
         (HEADER + ROWS.replace("2.0,2.5", "0.0,2.5", 1), r"row 1 \(line 2\), column w_tr_right_m: width must be positive"),
         (HEADER + "0,0,1,1\n1,0,1,1\n1,1,1,1\n", "only 3 data rows"),
         (HEADER + ROWS.splitlines(True)[0] + ROWS, r"row 1 \(line 2\) and row 2 \(line 3\): the same point twice"),

@@ -242,13 +242,6 @@ def read_csv(path: Path, rmap: RecordingMap) -> Raw:
     return raw
 
 
-def _csv_numbers(path: Path, header: list[str]) -> np.ndarray:
-    """The body of a CSV as floats, columns ``header`` (kept for callers of the issue-15 reader)."""
-    from gprace.ingest.table import numbers, sniff
-
-    return numbers(sniff(path, "recording"), header)
-
-
 def merge_raw(raws: list[Raw], rmap: RecordingMap) -> Raw:
     """One :class:`Raw` from several files of one drive (each quantity from the first file that
     has it; the others are noted). Columns the map names itself must be in some file."""
