@@ -239,3 +239,78 @@ def test_print_map_documents_the_new_tables():
     code, out, err = _cli("import", "--print-map")
     assert code == 0, err
     assert "[inputs]" in out and 'a_x = "commanded"' in out and "v_cmd" in out and "[clocks." in out
+
+
+# ------------------------------------------------------------------------------------------------
+# projections that can be trusted (issue 38 item 4) and bad input (issue 36)
+
+
+def _write(cols: dict, path):
+    np.savetxt(path, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="", fmt="%.12g")
+    return path
+
+
+def test_a_log_of_another_circuit_is_refused(sim, tmp_path):
+    from test_import import TRACKS
+
+    rec = _write(_columns(sim), tmp_path / "log.csv")
+    out = tmp_path / "o.h5"
+    line = _bad(_cli("import", rec, "--track", TRACKS / "Monza.csv", "-o", out), out, "'Monza'", "another circuit")
+    assert "lie off track" in line or "does not drive along" in line
+
+
+def test_position_glitch_and_lasting_jump(sim, tmp_path):
+    """A 450 m glitch of one sample is dropped; a lasting 450 m jump (a re-fix in another frame)
+    for the last fifth of the drive is cut as off the track; s stays continuous before it."""
+    c = _columns(sim)
+    n = len(c["t"])
+    x = c["x"].copy()
+    x[5 * (n // 15)] += 450.0  # on a sample the 0.05 s grid meets
+    x[int(0.8 * n):] += 450.0
+    c["x"] = x
+    rec = _write(c, tmp_path / "log.csv")
+    out = tmp_path / "r.h5"
+    code, _, err = _cli("import", rec, "--track", NORIS, "-o", out)
+    assert code == 0, err
+    assert "positions jump 3 time(s) further than the speed allows (largest 45" in err
+    assert "1 glitch sample(s) left out, 1 break(s)" in err and "off track Norisring" in err and "left out" in err
+    run = read_run(out)
+    assert run["t"][-1] < 0.8 * (sim["run"]["t"][-1]) + 0.1  # the jumped part is gone
+    e, _ = _compare(run, sim["run"], sim["track"])
+    assert e["e_y"] < 0.05 and e["s"] < 0.1  # what is kept is exact
+    assert abs(run.n - 0.8 * n / 5) < 3
+
+
+def test_pit_lane_stretch_is_cut_with_a_note(sim, tmp_path):
+    c = _columns(sim)
+    t = sim["run"]["t"]
+    r = sim["run"]
+    trk = sim["track"]
+    ramp = np.clip(np.minimum(t - 19.0, 27.0 - t), 0.0, 1.0)  # 1 s in, 6 s out there, 1 s back
+    off = ramp * (trk.width_left(r["s"]) + trk.width_right(r["s"]))  # half a width beyond the border
+    h = trk.heading(r["s"])
+    c["x"] = c["x"] - np.sin(h) * off
+    c["y"] = c["y"] + np.cos(h) * off
+    rec = _write(c, tmp_path / "log.csv")
+    out = tmp_path / "r.h5"
+    code, _, err = _cli("import", rec, "--track", NORIS, "-o", out)
+    assert code == 0, err
+    assert "1 stretch(es) off track Norisring" in err and "a pit lane?) left out" in err
+    run = read_run(out)
+    assert not np.any((run["t"] > 20.2) & (run["t"] < 25.8)) and run.meta["gaps"] >= 1
+    keep = (tmp_path / "k.toml")
+    keep.write_text('off_track = "keep"\n')
+    code, _, err = _cli("import", rec, "--track", NORIS, "--map", keep, "-o", tmp_path / "k.h5")
+    assert code == 0 and "kept (off_track" in err
+
+
+def test_a_recording_with_no_moving_sample(sim, tmp_path):
+    c = _columns(sim)
+    for q in ("x", "y", "yaw"):
+        c[q] = np.full_like(c[q], c[q][0])
+    for q in ("v_x", "v_y", "yaw_rate", "a_x"):
+        c[q] = np.zeros_like(c[q])
+    rec = _write(c, tmp_path / "log.csv")
+    out = tmp_path / "o.h5"
+    _bad(_cli("import", rec, "--track", NORIS, "-o", out), out, "no moving sample", "stands still")
+    _bad(_cli("import", rec, "-o", out), out, "no moving sample")

@@ -153,32 +153,9 @@ def test_wrap_frenet_half_lap_symmetry_is_resolved_by_the_driving():
 
 INI = REAL_LOGS / "ini_f1tenth_ipz20"
 IAC = REAL_LOGS / "iac_putnam_park"
-INI_MAP = """[columns]
-t = "time"
-x = "pose_x"
-y = "pose_y"
-yaw = "pose_theta"
-v_x = "linear_vel_x"
-v_y = "linear_vel_y"
-yaw_rate = "angular_vel_z"
-delta = "steering_angle"
-v_cmd = "translational_control"
-"""
-IAC_MAP = """[columns]
-t = "time(s)"
-x = "x(m)"
-y = "y(m)"
-yaw = "phi(rad)"
-v_x = "vx(m/s)"
-v_y = "vy(m/s)"
-yaw_rate = "omega(rad/s)"
-delta = "delta(rad)"
-a_x = "ax(m/s^2)"
-
-[inputs]
-a_x = "measured"
-delta = "measured"
-"""
+MAPS = Path(__file__).parent / "data" / "real_maps"
+INI_MAP = (MAPS / "ini_f1tenth.map.toml").read_text()
+IAC_MAP = (MAPS / "iac_putnam.map.toml").read_text()
 
 
 def _import(rec: Path, map_text: str, tmp_path: Path, *extra):
@@ -201,7 +178,8 @@ def _continuity(run):
     L = run.meta["track_length"]
     sc = d["s"] + d["lap"] * L
     v = np.hypot(d["v_x"], d["v_y"])
-    return float(np.max(np.abs(np.diff(sc) - 0.5 * (v[1:] + v[:-1]) * run.dt))), sc
+    same = np.diff(d["segment"]) == 0  # steps inside a piece (not across a gap)
+    return float(np.max(np.abs(np.diff(sc) - 0.5 * (v[1:] + v[:-1]) * run.dt)[same])), sc
 
 
 @pytest.mark.skipif(not INI.exists(), reason="real logs not available")
@@ -232,3 +210,41 @@ def test_iac_putnam_without_a_track(tmp_path):
     assert jump < 3.0
     moving = np.hypot(run["v_x"], run["v_y"]) > 1.0
     assert moving.sum() >= 0.9 * 11_300  # the log's moving samples (v > 1 m/s) are all kept
+
+
+def _moving_in_log(rec: Path, cols: list[str]) -> int:
+    from gprace.ingest.table import numbers, sniff
+
+    v = numbers(sniff(rec), cols)
+    return int(np.sum(np.hypot(v[:, 0], v[:, 1]) > 0.1))
+
+
+@pytest.mark.skipif(not INI.exists(), reason="real logs not available")
+def test_ini_run_on_its_centre_line_as_it_comes(tmp_path):
+    """The headerless centre line, driven the other way round: reversed, laps counted, >= 90 % of
+    the moving samples kept."""
+    rec = INI / "2026-01-16_01-45-24_IPZ20_rpgd_25Hz_physical.csv"
+    run = _import(rec, INI_MAP, tmp_path, "--track", INI / "centerline.csv")
+    assert run.meta["reference"] == "track" and run.meta["track_reversed"]
+    assert 28.5 < run.meta["track_length"] < 29.5
+    assert run["lap"].max() == 4 and 0 <= run["s"].min() and run["s"].max() < run.meta["track_length"]
+    assert np.abs(run["e_y"]).max() < 1.5
+    moving = np.hypot(run["v_x"], run["v_y"]) > 0.1
+    assert moving.sum() >= 0.9 * _moving_in_log(rec, ["linear_vel_x", "linear_vel_y"])
+
+
+@pytest.mark.skipif(not IAC.exists(), reason="real logs not available")
+def test_iac_on_the_track_from_its_boundaries(tmp_path):
+    """The pit lane (18.5 s beyond the borders) is cut with a note; the laps and >= 90 % of the
+    moving samples stay."""
+    rec = IAC / "Putnam_park2023_run4_2.csv"
+    bounds = f"{IAC / 'putnam_inner_bound.csv'},{IAC / 'putnam_outer_bound.csv'}"
+    run = _import(rec, IAC_MAP, tmp_path, "--track", bounds)
+    assert run["lap"].max() == 2 and 2800 < run.meta["track_length"] < 2900
+    assert any("off track" in n and "left out" in n for n in run.meta["notes"])
+    moving = np.hypot(run["v_x"], run["v_y"]) > 0.1
+    assert moving.sum() >= 0.9 * _moving_in_log(rec, ["vx(m/s)", "vy(m/s)"])
+    assert run.meta["inputs"] == {"delta": "measured", "a_x": "measured"}
+    jump, _ = _continuity(run)
+    assert jump < 3.0 and run.meta["gaps"] == 0  # the pit lane is where the log starts: it begins 18.5 s later
+    assert 18.0 < run.meta["t0"] - 1692117187.4638 < 19.0

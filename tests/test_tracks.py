@@ -596,3 +596,25 @@ def test_smoothing_option_is_named_when_it_fails(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--smoothing" in err and "moves the centre line outside" in err
     assert main(["track", "show", str(p)]) == 0  # the automatic smoothing (point spacing) fits
+
+
+@pytest.mark.parametrize("name", ["Norisring", "Suzuka", "Spa"])
+def test_boundaries_of_real_circuits(tmp_path, name):
+    """Borders of TUM circuits (Suzuka's cross at the bridge) written as two files, the second
+    reversed, rolled, 5 cm noisy, the first with 30 % of its points dropped: the derived centre
+    is the midline between the borders (to 5 cm at the 95th percentile; TUM's own line sits
+    (w_left - w_right) / 2 off it) and the total width right to 15 cm."""
+    rng = np.random.default_rng(7)
+    t = load_track(TUM_DIR / f"{name}.csv")
+    smp = t.sample(2.0)
+    (xl, yl), (xr, yr) = t.borders(2.0)
+    a = np.column_stack([xl, yl])[rng.random(len(xl)) > 0.3]
+    b = np.roll(np.column_stack([xr, yr])[::-1], 333, axis=0) + rng.normal(0, 0.05, (len(xr), 2))
+    pa, pb = tmp_path / "left.csv", tmp_path / "right.csv"
+    np.savetxt(pa, a, delimiter=",")
+    np.savetxt(pb, b, delimiter=",")
+    tb = load_track([pa, pb])
+    assert abs(tb.length - t.length) < 0.005 * t.length
+    s, e = tb.to_frenet(smp.x, smp.y, s_hint=smp.s * tb.length / t.length)
+    assert np.percentile(np.abs(e + 0.5 * (smp.wl - smp.wr)), 95) < 0.05
+    assert np.percentile(np.abs(tb.width_left(s) + tb.width_right(s) - smp.wl - smp.wr), 95) < 0.15

@@ -93,6 +93,10 @@ def import_recording(path, *, track=None, rmap: RecordingMap | None = None,
     m = gs.valid
     if m.sum() < 2:
         raise InputError(f"{source}: no stretch of {2 * dt:g} s where every source has data (gaps everywhere?)")
+    speed = np.hypot(gs.v_x[m], gs.v_y[m])
+    if not np.any(speed > MOVING):
+        raise InputError(f"{source}: no moving sample: the car stands still throughout (largest speed "
+                         f"{float(speed.max()):.3g} m/s over {float(gs.t[m][-1] - gs.t[m][0]):.1f} s); nothing to import")
     if track is None:
         trk = path_reference(gs.x[m], gs.y[m], smoothing=rmap.reference_smoothing,
                              half_width=rmap.reference_width, name=f"path of {paths[0].name}", source=source)
@@ -106,6 +110,14 @@ def import_recording(path, *, track=None, rmap: RecordingMap | None = None,
             trk = trk.reversed()
             gs.notes.append(f"the car drives track {trk.name} against its direction: the track is reversed (s from its start, the other way round)")
     fr = project(gs, trk, source, origin_at_start=reference == "path")
+    if reference == "track":
+        cut = off_track(dict(fr, v_x=gs.v_x[m]), trk, speed, gs.t[m], dt, source, rmap, gs.notes)
+        if cut.any():
+            keep = np.flatnonzero(m)[~cut]
+            m = np.zeros_like(m)
+            m[keep] = True
+            fr = {k: v[~cut] for k, v in fr.items()}
+            speed = speed[~cut]
     t = gs.t[m]
     data = {
         "t": t - t[0], "s": fr["s"], "e_y": fr["e_y"], "e_psi": fr["e_psi"], "v_x": gs.v_x[m],
@@ -147,6 +159,68 @@ def import_recording(path, *, track=None, rmap: RecordingMap | None = None,
         if n_gaps:
             log(f"{paths[0].name}: {n_gaps} gap(s); {meta['rows_dropped']} grid rows left out (column 'segment')")
     return Run(data, meta, source=source), trk
+
+
+MOVING = 0.1
+"""Speed [m/s] above which a sample counts as moving (a 1:10 car crawls at 0.3 m/s)."""
+
+
+def off_track(fr: dict, trk, speed: np.ndarray, t: np.ndarray, dt: float, source: str, rmap: RecordingMap,
+              notes: list[str]) -> np.ndarray:
+    """Samples to cut: stretches of at least 1 s beyond a border by more than a quarter of the
+    local width (a pit lane, a paddock, positions after a re-fix). More than
+    ``rmap.max_off_track`` of the moving samples off the track: the log is of another circuit
+    (or another frame) and the track is refused. Shorter excursions are kept and counted."""
+    s_track = trk.wrap(fr["s"]) if trk.closed else fr["s"]
+    wl, wr = trk.width_left(s_track), trk.width_right(s_track)
+    beyond = np.maximum(fr["e_y"] - wl, -fr["e_y"] - wr)
+    off = beyond > 0.25 * (wl + wr)
+    moving = speed > MOVING
+    share = float(off[moving].mean()) if moving.any() else 0.0
+    if share > rmap.max_off_track:
+        far = float(np.median(beyond[off & moving])) if (off & moving).any() else float(np.median(beyond))
+        raise InputError(
+            f"{source}: {100 * share:.0f} % of the moving samples lie off track {trk.name!r} (beyond a border by more "
+            f"than a quarter of its width; median {far:.3g} m beyond): a log of another circuit, or positions in "
+            f"another frame? (give the right --track, or max_off_track in the map)")
+    # the track's direction: a car on its circuit drives along it (|e_psi| < 60 degrees but in a
+    # hairpin skip or a spin) and s advances about as far as it drives (0.8..1.3)
+    # (over the samples on the track: what is off it is judged above, or cut below)
+    on = ~off
+    fwd = on & (fr.get("v_x", speed) > 0.25 * max(float(np.percentile(fr.get("v_x", speed), 90)), 1e-9))
+    across = float(np.mean(np.abs(fr["e_psi"][fwd]) > np.pi / 3)) if fwd.sum() >= 10 else 0.0
+    pair = on[1:] & on[:-1]
+    driven = float(np.sum(0.5 * (speed[1:] + speed[:-1])[pair]) * dt)
+    progress = 1.0
+    if trk.closed and driven > 0:
+        s_cont = fr["s"] + fr["lap"] * trk.length
+        progress = float(np.sum(np.diff(s_cont)[pair]) / driven)
+    if across > 0.3 or (not 0.5 < progress < 2.0 and driven > 0.5 * trk.length):
+        raise InputError(
+            f"{source}: the car does not drive along track {trk.name!r}: {100 * across:.0f} % of the moving samples head "
+            f"more than 60 degrees off its direction, and s advances {progress:.2f} m per metre driven: a log of "
+            "another circuit, or positions in another frame? (give the right --track)")
+    if not off.any():
+        return off
+    # stretches of consecutive off-track samples
+    edges = np.diff(np.concatenate([[0], off.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    dur = t[np.maximum(ends - 1, starts)] - t[starts] + dt
+    long_ = dur >= 1.0
+    cut = np.zeros(len(off), dtype=bool)
+    if rmap.off_track == "cut":
+        for a, b in zip(starts[long_], ends[long_]):  # a loop over stretches, not samples
+            cut[a:b] = True
+    n_short = int(np.sum(~long_))
+    if long_.any():
+        what = "left out" if rmap.off_track == "cut" else "kept (off_track = \"keep\")"
+        notes.append(f"{int(long_.sum())} stretch(es) off track {trk.name} ({int(np.sum(dur[long_] / dt))} samples, "
+                     f"{float(dur[long_].sum()):.1f} s; {100 * share:.1f} % of the moving samples; a pit lane?) {what}")
+    if n_short:
+        notes.append(f"{n_short} brief excursion(s) beyond a border of {trk.name} (under 1 s) kept")
+    if cut.all():
+        raise InputError(f"{source}: every sample lies off track {trk.name!r}; wrong track?")
+    return cut
 
 
 def _files_hash(paths: list[Path]) -> str:

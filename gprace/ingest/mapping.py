@@ -185,7 +185,8 @@ class RecordingMap(Frozen):
     reference_width: float | None = Field(None, gt=0, description="half width given to the path-derived reference line [m]; default from the spread of the laps")
     track: str | tuple[str, str] | None = Field(None, description="track (path, shipped name, or two boundary files) used when no --track is given; relative paths from the map's folder; none: the path-derived reference line")
     track_smoothing: float | None = Field(None, ge=0, description="Whittaker smoothing length of a CSV track [m]; default its point spacing, at most 5 m")
-    max_off_track: float = Field(0.05, ge=0, le=1, description="largest share of moving samples beyond the track's borders (plus margin) before the track is refused as another circuit")
+    off_track: Literal["cut", "keep"] = Field("cut", description="stretches of at least 1 s beyond a border of the track (by a quarter of its width): left out (cut) or kept")
+    max_off_track: float = Field(0.5, gt=0, le=1, description="largest share of moving samples off the track before the track is refused as another circuit")
 
 
     @field_validator("hold")

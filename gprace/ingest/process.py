@@ -203,6 +203,7 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
         notes.append(f"lat/lon projected on the tangent plane at ({math.degrees(lat0):.6f}, {math.degrees(lon0):.6f})")
     else:
         x, y = vals["x"], vals["y"]
+    valid = _position_jumps(raw, tg, x, y, vals, valid, dt, notes)
     vxw, okx = seg_gradient(x, valid, dt)
     vyw, oky = seg_gradient(y, valid, dt)
     path_heading = np.unwrap(np.arctan2(vyw, vxw))
@@ -267,6 +268,46 @@ def check_clock(raw: Raw, used: list[str], start: float, end: float, dt: float) 
     raise InputError(
         f"{raw.source}: {end - start:.4g} s of recording at --dt {dt:g} s would make {n_grid:.3g} rows from "
         f"{n_data} samples; check the time column's unit ([units] t) or the clock offsets ([clocks])")
+
+
+def _position_jumps(raw: Raw, tg, x, y, vals: dict, valid: np.ndarray, dt: float, notes: list[str]) -> np.ndarray:
+    """Leave out positions that jump further than the car can go (a GNSS glitch, a re-fix): a
+    step longer than 10 times the distance the speed (else the typical step) allows. A single
+    sample off and back is dropped; after a lasting jump the rows before it and after it are
+    separate pieces (the projection checks the rest against the track)."""
+    idx = np.flatnonzero(valid)
+    if len(idx) < 4:
+        return valid
+    px, py = x[idx], y[idx]
+    step = np.hypot(np.diff(px), np.diff(py))
+    gap_dt = np.diff(tg[idx])
+    speed = None
+    for group in (("v_x", "v_y"), ("v_x",), ("speed",), ("v_east", "v_north")):
+        if all(q in vals for q in group):
+            speed = np.hypot(*[vals[q][idx] for q in group]) if len(group) > 1 else np.abs(vals[group[0]][idx])
+            break
+    typical = float(np.median(step))
+    allow = np.maximum(typical, 0.5 * (speed[1:] + speed[:-1]) * gap_dt if speed is not None else typical * gap_dt / dt)
+    jump = step > 10.0 * allow + 1e-3
+    if not jump.any():
+        return valid
+    out = valid.copy()
+    j = np.flatnonzero(jump)
+    # a spike: a jump out and one back, with the points either side close together
+    spike = np.zeros(len(idx), dtype=bool)
+    inner = j[(j + 1 < len(step)) & np.isin(j + 1, j)]
+    back = np.hypot(px[np.minimum(inner + 2, len(px) - 1)] - px[inner], py[np.minimum(inner + 2, len(px) - 1)] - py[inner])
+    spike[inner[back <= 10.0 * 2 * allow[inner]] + 1] = True
+    lasting = [k for k in j if not (spike[k + 1] or spike[k])]
+    out[idx[spike]] = False
+    for k in lasting:  # the row after a lasting jump starts a new piece: drop the row before it
+        out[idx[k]] = False
+    biggest = float(step[j].max())
+    k0 = int(j[np.argmax(step[j])])
+    notes.append(f"positions jump {len(j)} time(s) further than the speed allows (largest {biggest:.4g} m at "
+                 f"t = {tg[idx[k0 + 1]] - tg[idx[0]]:.2f} s, {raw.signals['x'].origin if 'x' in raw.signals else 'position'}): "
+                 f"{int(spike.sum())} glitch sample(s) left out, {len(lasting)} break(s) in the recording")
+    return out
 
 
 CONSTANT_FALLBACK = {"a_x": "the change of v_x", "yaw_rate": "the heading", "v_y": "successive positions"}

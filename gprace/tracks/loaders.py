@@ -201,7 +201,7 @@ def read_tum_csv(path: str | Path) -> dict[str, np.ndarray]:
     bad = ~np.isfinite(data)
     if bad.any():
         r, c = np.argwhere(bad)[0]
-        what = "empty cell" if np.isnan(data[r, c]) and not tbl.split(tbl.body[r])[c].strip() else f"value is not finite ({data[r, c]})"
+        what = "empty cell" if np.isnan(data[r, c]) and not tbl.split(tbl.row_text(r))[c].strip() else f"value is not finite ({data[r, c]})"
         raise InputError(f"{path}: {at_row(r + 1, int(lines[r]))}, column {names[c]}: {what}")
     cols = {name: data[:, j] for j, name in enumerate(names)}
     for name in ("w_tr_right_m", "w_tr_left_m"):
