@@ -159,7 +159,21 @@ class DrawnCar:
 
 def draw_car(config: PlantConfig) -> DrawnCar:
     """The car of ``config.options.seed`` around ``config.vehicle`` (no track needed)."""
-    return draw(plant_options(RandomizedPlant, config.options) or RandomizedOptions(), config.vehicle)
+    return draw(options_of(config), config.vehicle)
+
+
+def with_seed(config: PlantConfig, seed: int) -> PlantConfig:
+    """``config`` with car ``seed`` (its other options kept), checked as a file would be; write it
+    with ``config.to_toml()`` for commands that take a plant file."""
+    return PlantConfig.model_validate({**config.model_dump(), "options": {**config.options, "seed": int(seed)}})
+
+
+def options_of(config: PlantConfig) -> RandomizedOptions:
+    """``config.options`` validated (a config changed by ``model_copy`` skipped the check)."""
+    try:
+        return plant_options(RandomizedPlant, config.options) or RandomizedOptions()
+    except ValueError as exc:
+        raise ConfigError(f"plant 'randomized': options: {exc}") from None
 
 
 def draw(options: RandomizedOptions, vehicle: VehicleConfig) -> DrawnCar:
@@ -221,7 +235,7 @@ class RandomizedPlant(Plant):
         if config.effects:
             names = ", ".join(e.name for e in config.effects)
             raise ConfigError(f"plant 'randomized' draws its own physics; effects ({names}) work only with 'frenet'")
-        self.car = draw(plant_options(type(self), config.options) or RandomizedOptions(), config.vehicle)
+        self.car = draw(options_of(config), config.vehicle)
         p = self.car.params
         h = self.dt / config.substeps
         if p.relaxed:
