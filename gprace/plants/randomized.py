@@ -32,9 +32,9 @@ from dataclasses import dataclass
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationInfo, field_validator
+from pydantic import BeforeValidator, Field, ValidationInfo, field_validator
 
-from gprace.config import G, EffectConfig, PlantConfig, VehicleConfig, plant_options
+from gprace.config import G, EffectConfig, Frozen, PlantConfig, VehicleConfig, plant_options
 from gprace.errors import ConfigError, InputError, SolverError
 from gprace.plants import double_track as dt_model
 from gprace.plants.base import Approximation, Plant
@@ -72,12 +72,10 @@ BOUNDS: dict[str, tuple[float, float]] = {
 }
 
 
-class RandomizedOptions(BaseModel):
+class RandomizedOptions(Frozen):
     """``[options]`` of a ``randomized`` plant. Every range is ``[low, high]`` (or one number for a
     fixed value), drawn uniformly; ``null``/absent car-scaled ranges take the defaults of
     docs/plants.md."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     seed: int = Field(0, description="seed of the drawn car (the sensor noise has PlantConfig.seed)")
     grip_front: Range = Field((0.8, 1.05), description="factor on the nominal mu, front axle [-]")
