@@ -221,11 +221,12 @@ def grip_limit(n_runs: int, seed: int = 2024) -> list[dict]:
             row["seconds"] = round(time.perf_counter() - t, 1)
             rows.append(row)
             print(json.dumps(row), file=sys.stderr, flush=True)
+    summary = []
     for plant_name in ("bmw_commonroad_mb", "bmw_commonroad"):
         mine = [r for r in rows if r["plant"] == plant_name]
-        rows.append({"summary": plant_name, "runs": len(mine), **{o: sum(r["outcome"] == o for r in mine)
-                     for o in ("completed", "car lost", "numerical failure")}})
-    return rows
+        summary.append({"summary": plant_name, "runs": len(mine), **{o: sum(r["outcome"] == o for r in mine)
+                        for o in ("completed", "car lost", "numerical failure")}})
+    return rows + summary
 
 
 def main() -> None:
