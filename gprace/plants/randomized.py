@@ -175,6 +175,7 @@ def options_of(config: PlantConfig) -> RandomizedOptions:
 
 
 def draw(options: RandomizedOptions, vehicle: VehicleConfig) -> DrawnCar:
+    """The car of ``options.seed``: one uniform number per parameter of :data:`DRAW_ORDER`."""
     rng = np.random.default_rng(options.seed)
     u = rng.random(len(DRAW_ORDER))
     rg = ranges(options, vehicle)
