@@ -350,3 +350,21 @@ def test_options_for_a_kind_without_options_and_effects_on_randomized_are_refuse
     cfg = PlantConfig(kind="randomized", vehicle=audi, effects=(EffectConfig(name="downforce", params={"c_l": 1.0}),))
     with pytest.raises(ConfigError, match="draws its own physics"):
         make_plant(cfg, circle_track, 0.05)
+
+
+def test_with_seed_makes_the_family_member_and_round_trips_through_toml(tmp_path):
+    from gprace.plants.randomized import draw_car, with_seed
+
+    base = load_plant("audi_randomized").model_copy(update={"options": {"grip_rear": [0.8, 1.0]}})
+    cars = [with_seed(base, k) for k in range(3)]
+    assert [c.options for c in cars] == [{"grip_rear": [0.8, 1.0], "seed": k} for k in range(3)]
+    f = tmp_path / "car2.toml"
+    f.write_text(cars[2].to_toml())
+    back = load_plant(str(f))
+    assert back.digest() == cars[2].digest() and draw_car(back).values == draw_car(cars[2]).values
+
+
+def test_options_changed_in_code_are_checked_when_the_plant_is_made(circle_track):
+    pc = load_plant("audi_randomized").model_copy(update={"options": {"seed": 1, "drag": [1.5, 0.7]}})
+    with pytest.raises(ConfigError, match="options: drag: the range is upside down"):
+        make_plant(pc, circle_track, 0.05)

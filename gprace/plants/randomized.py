@@ -32,9 +32,9 @@ from dataclasses import dataclass
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationInfo, field_validator
+from pydantic import BeforeValidator, Field, ValidationInfo, field_validator
 
-from gprace.config import G, EffectConfig, PlantConfig, VehicleConfig, plant_options
+from gprace.config import G, EffectConfig, Frozen, PlantConfig, VehicleConfig, plant_options
 from gprace.errors import ConfigError, InputError, SolverError
 from gprace.plants import double_track as dt_model
 from gprace.plants.base import Approximation, Plant
@@ -72,12 +72,10 @@ BOUNDS: dict[str, tuple[float, float]] = {
 }
 
 
-class RandomizedOptions(BaseModel):
+class RandomizedOptions(Frozen):
     """``[options]`` of a ``randomized`` plant. Every range is ``[low, high]`` (or one number for a
     fixed value), drawn uniformly; ``null``/absent car-scaled ranges take the defaults of
     docs/plants.md."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
     seed: int = Field(0, description="seed of the drawn car (the sensor noise has PlantConfig.seed)")
     grip_front: Range = Field((0.8, 1.05), description="factor on the nominal mu, front axle [-]")
@@ -159,10 +157,25 @@ class DrawnCar:
 
 def draw_car(config: PlantConfig) -> DrawnCar:
     """The car of ``config.options.seed`` around ``config.vehicle`` (no track needed)."""
-    return draw(plant_options(RandomizedPlant, config.options) or RandomizedOptions(), config.vehicle)
+    return draw(options_of(config), config.vehicle)
+
+
+def with_seed(config: PlantConfig, seed: int) -> PlantConfig:
+    """``config`` with car ``seed`` (its other options kept), checked as a file would be; write it
+    with ``config.to_toml()`` for commands that take a plant file."""
+    return PlantConfig.model_validate({**config.model_dump(), "options": {**config.options, "seed": int(seed)}})
+
+
+def options_of(config: PlantConfig) -> RandomizedOptions:
+    """``config.options`` validated (a config changed by ``model_copy`` skipped the check)."""
+    try:
+        return plant_options(RandomizedPlant, config.options) or RandomizedOptions()
+    except ValueError as exc:
+        raise ConfigError(f"plant 'randomized': options: {exc}") from None
 
 
 def draw(options: RandomizedOptions, vehicle: VehicleConfig) -> DrawnCar:
+    """The car of ``options.seed``: one uniform number per parameter of :data:`DRAW_ORDER`."""
     rng = np.random.default_rng(options.seed)
     u = rng.random(len(DRAW_ORDER))
     rg = ranges(options, vehicle)
@@ -221,7 +234,7 @@ class RandomizedPlant(Plant):
         if config.effects:
             names = ", ".join(e.name for e in config.effects)
             raise ConfigError(f"plant 'randomized' draws its own physics; effects ({names}) work only with 'frenet'")
-        self.car = draw(plant_options(type(self), config.options) or RandomizedOptions(), config.vehicle)
+        self.car = draw(options_of(config), config.vehicle)
         p = self.car.params
         h = self.dt / config.substeps
         if p.relaxed:
