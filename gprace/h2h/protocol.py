@@ -731,6 +731,7 @@ def calibrate(st: Settings, out: Path, model_paths: dict[str, Path]) -> dict[str
     Returns ``{predictor: calibration}``, also written to ``calib/calibration.json`` (the first pass
     to ``calib/calibration_oracle.json``, the history of the passes to ``calib/passes.json``)."""
     from gprace.h2h.spread import at_least, settled
+    from gprace.io.artifacts import write_text_atomic
 
     names = calibrated_names(st, model_paths)
     if not names:
@@ -739,7 +740,7 @@ def calibrate(st: Settings, out: Path, model_paths: dict[str, Path]) -> dict[str
     cal = _fit_calibration(st, _calibration_errors(st, folder, calib_tasks(st), names, model_paths, "calibration"), names)
     drivers = [p for p in st.raced if p in names][: st.calib_runs]
     if drivers:
-        (folder / "calibration_oracle.json").write_text(json.dumps(cal, indent=1))
+        write_text_atomic(folder / "calibration_oracle.json", json.dumps(cal, indent=1))
         first, driving, history = st.calib_runs, cal, []
         for k in range(2, 2 + st.calib_passes):
             sub, arrays = folder if k == 2 else folder / f"pass{k}", []
@@ -761,8 +762,8 @@ def calibrate(st: Settings, out: Path, model_paths: dict[str, Path]) -> dict[str
             console.warn(f"calibration: not settled after {st.calib_passes} driven passes; the raced predictors keep "
                          f"the larger of the last two calibrations (see {folder / 'passes.json'})")
         cal = {p: at_least(driving[p], fitted[p]) if p in drivers else fitted[p] for p in names}
-        (folder / "passes.json").write_text(json.dumps(history, indent=1))
-    (folder / "calibration.json").write_text(json.dumps(cal, indent=1))
+        write_text_atomic(folder / "passes.json", json.dumps(history, indent=1))
+    write_text_atomic(folder / "calibration.json", json.dumps(cal, indent=1))
     return cal
 
 
