@@ -140,10 +140,17 @@ def write_run_csv(run: Run, path: str | Path) -> Path:
     path = Path(path)
     cols = list(RUN_COLUMNS) + [c for c in run.data if c not in RUN_COLUMNS and np.ndim(run.data[c]) == 1]
     arr = np.column_stack([np.asarray(run.data[c], dtype=float) for c in cols])
+    from gprace.interrupt import check
+
+    check()  # a run driven across Ctrl-C is not a result
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
-    np.savetxt(tmp, arr, delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
-    tmp.replace(path)
+    try:
+        np.savetxt(tmp, arr, delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 
