@@ -57,25 +57,40 @@ class CommandSettings(Frozen):
     """
 
     OPTIONS: ClassVar[dict[str, str]] = {}
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)  # no setting is infinite or NaN
 
     def __init__(self, **data: Any) -> None:
         try:
             super().__init__(**data)
         except ValidationError as exc:
-            err = exc.errors()[0]
-            msg = err["msg"].removeprefix("Value error, ")
-            if not err["loc"]:  # a check across fields names its options itself
-                raise InputError(msg) from None
-            name = str(err["loc"][0])
-            option = self.OPTIONS.get(name, "--" + name.replace("_", "-"))
-            if err["type"] == "extra_forbidden":
-                raise InputError(f"{option}: unknown setting") from None
-            bound = {"greater_than_equal": ">=", "greater_than": ">", "less_than_equal": "<=", "less_than": "<"}
-            ctx = err.get("ctx") or {}
-            if err["type"] in bound:
-                limit = next(iter(ctx.values()))
-                raise InputError(f"{option} must be {bound[err['type']]} {limit}, got {err['input']!r}") from None
-            raise InputError(f"{option}: {msg}, got {err.get('input')!r}") from None
+            raise option_error(exc, self.OPTIONS) from None
+
+
+def option_error(exc: ValidationError, options: dict[str, str] | None = None) -> InputError:
+    """A validation error of settings made from command-line options, as one line naming the
+    option as the CLI spells it: ``--name`` with dashes, or what ``options`` maps the field to."""
+    err = exc.errors()[0]
+    msg = err["msg"].removeprefix("Value error, ")
+    if not err["loc"]:  # a check across fields names its options itself
+        return InputError(msg)
+    name = str(err["loc"][0])
+    option = (options or {}).get(name, "--" + name.replace("_", "-"))
+    if err["type"] == "extra_forbidden":
+        return InputError(f"{option}: unknown setting")
+    bound = {"greater_than_equal": ">=", "greater_than": ">", "less_than_equal": "<=", "less_than": "<"}
+    ctx = err.get("ctx") or {}
+    if err["type"] in bound:
+        limit = next(iter(ctx.values()))
+        return InputError(f"{option} must be {bound[err['type']]} {limit}, got {err['input']!r}")
+    return InputError(f"{option}: {msg}, got {err.get('input')!r}")
+
+
+def from_options(model: type[M], data: dict[str, Any], options: dict[str, str] | None = None) -> M:
+    """``model`` (any configuration model) from command-line options, refused as :func:`option_error`."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise option_error(exc, options) from None
 
 
 class TireConfig(Frozen):
@@ -187,6 +202,8 @@ class PlantConfig(Frozen):
 
 class SimulateConfig(Frozen):
     """Reference controller and recording settings of ``gprace simulate``."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     dt: float = Field(0.05, gt=0, le=1.0, description="control and recording period [s]")
     laps: float = Field(1.0, gt=0, description="laps to drive")

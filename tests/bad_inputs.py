@@ -354,7 +354,7 @@ def _as_h5(folder: Path, base: Path) -> Path:
 NUMBERS = [
     (["plan", "--curvature"], "--grip", lambda v: 0 < v <= 1, (-0.5, 0.0, 1.5)),
     (["plan", "--curvature"], "--ds", lambda v: 0 < v <= 100, (-1.0, 0.0, 5000.0)),
-    (["simulate"], "--weave", lambda v: 0 <= v <= 1, (-0.2, 1.5)),  # named as its config field, weave_amplitude
+    (["simulate"], "--weave", lambda v: 0 <= v <= 1, (-0.2, 1.5)),
     (["simulate"], "--laps", lambda v: v > 0, (0.0, -1.0)),
     (["run", "--plan", "{folder}/none.h5"], "--explore-radius", lambda v: v >= 0, (-1.0,)),
     (["run", "--plan", "{folder}/none.h5"], "--beta", lambda v: 0 < v < 1, (1.5, -0.1)),
@@ -371,7 +371,7 @@ def number_argv(words: list[str], option: str, value: float, folder: Path, base:
     return argv
 
 
-SETTING_NAMES = {"--weave": "weave_amplitude", "--laps": "laps", "--beta": "beta"}  # where the message names the field
+SETTING_NAMES: dict[str, str] = {}  # where a message names a setting otherwise than its option
 
 
 def number_cases() -> list[Case]:

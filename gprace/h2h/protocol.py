@@ -194,6 +194,11 @@ class Settings(CommandSettings):
             from gprace.backends import gps
 
             gps.get(self.backend)  # an unknown name lists the registered ones
+        from gprace.gp.selection import dictionary_bytes
+        from gprace.resources import check_size
+
+        check_size(f"--dict-size {self.dict_size}", self.dict_size,
+                   lambda m: dictionary_bytes(m, len(OUTPUTS), len(FEATURES)), " points")
         known = set(OFFLINE) | {"init", "oracle"}
         for p in (*self.raced, *self.offline):
             if p not in known:
