@@ -210,6 +210,19 @@ def main(argv: list[str] | None = None) -> int:
             return exc.exit_code
         except typer.Exit as exc:
             return exc.exit_code
+        except MemoryError:  # a size no check foresaw: still one line, with what the machine has
+            if debug:
+                raise
+            from gprace.resources import available_memory, human
+
+            console.error(f"out of memory: the settings ask for more than the {human(available_memory())} this machine "
+                          "has available; rerun with smaller sizes")
+            return 2
+        except OverflowError as exc:
+            if debug:
+                raise
+            console.error(f"a number is too large to compute with ({exc}); rerun with smaller settings")
+            return 2
         except typer.Abort:
             console.error("aborted")
             return 130

@@ -254,8 +254,8 @@ class VehicleConfig(Frozen):
             notes.append(f"cog_height {self.cog_height:g} m on a {self.width:g} m wide car rolls over at "
                          f"{self.width / (2 * self.cog_height):.2g} g, before the tires slide at mu {self.mu:g} (the "
                          "model has no roll-over)")
-        for note in notes:
-            _warn_once(f"vehicle {self.name}: {note}")
+        if notes:
+            _warn_once(f"vehicle {self.name}: {'; '.join(notes)}")
         return self
 
     @property
