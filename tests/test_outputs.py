@@ -14,6 +14,7 @@ import pytest
 
 from gprace.cli import main
 from gprace.io.outputs import LOCK_NAME, FolderLock
+from test_hardening import refused
 
 HOLD = ("import sys, time\nfrom pathlib import Path\nfrom gprace.io.outputs import FolderLock\n"
         "FolderLock(Path(sys.argv[1]), command='gprace iterate --out ' + sys.argv[1]).acquire()\n"
@@ -23,16 +24,6 @@ HOLD = ("import sys, time\nfrom pathlib import Path\nfrom gprace.io.outputs impo
 @pytest.fixture(autouse=True)
 def _no_debug(monkeypatch):
     monkeypatch.delenv("GPRACE_DEBUG", raising=False)
-
-
-def refused(capsys, argv, *needles) -> str:
-    code = main([str(a) for a in argv])
-    err = capsys.readouterr().err
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert code == 2 and len(lines) == 1 and lines[0].startswith("error: "), err
-    for n in needles:
-        assert n in lines[0], (n, lines[0])
-    return lines[0]
 
 
 @pytest.fixture
