@@ -199,6 +199,14 @@ class Settings(CommandSettings):
 
         check_size(f"--dict-size {self.dict_size}", self.dict_size,
                    lambda m: dictionary_bytes(m, len(OUTPUTS), len(FEATURES)), " points")
+        # the records of a batch are held together (the table, the datasets): RACE_NUMBERS per step and car
+        cfg = H2HConfig()
+        race = 8.0 * RACE_NUMBERS * 2 * (self.max_time / cfg.dt + 1)
+        for option, n, per, unit in (("--tracks", self.tracks, race * max(len(self.raced), 1), " tracks"),
+                                     ("--runs", self.runs, race, " races")):
+            check_size(f"{option} {n} with --max-time {self.max_time:g}", n, lambda k, per=per: k * per, unit)
+        check_size(f"--samples {self.samples}", self.samples,
+                   lambda k: 8.0 * RACE_NUMBERS * k * cfg.horizon * max(self.workers, 1), " samples")
         known = set(OFFLINE) | {"init", "oracle"}
         for p in (*self.raced, *self.offline):
             if p not in known:
@@ -226,6 +234,10 @@ class Settings(CommandSettings):
                 "baseline_tracks": self.baseline_tracks, "blocking_weight": self.blocking_weight,
                 "explore_minutes": self.explore_minutes}
 
+
+RACE_NUMBERS = 40
+"""Numbers kept per race step and car (states, measurements, inputs, predictions, the GP's
+training pairs), for the size checks of :class:`Settings`."""
 
 PATH_KEYS = ("model", "explore_data", "record", "models")
 """Task entries that are file locations: their contents enter the task as ``*_hash`` entries."""
