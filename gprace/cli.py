@@ -143,14 +143,14 @@ def _option_name(param) -> str:
 
 def _guard(cmd, path: str, quiet) -> None:
     """Wrap the command's callback: ``-q`` after the subcommand, then its outputs checked and locked."""
-    from gprace.io.outputs import Output, Outputs
-
     outs = OUTPUTS.get(path, {})
     names = {p.name: _option_name(p) for p in cmd.params}
     callback = cmd.callback
 
     @functools.wraps(callback)
     def run(**kw):
+        from gprace.io.outputs import Output, Outputs  # h5py: not for --help
+
         if kw.pop("quiet", False):
             console.quiet = True
         items = [Output(names[n], Path(kw[n]), kind) for n, kind in outs.items() if kw.get(n) is not None]
