@@ -149,6 +149,69 @@ def _without_times(obj):
     return obj
 
 
+def _ipopt_signalled_at(monkeypatch, iteration: int = 3) -> dict:
+    """The next NLP that IPOPT solves (once ``state["armed"]``) gets SIGINT at its ``iteration``-th
+    iteration, from inside the solver (an IPOPT iteration callback): the moment is the same on
+    every machine. ``state["status"]`` collects the return status of that solve."""
+    import casadi as ca
+
+    class SignalAt(ca.Callback):
+        def __init__(self, nx: int, ng: int, npar: int) -> None:
+            ca.Callback.__init__(self)
+            self.n, self.sizes = 0, {"x": nx, "lam_x": nx, "g": ng, "lam_g": ng, "lam_p": npar}
+            self.construct("signal_at", {})
+
+        def get_n_in(self):
+            return ca.nlpsol_n_out()
+
+        def get_n_out(self):
+            return 1
+
+        def get_name_in(self, i):
+            return ca.nlpsol_out(i)
+
+        def get_name_out(self, i):
+            return "ret"
+
+        def get_sparsity_in(self, i):
+            name = ca.nlpsol_out(i)
+            return ca.Sparsity.scalar() if name == "f" else ca.Sparsity.dense(self.sizes[name]) \
+                if self.sizes.get(name) else ca.Sparsity(0, 0)
+
+        def eval(self, arg):
+            self.n += 1
+            if self.n == iteration:
+                os.kill(os.getpid(), signal.SIGINT)
+            return [0]
+
+    real = ca.nlpsol
+    state = {"armed": False, "status": [], "callbacks": []}
+
+    class Solver:
+        def __init__(self, solver) -> None:
+            self.solver = solver
+
+        def __call__(self, **args):
+            try:
+                return self.solver(**args)
+            finally:
+                state["status"].append(self.solver.stats()["return_status"])
+
+        def stats(self):
+            return self.solver.stats()
+
+    def nlpsol(name, plugin, nlp, opts=None):
+        if not state["armed"] or not isinstance(nlp, dict):
+            return real(name, plugin, nlp, opts or {})
+        state["armed"] = False
+        cb = SignalAt(nlp["x"].numel(), nlp["g"].numel(), nlp["p"].numel() if "p" in nlp else 0)
+        state["callbacks"].append(cb)  # CasADi keeps no reference to a Python callback
+        return Solver(real(name, plugin, nlp, {**(opts or {}), "iteration_callback": cb}))
+
+    monkeypatch.setattr(ca, "nlpsol", nlpsol)
+    return state
+
+
 def test_an_oracle_solve_cut_short_is_recomputed_on_resume(tmp_path, monkeypatch):
     """The issue's case: IPOPT stopped by Ctrl-C returned "did not converge" and the oracle was
     stored as that. Now nothing of the oracle is recorded and the resume computes the same
@@ -159,19 +222,19 @@ def test_an_oracle_solve_cut_short_is_recomputed_on_resume(tmp_path, monkeypatch
     st = IterateSettings(alphas=(0.5, 0.0), iterations=1, trials=1, track="circle_100", plant="audi_hidden",
                          dictionary_size=150, max_fit_points=80, plan_ds=8.0, heldout_laps=0.3, grid_values=4)
     real = plan_module.plan_min_time
-    calls = []
+    state = _ipopt_signalled_at(monkeypatch)
 
     def interrupted_plan(track, model, settings, *a, **k):
-        if model.effects and not calls:  # the oracle plans on the true physics: interrupt its first solve
-            calls.append(1)
-            _signal_soon()
+        if model.effects and not state["status"]:  # the oracle plans on the true physics: its first IPOPT solve
+            state["armed"] = True
         return real(track, model, settings, *a, **k)
 
     monkeypatch.setattr(plan_module, "plan_min_time", interrupted_plan)
     out = tmp_path / "it"
     with interrupt.handled(), pytest.raises(KeyboardInterrupt):
         iterate(st, out)
-    assert calls and not (out / "oracle.json").exists() and not (out / ".steps" / "oracle.done").exists()
+    assert state["status"] == ["User_Requested_Stop"]  # stopped inside IPOPT, and not tried again
+    assert not (out / "oracle.json").exists() and not (out / ".steps" / "oracle.done").exists()
     assert (out / ".steps" / "t0_i1_drive.done").exists()  # the trial finished before the oracle started
     monkeypatch.setattr(plan_module, "plan_min_time", real)
     summary = iterate(st, out)
