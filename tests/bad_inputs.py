@@ -751,7 +751,8 @@ def issue38_cases(rng: np.random.Generator, per_class: int = 3, expensive: int =
             "select-data", b, "--vehicle", "audi_tt_cup", "--max-points", m, "-o", o(f) / "d.h5"],
             Accepted(("of at most",), notes=("outside the model's envelope",))))
         d = int(10 ** rng.uniform(6, 12))
-        out.append(C("iterate", f"--dictionary-size {d}", lambda f, b, d=d: ["iterate", "--dictionary-size", d, "--out", o(f)],
+        out.append(C("iterate", f"--dictionary-size {d}", lambda f, b, d=d: [*TINY_ITERATE, "--dictionary-size", d,
+                                                                             "--out", o(f)],
                      Refused((f"--dictionary-size {d}", "points fit"))))
         small = int(rng.integers(-5, 10))
         out.append(C("iterate", f"--dictionary-size {small}", lambda f, b, d=small: [
@@ -766,8 +767,8 @@ def issue38_cases(rng: np.random.Generator, per_class: int = 3, expensive: int =
         out.append(C("diagnose", f"--horizon {hz}", lambda f, b, v=hz: ["diagnose", b, "--vehicle", "audi_tt_cup",
                                                                           "--horizon", v], Refused(("--horizon",))))
         ds = int(10 ** rng.uniform(6, 10))
-        out.append(C("eval head2head", f"--dict-size {ds}", lambda f, b, v=ds: ["eval", "head2head", "--dict-size", v,
-                                                                                 "--out", o(f)], Refused(("--dict-size", "points fit"))))
+        out.append(C("eval head2head", f"--dict-size {ds}", lambda f, b, v=ds: [*TINY_H2H, "--dict-size", v, "--out", o(f)],
+                     Refused(("--dict-size", "points fit"))))  # tiny settings: what it costs where it is not checked
     # 3. output folders: read-only, in use by another run, left locked by a killed run
     unwritable = {
         "iterate": lambda f, b, sub: ["iterate", "--out", f / "ro" / sub],
