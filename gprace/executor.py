@@ -189,8 +189,11 @@ def _dask(fn: Callable[[Any], Any], tasks: Sequence[Any], scheduler: str | None,
             done(fut.result())
     except BaseException:
         # running tasks cannot be killed from here: they read the event before they record anything
-        Event(stop, client=client).set()
-        client.cancel(futs, force=True)
+        try:
+            Event(stop, client=client).set()
+            client.cancel(futs, force=True)
+        except Exception:  # noqa: BLE001 -- a lost scheduler: its tasks are gone anyway; the interrupt goes on
+            pass
         raise
     finally:
         client.close()
