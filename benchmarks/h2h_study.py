@@ -17,8 +17,9 @@ dask --scheduler tcp://...`` spreads the races over a cluster).
 Prints one JSON object: per condition its settings, the paper's table (border hits, collisions,
 overtakes, overtake time, e_y error at 1, 2, 8 and 9 steps) with 95 % bootstrap intervals over
 tracks (and the spread over seeds with ``--seeds``), a verdict per claim of the paper (exploration
-against the baseline: lower 8/9-step error, earlier overtakes, no more border hits), and the
-diagnostics behind a verdict:
+against the baseline: lower 8/9-step error, earlier overtakes, no more border hits; "too few
+samples for a verdict" below ``gprace.verdict.MIN_SAMPLES`` tracks), and the diagnostics behind a
+verdict:
 
 * ``data_coverage``: how close the evaluation interactions (the GP inputs of every step of the
   evaluation races) lie to each model's training inputs: median nearest-neighbour distance and the
@@ -150,7 +151,12 @@ def summary(tab: dict, folder: Path) -> dict:
         for k in (1, 2, 8, 9):
             if len(e.get("mean", [])) >= k:
                 row[f"ey_error_{k}"] = {"value": e["mean"][k - 1], "ci": spread.get(f"{p}.ey_error_{k}", {}).get("ci")}
-    verdicts = {text: {"verdict": claims.get(key, {}).get("verdict", "not measured"),
+    from gprace.h2h.table import Claim
+
+    def judged(key: str) -> str:  # the table's rule: no verdict from fewer tracks than gprace.verdict.MIN_SAMPLES
+        return Claim(**claims[key]).shown_verdict(tab.get("settings", {}).get("tracks")) if key in claims else "not measured"
+
+    verdicts = {text: {"verdict": judged(key), "tracks": claims.get(key, {}).get("tracks"),
                        "explore_minus_baseline": claims.get(key, {}).get("mean"),
                        "ci": claims.get(key, {}).get("ci")} for key, text in CLAIMS.items()}
     raced = list(tab.get("racing", {}))

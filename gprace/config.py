@@ -28,6 +28,36 @@ MAX_LENGTH = 30.0
 """Longest physically possible vehicle dimension [m] (axle distances, width, length, CoG height)."""
 
 
+# Plausible vehicles (VehicleConfig._plausible): outside POSSIBLE a value is refused, outside
+# PLAUSIBLE it is warned. The ranges hold road cars, racing cars (a 790 kg Dallara of the Indy
+# Autonomous Challenge, an F1 car) and 1:10 model cars (the shipped barc_1_10).
+MU_POSSIBLE = (0.05, 3.0)
+"""Tire-road friction ratios that exist: about 0.1 on ice, 1.7 for racing slicks; 3 is already far
+beyond any tire (downforce belongs in an effect, not in mu)."""
+MU_PLAUSIBLE = (0.3, 2.0)
+K_PLAUSIBLE = (0.25, 0.7)
+"""Radius of gyration about the vertical axis, ``sqrt(I_zz / m)``, as a share of the wheelbase: road
+and racing cars 0.45 to 0.6 (shipped: audi 0.54, bmw 0.50), the 1:10 car 0.34."""
+K_POSSIBLE_MIN = 0.1
+"""Below this share of the wheelbase the four wheels alone (a tenth of the mass at the axles)
+would give more yaw inertia: the mass or the inertia is in other units."""
+WHEELBASE_SHARE_MIN = 0.4
+"""Wheelbase over length: cars 0.55 to 0.7; a 1:10 car's footprint can be its wheelbase (1.0)."""
+AXLE_SHARE_MAX = 0.8
+"""l_f / wheelbase between 0.2 and 0.8 (mid-engined cars about 0.55, front-heavy ones 0.4)."""
+
+_WARNED: set[str] = set()
+
+
+def _warn_once(text: str) -> None:
+    """A plausibility warning, once per process (a vehicle is validated each time it is loaded)."""
+    if text not in _WARNED:
+        _WARNED.add(text)
+        from gprace.console import console
+
+        console.warn(text)
+
+
 def physical(value: float, limit: float, unit: str, probable: str) -> float:
     """``value`` if at most ``limit``; else a ValueError naming the value and the probable unit slip
     (pydantic adds the field's TOML path, :func:`validate` the file)."""
@@ -57,25 +87,40 @@ class CommandSettings(Frozen):
     """
 
     OPTIONS: ClassVar[dict[str, str]] = {}
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)  # no setting is infinite or NaN
 
     def __init__(self, **data: Any) -> None:
         try:
             super().__init__(**data)
         except ValidationError as exc:
-            err = exc.errors()[0]
-            msg = err["msg"].removeprefix("Value error, ")
-            if not err["loc"]:  # a check across fields names its options itself
-                raise InputError(msg) from None
-            name = str(err["loc"][0])
-            option = self.OPTIONS.get(name, "--" + name.replace("_", "-"))
-            if err["type"] == "extra_forbidden":
-                raise InputError(f"{option}: unknown setting") from None
-            bound = {"greater_than_equal": ">=", "greater_than": ">", "less_than_equal": "<=", "less_than": "<"}
-            ctx = err.get("ctx") or {}
-            if err["type"] in bound:
-                limit = next(iter(ctx.values()))
-                raise InputError(f"{option} must be {bound[err['type']]} {limit}, got {err['input']!r}") from None
-            raise InputError(f"{option}: {msg}, got {err.get('input')!r}") from None
+            raise option_error(exc, self.OPTIONS) from None
+
+
+def option_error(exc: ValidationError, options: dict[str, str] | None = None) -> InputError:
+    """A validation error of settings made from command-line options, as one line naming the
+    option as the CLI spells it: ``--name`` with dashes, or what ``options`` maps the field to."""
+    err = exc.errors()[0]
+    msg = err["msg"].removeprefix("Value error, ")
+    if not err["loc"]:  # a check across fields names its options itself
+        return InputError(msg)
+    name = str(err["loc"][0])
+    option = (options or {}).get(name, "--" + name.replace("_", "-"))
+    if err["type"] == "extra_forbidden":
+        return InputError(f"{option}: unknown setting")
+    bound = {"greater_than_equal": ">=", "greater_than": ">", "less_than_equal": "<=", "less_than": "<"}
+    ctx = err.get("ctx") or {}
+    if err["type"] in bound:
+        limit = next(iter(ctx.values()))
+        return InputError(f"{option} must be {bound[err['type']]} {limit}, got {err['input']!r}")
+    return InputError(f"{option}: {msg}, got {err.get('input')!r}")
+
+
+def from_options(model: type[M], data: dict[str, Any], options: dict[str, str] | None = None) -> M:
+    """``model`` (any configuration model) from command-line options, refused as :func:`option_error`."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise option_error(exc, options) from None
 
 
 class TireConfig(Frozen):
@@ -153,6 +198,65 @@ class VehicleConfig(Frozen):
     @classmethod
     def _length_in_metres(cls, v: float) -> float:
         return physical(v, MAX_LENGTH, "m", "millimetres or centimetres instead of metres")
+
+    @field_validator("mass", "yaw_inertia", "l_f", "l_r", "width", "length", "cog_height", "mu", "drag_coefficient",
+                     "rolling_resistance", "v_min")
+    @classmethod
+    def _finite(cls, v: float) -> float:
+        if not math.isfinite(v):
+            raise ValueError(f"{v} is not a finite number")
+        return v
+
+    @field_validator("mu")
+    @classmethod
+    def _friction_possible(cls, v: float) -> float:
+        lo, hi = MU_POSSIBLE
+        if not lo <= v <= hi:
+            raise ValueError(f"{v:g} is no tire-road friction ratio (possible {lo:g} to {hi:g}: ice about 0.1, dry "
+                             "asphalt about 1, racing slicks about 1.7; downforce is an effect, not mu)")
+        return v
+
+    @model_validator(mode="after")
+    def _plausible(self) -> VehicleConfig:
+        """Values that no car has are refused; values that a real car could have but few do are
+        warned, with the plausible range (see ``PLAUSIBLE`` for the ranges and where they come from)."""
+        L, k = self.wheelbase, math.sqrt(self.yaw_inertia / self.mass)
+        if L > self.length * (1 + 1e-6):
+            raise ValueError(f"l_f + l_r = {L:.4g} m (the wheelbase) is longer than the car's length {self.length:.4g} m")
+        k_max = 0.5 * math.hypot(self.length, self.width)
+        lo, hi = K_PLAUSIBLE
+        rng = f"plausible {self.mass * (lo * L) ** 2:.4g} to {self.mass * (hi * L) ** 2:.4g} kg m^2 for this mass and wheelbase"
+        if k > k_max:
+            raise ValueError(f"yaw_inertia {self.yaw_inertia:g} kg m^2 with mass {self.mass:g} kg is a radius of gyration "
+                             f"of {k:.3g} m, more than half the car's diagonal ({k_max:.3g} m): impossible ({rng}; "
+                             "mass in tonnes or inertia in other units?)")
+        if k < K_POSSIBLE_MIN * L:
+            raise ValueError(f"yaw_inertia {self.yaw_inertia:g} kg m^2 with mass {self.mass:g} kg is a radius of gyration "
+                             f"of {k:.3g} m, {k / L:.2g} times the wheelbase: less than the wheels alone give ({rng}; "
+                             "mass in grams or inertia in g cm^2?)")
+        if self.cog_height > self.width:
+            raise ValueError(f"cog_height {self.cog_height:g} m is above the car's width {self.width:g} m: it would roll "
+                             f"over at {self.width / (2 * self.cog_height):.2g} g (no car on wheels is that tall)")
+        notes = []
+        if not MU_PLAUSIBLE[0] <= self.mu <= MU_PLAUSIBLE[1]:
+            notes.append(f"mu {self.mu:g} is outside the usual {MU_PLAUSIBLE[0]:g} to {MU_PLAUSIBLE[1]:g} of tires on a "
+                         "road (ice, or slicks with downforce folded into mu?)")
+        if not lo <= k / L <= hi:
+            notes.append(f"yaw_inertia {self.yaw_inertia:g} kg m^2 is a radius of gyration of {k / L:.2g} times the "
+                         f"wheelbase, outside the usual {lo:g} to {hi:g} ({rng})")
+        if L < WHEELBASE_SHARE_MIN * self.length:
+            notes.append(f"the wheelbase l_f + l_r = {L:.4g} m is {L / self.length:.2g} of the car's length; cars have "
+                         f"{WHEELBASE_SHARE_MIN:g} to 1")
+        if not 1 - AXLE_SHARE_MAX <= self.l_f / L <= AXLE_SHARE_MAX:
+            notes.append(f"the CoG is {self.l_f / L:.2g} of the wheelbase behind the front axle; cars have "
+                         f"{1 - AXLE_SHARE_MAX:g} to {AXLE_SHARE_MAX:g}")
+        if self.cog_height > 0 and self.width / (2 * self.cog_height) < self.mu:
+            notes.append(f"cog_height {self.cog_height:g} m on a {self.width:g} m wide car rolls over at "
+                         f"{self.width / (2 * self.cog_height):.2g} g, before the tires slide at mu {self.mu:g} (the "
+                         "model has no roll-over)")
+        if notes:
+            _warn_once(f"vehicle {self.name}: {'; '.join(notes)}")
+        return self
 
     @property
     def wheelbase(self) -> float:
@@ -238,6 +342,8 @@ def plant_options(plant_cls: type, options: dict[str, Any]) -> BaseModel | None:
 class SimulateConfig(Frozen):
     """Reference controller and recording settings of ``gprace simulate``."""
 
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
     dt: float = Field(0.05, gt=0, le=1.0, description="control and recording period [s]")
     laps: float = Field(1.0, gt=0, description="laps to drive")
     speed_scale: float = Field(0.8, gt=0, le=1.2, description="fraction of the friction-limited speed")
@@ -289,7 +395,7 @@ def validate(model: type[M], data: dict[str, Any], where: str, toml: bool = True
         errs = exc.errors()
         # a misspelt key shows up as "unknown" plus "missing": report the unknown one first
         err = next((e for e in errs if e["type"] == "extra_forbidden"), errs[0])
-        loc = ".".join(str(p) for p in err["loc"]) or "(root)"
+        loc = ".".join(str(p) for p in err["loc"])
         msg = err["msg"]
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
@@ -302,7 +408,7 @@ def validate(model: type[M], data: dict[str, Any], where: str, toml: bool = True
         elif err["type"] == "value_error":
             msg = msg.removeprefix("Value error, ")
         more = f" (and {len(exc.errors()) - 1} more)" if len(exc.errors()) > 1 else ""
-        raise ConfigError(f"{where}: {loc}: {msg}{more}") from None
+        raise ConfigError(f"{where}: {loc + ': ' if loc else ''}{msg}{more}") from None
 
 
 def _resolve_includes(data: dict[str, Any], base: Path) -> dict[str, Any]:

@@ -5,18 +5,28 @@ module-level function ``fn(task)`` for every task and returns one :class:`TaskRe
 task order. Each task carries its own seed, so results do not depend on which executor or worker
 ran it. A task that raises is recorded as failed with its error message and the batch goes on.
 
+Ctrl-C or SIGTERM (:mod:`gprace.interrupt`) ends the batch: the local workers are interrupted and,
+if they do not stop within ``STOP_GRACE`` seconds, killed; Dask tasks are cancelled and told to
+stop. The batch then raises ``KeyboardInterrupt``, and only after every local worker is gone, so
+the output folder's lock outlives them. A task that saw the signal is never returned as finished.
+
 ``workers=1`` with the local executor runs in-process (no pickling), which tests and debuggers like.
 """
 
 from __future__ import annotations
 
 import functools
+import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Sequence
 
+from gprace import interrupt
 from gprace.errors import ConfigError, InputError
+
+STOP_GRACE = 10.0
+"""Seconds interrupted local workers get to unwind (remove their temporary files) before they are killed."""
 
 
 @dataclass
@@ -25,6 +35,7 @@ class TaskResult:
     ok: bool
     value: Any = None
     error: str = ""
+    interrupted: bool = False
 
 
 def single_thread_blas(fn: Callable) -> Callable:
@@ -49,9 +60,15 @@ def single_thread_blas(fn: Callable) -> Callable:
     return wrapper
 
 
-def _call(fn: Callable[[Any], Any], index: int, task: Any) -> TaskResult:
+def _call(fn: Callable[[Any], Any], index: int, task: Any, stop: str | None = None) -> TaskResult:
+    """One task; ``stop``: the Dask event that says the command was interrupted."""
     try:
-        return TaskResult(index, True, fn(task))
+        with interrupt.task(interrupt.task_stop(stop) if stop else None):
+            value = fn(task)
+            interrupt.check()  # a result computed across the signal (a solver swallowed it) is not a result
+        return TaskResult(index, True, value)
+    except KeyboardInterrupt:
+        return TaskResult(index, False, None, "interrupted", interrupted=True)
     except Exception as exc:  # recorded, not fatal
         tb = traceback.format_exc(limit=3)
         return TaskResult(index, False, None, f"{type(exc).__name__}: {exc}\n{tb}")
@@ -102,37 +119,81 @@ def run_batch(
     with console.progress(label, total=len(tasks)) as bar:
 
         def done(r: TaskResult) -> None:
+            if r.interrupted:
+                raise KeyboardInterrupt
             results[r.index] = r
             if on_done is not None:
                 on_done(r)
             bar.advance()
 
         if executor == "dask":
-            for r in _dask(fn, tasks, scheduler):
-                done(r)
+            _dask(fn, tasks, scheduler, done)
         elif workers == 1 or len(tasks) <= 1:
             for i, t in enumerate(tasks):
                 done(_call(fn, i, t))
         else:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
-                futs = [pool.submit(_call, fn, i, t) for i, t in enumerate(tasks)]
-                for fut in as_completed(futs):
-                    done(fut.result())
+            _local(fn, tasks, workers, done)
     return [r for r in results if r is not None]
 
 
-def _dask(fn: Callable[[Any], Any], tasks: Sequence[Any], scheduler: str | None) -> Iterable[TaskResult]:
+def _local(fn: Callable[[Any], Any], tasks: Sequence[Any], workers: int, done: Callable[[TaskResult], None]) -> None:
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=interrupt.worker_init)
+    try:
+        futs = [pool.submit(_call, fn, i, t) for i, t in enumerate(tasks)]
+        for fut in as_completed(futs):
+            done(fut.result())
+    except BaseException:
+        _stop_workers(pool)
+        raise
+    pool.shutdown()
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Interrupt the pool's workers, give them ``STOP_GRACE`` seconds, then kill those left."""
+    import os
+    import signal
+
+    procs = list((getattr(pool, "_processes", None) or {}).values())  # no public accessor before Python 3.14
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        try:
+            os.kill(p.pid, signal.SIGINT)
+        except (ProcessLookupError, TypeError):
+            pass
+    end = time.monotonic() + STOP_GRACE
+    for p in procs:
+        p.join(timeout=max(end - time.monotonic(), 0.0))
+    for p in procs:
+        if p.is_alive():
+            p.kill()
+            p.join(timeout=5.0)
+
+
+def _dask(fn: Callable[[Any], Any], tasks: Sequence[Any], scheduler: str | None,
+          done: Callable[[TaskResult], None]) -> None:
+    import uuid
+
     if not scheduler:
         raise ConfigError("--executor dask needs --scheduler tcp://HOST:PORT")
-    from dask.distributed import Client, as_completed as dask_completed
+    from dask.distributed import Client, Event, as_completed as dask_completed
 
     try:
         client = Client(scheduler, timeout="10s")
     except (OSError, TimeoutError) as exc:
         raise InputError(f"cannot reach Dask scheduler {scheduler}: {exc}") from None
+    stop = f"gprace-stop-{uuid.uuid4().hex}"
+    futs = []
     try:
-        futs = [client.submit(_call, fn, i, t, pure=False) for i, t in enumerate(tasks)]
+        futs = [client.submit(_call, fn, i, t, stop, pure=False) for i, t in enumerate(tasks)]
         for fut in dask_completed(futs):
-            yield fut.result()
+            done(fut.result())
+    except BaseException:
+        # running tasks cannot be killed from here: they read the event before they record anything
+        try:
+            Event(stop, client=client).set()
+            client.cancel(futs, force=True)
+        except Exception:  # noqa: BLE001 -- a lost scheduler: its tasks are gone anyway; the interrupt goes on
+            pass
+        raise
     finally:
         client.close()

@@ -33,7 +33,11 @@ from gprace.config import configs_dir
 
 @dataclass(frozen=True)
 class Refused:
+    """Exit 2 and one ``error:`` line holding every needle, after the ``notes`` (warnings that
+    must come first, e.g. a stale lock taken over); nothing left in the output folder."""
+
     needles: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -41,32 +45,91 @@ class Excluded:
     needles: tuple[str, ...] = ()
 
 
+@dataclass(frozen=True)
+class Accepted:
+    """Exit 0 with every needle in stdout or stderr, none of ``absent`` in stdout, no error line
+    and no warning but those holding one of ``notes``."""
+
+    needles: tuple[str, ...] = ()
+    absent: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Interrupted:
+    """Ctrl-C or SIGTERM: exit 130, the last stderr line ``error: interrupted; ...`` holding every
+    needle, no other error or warning line."""
+
+    needles: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class OneOf:
+    """Any of several outcomes keeps the contract (the issue allows "read it, or a hint")."""
+
+    options: tuple = ()
+
+
+Expect = Refused | Excluded | Accepted | Interrupted | OneOf
+
+
 @dataclass
 class Outcome:
     code: int
     stderr: list[str]
     left_behind: list[str]
+    stdout: str = ""
+    extra: list[str] = field(default_factory=list)  # what a case's own check after the run found wrong
 
     @property
     def one_line(self) -> bool:
         return len(self.stderr) == 1
 
-    def problems(self, expect: Refused | Excluded) -> list[str]:
+    @property
+    def internal_error(self) -> bool:
+        return any("internal error" in ln for ln in self.stderr)
+
+    @property
+    def traceback(self) -> bool:
+        return any("Traceback" in ln for ln in self.stderr) or "Traceback" in self.stdout
+
+    def problems(self, expect: Expect) -> list[str]:
         """What breaks the contract (empty when the command behaved)."""
-        bad = []
+        if isinstance(expect, OneOf):
+            each = [self.problems(e) for e in expect.options]
+            return [] if any(not b for b in each) else [" / ".join(b[0] for b in each if b)]
+        bad = list(self.extra)
         notes = [ln for ln in self.stderr if ln.startswith(("error:", "warning:"))]
+        if self.internal_error or self.traceback:
+            bad.append("internal error or traceback")
         if isinstance(expect, Refused):
+            lines = self.stderr[len(expect.notes):]
             if self.code != 2:
                 bad.append(f"exit {self.code}, not 2")
-            if not self.one_line or not self.stderr[0].startswith("error: "):
-                bad.append(f"{len(self.stderr)} stderr lines, not one error line")
+            if len(lines) != 1 or not lines[0].startswith("error: "):
+                bad.append(f"{len(self.stderr)} stderr lines, not {len(expect.notes)} note(s) and one error line")
+            bad += [f"note {n!r} missing" for n, ln in zip(expect.notes, self.stderr + [""] * len(expect.notes))
+                    if not (ln.startswith("warning: ") and n in ln)]
             if self.left_behind:
                 bad.append(f"left behind: {self.left_behind}")
-        else:
+        elif isinstance(expect, Excluded):
             if self.code != 0:
                 bad.append(f"exit {self.code}, not 0")
             if len(notes) != 1 or not notes[0].startswith("warning: ") or "outside the model's envelope" not in notes[0]:
                 bad.append(f"not one exclusion note: {notes}")
+        elif isinstance(expect, Accepted):
+            if self.code != 0:
+                bad.append(f"exit {self.code}, not 0: {notes[-1:] or self.stderr[-1:]}")
+            bad += [f"unexpected {ln!r}" for ln in notes
+                    if ln.startswith("error:") or not any(n in ln for n in expect.notes)]
+            bad += [f"{a!r} in the output" for a in expect.absent if a in self.stdout]
+            text = self.stdout + " ".join(self.stderr)
+            return bad + [f"{n!r} not in the output" for n in expect.needles if n not in text]
+        else:
+            if self.code != 130:
+                bad.append(f"exit {self.code}, not 130")
+            if notes[-1:] != self.stderr[-1:] or len(notes) != 1 or not notes[0].startswith("error: interrupted; "):
+                bad.append(f"not one interrupt line at the end: {notes}")
         text = " ".join(notes)
         bad += [f"{n!r} not in the message" for n in expect.needles if n not in text]
         return bad
@@ -80,7 +143,7 @@ def run_cli(argv: list, out_dir: Path) -> Outcome:
         code = main([str(a) for a in argv])
     lines = [ln for ln in err.getvalue().splitlines() if ln.strip()]
     left = sorted(p.name for p in out_dir.iterdir()) if out_dir.exists() else []
-    return Outcome(code, lines, left)
+    return Outcome(code, lines, left, out.getvalue())
 
 
 # ------------------------------------------------------------------------------------------------
@@ -243,7 +306,10 @@ class Case:
     command: str
     kind: str
     argv: Callable[[Path, Path], list]
-    expect: Refused | Excluded
+    expect: Expect
+    run: Callable[[list, Path], Outcome] | None = None  # how to run it (default: run_cli in-process)
+    after: Callable[[Path, Outcome], list[str]] | None = None  # what else must hold afterwards
+    owner: str = "harden"  # who builds what the case asks for (issue 38: "ingest" for the reader rows)
 
 
 def _out(folder: Path) -> Path:
@@ -354,7 +420,7 @@ def _as_h5(folder: Path, base: Path) -> Path:
 NUMBERS = [
     (["plan", "--curvature"], "--grip", lambda v: 0 < v <= 1, (-0.5, 0.0, 1.5)),
     (["plan", "--curvature"], "--ds", lambda v: 0 < v <= 100, (-1.0, 0.0, 5000.0)),
-    (["simulate"], "--weave", lambda v: 0 <= v <= 1, (-0.2, 1.5)),  # named as its config field, weave_amplitude
+    (["simulate"], "--weave", lambda v: 0 <= v <= 1, (-0.2, 1.5)),
     (["simulate"], "--laps", lambda v: v > 0, (0.0, -1.0)),
     (["run", "--plan", "{folder}/none.h5"], "--explore-radius", lambda v: v >= 0, (-1.0,)),
     (["run", "--plan", "{folder}/none.h5"], "--beta", lambda v: 0 < v < 1, (1.5, -0.1)),
@@ -371,7 +437,7 @@ def number_argv(words: list[str], option: str, value: float, folder: Path, base:
     return argv
 
 
-SETTING_NAMES = {"--weave": "weave_amplitude", "--laps": "laps", "--beta": "beta"}  # where the message names the field
+SETTING_NAMES: dict[str, str] = {}  # where a message names a setting otherwise than its option
 
 
 def number_cases() -> list[Case]:
@@ -424,3 +490,426 @@ def variant_cases(rng: np.random.Generator, per_class: int = 3) -> list[Case]:
                      lambda f, b, words=words, option=option, v=v: number_argv(words, option, v, f, b),
                      Refused((SETTING_NAMES.get(option, option),))) for v in values]
     return out
+
+
+def run_case(case: Case, folder: Path, base: Path) -> Outcome:
+    """Run ``case`` in ``folder`` (its own way, or in-process) and apply its check afterwards."""
+    argv = case.argv(folder, base)
+    res = (case.run or run_cli)(argv, folder / "out")
+    if case.after is not None:
+        res.extra += case.after(folder, res)
+    return res
+
+
+# ------------------------------------------------------------------------------------------------
+# issue 38: interrupts, sizes, output folders, verdicts, plausible vehicles, small contracts.
+# Cases that run a subprocess (an interrupt, a second run beside a first) are in issue38_cases, not
+# in all_cases: the tests have their own, shorter versions of them (test_interrupts, test_outputs).
+
+import os  # noqa: E402 -- the section's own needs
+import signal  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import threading  # noqa: E402
+import time  # noqa: E402
+
+ENTRY = "import sys; from gprace.cli import main; sys.exit(main())"
+TINY_ITERATE = ["iterate", "--iterations", "1", "--trials", "1", "--track", "circle_100", "--dictionary-size", "150"]
+TINY_COLLECT = ["h2h", "collect", "--runs", "4", "--init-runs", "2", "--max-time", "2", "--workers", "1"]
+TINY_H2H = ["eval", "head2head", "--tracks", "2", "--runs", "6", "--init-runs", "3", "--explore-minutes", "0.1",
+            "--episode-seconds", "3", "--calib-runs", "1", "--calib-passes", "1", "--max-time", "3", "--samples", "5",
+            "--points-per-run", "5", "--workers", "2"]
+
+
+def _outcome(code: int, stderr: str, stdout: str, out_dir: Path) -> Outcome:
+    left = sorted(p.name for p in out_dir.iterdir()) if out_dir.exists() else []
+    return Outcome(code, [ln for ln in stderr.splitlines() if ln.strip()], left, stdout)
+
+
+def _popen(argv: list, cwd: Path) -> subprocess.Popen:
+    """A first run in its own session (its stdout dropped, its stderr read by :func:`_lines_until`)."""
+    return subprocess.Popen([sys.executable, "-c", ENTRY, *map(str, argv)], cwd=cwd, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+
+def _lines_until(p: subprocess.Popen, text: str, timeout: float = 600.0) -> tuple[list[str], threading.Event]:
+    """Read ``p``'s stderr in a thread and wait until a line holds ``text`` (or stderr ends); the
+    event returned is set when stderr has ended."""
+    lines: list[str] = []
+    seen, ended = threading.Event(), threading.Event()
+
+    def read() -> None:
+        for line in p.stderr:
+            lines.append(line.rstrip("\n"))
+            if text in line:
+                seen.set()
+        seen.set()
+        ended.set()
+
+    threading.Thread(target=read, daemon=True).start()
+    seen.wait(timeout)
+    return lines, ended
+
+
+def interrupting(wait_for: str, delay: float, sig: int, group: bool) -> Callable[[list, Path], Outcome]:
+    """Run the command in its own session; once a stderr line holds ``wait_for`` and ``delay``
+    seconds more, send ``sig`` to its process group (Ctrl-C) or to it alone (``kill``)."""
+
+    def run(argv: list, out_dir: Path) -> Outcome:
+        stdout = out_dir.parent / "stdout.txt"
+        with stdout.open("w") as fh:
+            p = subprocess.Popen([sys.executable, "-c", ENTRY, *map(str, argv)], cwd=out_dir.parent, stdout=fh,
+                                 stderr=subprocess.PIPE, text=True, start_new_session=True)
+            lines, done = _lines_until(p, wait_for)
+            time.sleep(delay)
+            if p.poll() is None:
+                os.killpg(p.pid, sig) if group else p.send_signal(sig)
+            try:
+                p.wait(300)
+            finally:
+                if p.poll() is None:
+                    os.killpg(p.pid, signal.SIGKILL)
+        done.wait(30)  # the reader has taken every line once stderr closed
+        return _outcome(p.returncode, "\n".join(lines), stdout.read_text(), Path("/nonexistent"))
+
+    return run
+
+
+def beside_a_first_run(first: list, wait_for: str) -> Callable[[list, Path], Outcome]:
+    """Start ``first`` (a real run into the same folder), and once it printed ``wait_for`` run the
+    case's command beside it; the first is interrupted afterwards."""
+
+    def run(argv: list, out_dir: Path) -> Outcome:
+        p = _popen(first, out_dir.parent)
+        try:
+            _lines_until(p, wait_for)
+            r = subprocess.run([sys.executable, "-c", ENTRY, *map(str, argv)], cwd=out_dir.parent, capture_output=True,
+                               text=True, timeout=1800)
+        finally:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGINT)
+            try:
+                p.wait(120)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+        return _outcome(r.returncode, r.stderr, r.stdout, Path("/nonexistent"))
+
+    return run
+
+
+def after_a_killed_run(first: list, wait_for: str) -> Callable[[list, Path], Outcome]:
+    """Start ``first``, kill it (SIGKILL: no clean-up) once it printed ``wait_for``, then run the case."""
+
+    def run(argv: list, out_dir: Path) -> Outcome:
+        p = _popen(first, out_dir.parent)
+        _lines_until(p, wait_for)
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
+        return run_cli(argv, Path("/nonexistent"))
+
+    return run
+
+
+def read_only_folder(folder: Path) -> Path | None:
+    """A folder no file can be made in (a read-only tmpfs as root, permissions otherwise); None
+    where none can be made. Unmounted by :func:`release_read_only`."""
+    ro = folder / "ro"
+    ro.mkdir(exist_ok=True)
+    if os.geteuid() != 0:
+        ro.chmod(0o555)
+        return ro
+    ok = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(ro)], capture_output=True).returncode == 0
+    return ro if ok else None
+
+
+def release_read_only(folder: Path) -> None:
+    ro = folder / "ro"
+    if ro.is_dir():
+        if os.geteuid() == 0:
+            subprocess.run(["umount", str(ro)], capture_output=True)
+        else:
+            ro.chmod(0o755)
+
+
+def in_read_only(argv: list, out_dir: Path) -> Outcome:
+    """Run in-process with ``out_dir.parent / 'ro'`` read-only (skipped, as kept, where none can be made)."""
+    folder = out_dir.parent
+    if read_only_folder(folder) is None:
+        return Outcome(2, ["error: cannot write in (no read-only folder here: skipped)"], [])
+    try:
+        return run_cli(argv, out_dir)
+    finally:
+        release_read_only(folder)
+
+
+def long_recording(folder: Path) -> Path:
+    """A recording long enough for a diagnosis (0.7 laps of gprace_ring, weaving), made once per folder."""
+    path = folder / "long.csv"
+    if not path.exists():
+        res = run_cli(["-q", "simulate", "--track", "gprace_ring", "--laps", "0.7", "--weave", "0.3", "-o", path],
+                      folder / "none")
+        assert res.code == 0, res.stderr
+    return path
+
+
+def _iterate_steps_consistent(folder: Path, res: Outcome) -> list[str]:
+    """An interrupted iterate folder: no lock left, no oracle without its step, no step without its files."""
+    out, bad = folder / "out", []
+    if (out / ".gprace.lock").exists():
+        bad.append("lock left behind")
+    steps = {p.stem for p in (out / ".steps").glob("*.done")} if (out / ".steps").exists() else set()
+    if ("oracle" in steps) != (out / "oracle.json").exists():
+        bad.append("oracle.json and its step disagree")
+    for st in steps:
+        if st.endswith("_drive") and not (out / f"trial_{st.split('_')[0][1:]}" / f"iter_{int(st.split('_')[1][1:]):02d}"
+                                           / "record.json").exists():
+            bad.append(f"step {st} without its record")
+    return bad
+
+
+def _no_verdict(folder: Path, res: Outcome) -> list[str]:
+    import json
+
+    try:
+        tab = json.loads(res.stdout)
+    except ValueError:
+        return ["no table printed"]
+    return [f"claim {k}: {c['verdict']}" for k, c in tab.get("claims", {}).items() if c["verdict"] in ("holds", "fails")]
+
+
+def _json_of(argv: list, folder: Path, name: str) -> Path:
+    """The JSON that ``gprace -q argv --json`` prints, saved as ``folder/name`` (e.g. sim.json)."""
+    res = run_cli(["-q", *argv, "--json"], folder / "none")
+    assert res.code == 0, res.stderr
+    p = folder / name
+    p.write_text(res.stdout)
+    return p
+
+
+def _iterate_json(folder: Path, which: str) -> Path:
+    """A JSON of an iterate folder, written by its real writer (settings.json, record.json)."""
+    from gprace.timetrial.iterate import IterateSettings
+    from gprace.timetrial.record import IterationRecord, write_json, write_record
+
+    p = folder / which
+    if which == "settings.json":
+        write_json(p, IterateSettings(iterations=1, trials=1).model_dump(mode="json"))
+    else:
+        write_record(p, IterationRecord(iteration=1, trial=0, alpha=0.5, planned=50.0, driven=51.0, completed=True))
+    return p
+
+
+SHOWN = {  # file -> (how it is made, the kind show must name)
+    "sim.json": (lambda f: _json_of(["simulate", "--track", "circle_100", "--laps", "0.2", "-o", f / "s.h5"], f, "sim.json"),
+                 "simulate_result"),
+    "plan.json": (lambda f: _json_of(["plan", "--curvature", "--track", "circle_100", "-o", f / "p.h5"], f, "plan.json"),
+                  "plan_result"),
+    "track.json": (lambda f: _json_of(["track", "show", "circle_100"], f, "track.json"), "track_show_result"),
+    "settings.json": (lambda f: _iterate_json(f, "settings.json"), "iterate_settings"),
+    "record.json": (lambda f: _iterate_json(f, "record.json"), "iteration_record"),
+}
+
+PLANTS_SHOWN = {"audi_nominal": "gprace_ring", "audi_hidden": "gprace_ring", "barc_nominal": "h2h_loop",
+                "bmw_commonroad": "gprace_ring"}
+
+IMPLAUSIBLE = [  # (what, shipped text, spoilt text, needle of the refusal)
+    ("mu", "mu = 1.5", "mu = {v:.3g}", "tire-road friction", lambda r: float(10 ** r.uniform(0.55, 2))),
+    ("mass in grams", "mass = 1161.25", "mass = {v:.6g}", "grams", lambda r: 1161.25 * 10 ** r.uniform(3, 4)),
+    ("yaw inertia", "yaw_inertia = 2106.9543", "yaw_inertia = {v:.6g}", "half the car's diagonal",
+     lambda r: 2106.95 * 10 ** r.uniform(2.5, 5)),
+    ("wheelbase", "l_f = 1.0234", "l_f = {v:.4g}", "longer than the car's length", lambda r: r.uniform(2.8, 20)),
+    ("CoG height", "cog_height = 0.5136", "cog_height = {v:.4g}", "above the car's width", lambda r: r.uniform(2.0, 10)),
+]
+
+
+def issue38_cases(rng: np.random.Generator, per_class: int = 3, expensive: int = 1) -> list[Case]:
+    """Every row of issue 38's table that is not a reader's (those: :func:`ingest_cases`), as
+    classes with ``per_class`` seeded variants each (``expensive`` for the classes that run whole
+    commands: interrupts, two runs, the head-to-head table)."""
+    o = _out
+    C, out = Case, []
+    draw = lambda k: range(per_class if k == "cheap" else expensive)  # noqa: E731
+    # 1. interrupts: Ctrl-C (the whole process group) or SIGTERM (the command alone), at a drawn moment
+    long = {
+        "diagnose": (lambda f, b: ["diagnose", long_recording(b.parent), "--vehicle", "audi_tt_cup", "-o", o(f) / "car.toml"],
+                     "diagnose:", None),
+        "select-data": (lambda f, b: ["select-data", long_recording(b.parent), "--vehicle", "audi_tt_cup", "-o",
+                                      o(f) / "d.h5"], "select-data:", None),
+        "iterate": (lambda f, b: [*TINY_ITERATE, "--workers", "2", "--out", o(f)], "iteration 0", _iterate_steps_consistent),
+        "eval head2head": (lambda f, b: [*TINY_H2H, "--out", o(f)], "runs to do", None),
+    }
+    for cmd, (argv, wait_for, after) in long.items():
+        for _ in draw("expensive"):
+            sig, group, delay = (signal.SIGINT, True, float(rng.uniform(0, 2))) if rng.random() < 0.6 else \
+                (signal.SIGTERM, False, float(rng.uniform(0, 2)))
+            out.append(C(cmd, f"{'Ctrl-C' if group else 'SIGTERM'} after {delay:.1f} s", argv, Interrupted(("interrupted",)),
+                         run=interrupting(wait_for, delay, sig, group), after=after))
+    # 2. sizes and numbers
+    for _ in draw("cheap"):
+        m = int(10 ** rng.uniform(5, 9))
+        out.append(C("select-data", f"--max-points {m}", lambda f, b, m=m: [
+            "select-data", b, "--vehicle", "audi_tt_cup", "--max-points", m, "-o", o(f) / "d.h5"],
+            Accepted(("of at most",), notes=("outside the model's envelope",))))
+        d = int(10 ** rng.uniform(6, 12))
+        out.append(C("iterate", f"--dictionary-size {d}", lambda f, b, d=d: [*TINY_ITERATE, "--dictionary-size", d,
+                                                                             "--out", o(f)],
+                     Refused((f"--dictionary-size {d}", "points fit"))))
+        small = int(rng.integers(-5, 10))
+        out.append(C("iterate", f"--dictionary-size {small}", lambda f, b, d=small: [
+            "iterate", "--dictionary-size", d, "--out", o(f)], Refused(("--dictionary-size must be >= 10",))))
+        laps = str(rng.choice(["inf", "nan", "-inf", f"{10 ** rng.uniform(6, 15):.3g}"]))
+        out.append(C("simulate", f"--laps {laps}", lambda f, b, v=laps: ["simulate", "--laps", v, "-o", o(f) / "r.h5"],
+                     Refused(("--laps",))))
+        dt = f"{10 ** rng.uniform(-14, -8):.2g}"
+        out.append(C("simulate", f"--dt {dt}", lambda f, b, v=dt: ["simulate", "--dt", v, "-o", o(f) / "r.h5"],
+                     Refused((f"--dt {dt}", "of memory"))))
+        hz = int(rng.choice([0, 1, 2, 61, 1000, 10 ** 9]))
+        out.append(C("diagnose", f"--horizon {hz}", lambda f, b, v=hz: ["diagnose", b, "--vehicle", "audi_tt_cup",
+                                                                          "--horizon", v], Refused(("--horizon",))))
+        ds = int(10 ** rng.uniform(6, 10))
+        out.append(C("eval head2head", f"--dict-size {ds}", lambda f, b, v=ds: [*TINY_H2H, "--dict-size", v, "--out", o(f)],
+                     Refused(("--dict-size", "points fit"))))  # tiny settings: what it costs where it is not checked
+    # 3. output folders: read-only, in use by another run, left locked by a killed run
+    unwritable = {
+        "iterate": lambda f, b, sub: ["iterate", "--out", f / "ro" / sub],
+        "simulate": lambda f, b, sub: ["simulate", "-o", f / "ro" / sub / "r.h5"],
+        "import": lambda f, b, sub: ["import", b, "--track", "circle_100", "-o", f / "ro" / sub / "r.h5"],
+        "report": lambda f, b, sub: ["report", f, "-o", f / "ro" / sub / "report.html"],
+    }
+    for cmd, argv in unwritable.items():
+        for _ in draw("cheap"):
+            sub = "/".join(f"d{int(rng.integers(100))}" for _ in range(int(rng.integers(0, 3)))) or "."
+            out.append(C(cmd, "read-only folder", lambda f, b, a=argv, s=sub: a(f, b, s), Refused(("cannot write in",)),
+                         run=in_read_only))
+    for _ in draw("expensive"):
+        out.append(C("iterate", "--out in use", lambda f, b: [*TINY_ITERATE, "--out", o(f)], Refused(("in use by pid",)),
+                     run=beside_a_first_run([*TINY_ITERATE, "--workers", "1", "--out", "out"], "iteration 0")))
+        out.append(C("h2h collect", "--out in use", lambda f, b: [*TINY_COLLECT, "--out", o(f)], Refused(("in use by pid",)),
+                     run=beside_a_first_run([*TINY_COLLECT, "--out", "out"], "runs to do")))
+        out.append(C("iterate", "lock of a killed run", lambda f, b: ["iterate", "--solver", "gurobi", "--out", o(f)],
+                     Refused(("gurobi",), notes=("took over the lock",)),
+                     run=after_a_killed_run([*TINY_ITERATE, "--workers", "1", "--out", "out"], "iteration 0")))
+    # 4. verdicts from enough data
+    for _ in draw("expensive"):
+        out.append(C("eval head2head", "claims of 2 tracks", lambda f, b: ["-q", *TINY_H2H, "--json", "--out", o(f)],
+                     Accepted(notes=("warning: ",)), after=_no_verdict))  # tiny fits and calibrations are warned
+    # 5. implausible vehicles
+    for what, old, new, needle, value in IMPLAUSIBLE:
+        for _ in draw("cheap"):
+            v = value(rng)
+            out.append(C("plan", f"vehicle {what} {v:.3g}", lambda f, b, old=old, new=new, v=v: [
+                "plan", "--curvature", "--vehicle", vehicle_file(f, old, new.format(v=v)), "-o", o(f) / "p.h5"],
+                Refused(("car.toml", needle))))
+    # 6. small contracts
+    for name, (make, kind) in SHOWN.items():
+        out.append(C("show", f"kind of {name}", lambda f, b, make=make: ["show", make(f)], Accepted((f"kind            {kind}",))))
+    for _ in draw("cheap"):
+        cmd = str(rng.choice(["select-data", "simulate", "track show", "show"]))
+        argv = {"select-data": lambda f, b: ["select-data", b, "--vehicle", "audi_tt_cup", "--selection", "random",
+                                             "-o", o(f) / "d.h5", "-q"],
+                "simulate": lambda f, b: ["simulate", "--track", "circle_100", "--laps", "0.2", "-q", "-o", o(f) / "r.h5"],
+                "track show": lambda f, b: ["track", "show", "-q", "circle_100"],
+                "show": lambda f, b: ["show", b, "-q"]}[cmd]
+        out.append(C(cmd, "-q after the subcommand", argv, Accepted(notes=("outside the model's envelope",))))
+        plant = str(rng.choice(list(PLANTS_SHOWN)))
+        out.append(C("simulate", f"plant {plant} named", lambda f, b, p=plant: [
+            "simulate", "--plant", p, "--track", PLANTS_SHOWN[p], "--laps", "0.05", "-o", o(f) / "r.h5"],
+            Accepted((f"plant {plant}",))))
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# issue 38's reader rows, owned by the ingest helper: they state what the issue asks; until the
+# readers do it they fail, and the probe counts them apart (owner "ingest").
+
+
+def global_log(base: Path, folder: Path, name: str = "log.csv", track: str = "circle_100") -> tuple[list[str], np.ndarray]:
+    """The base recording in the global frame (what a car's logger writes): t, x, y, yaw, speeds,
+    yaw rate, steering, acceleration."""
+    from gprace.tracks import load_track
+
+    header, data = read_table(base)
+    col = {h: data[:, i] for i, h in enumerate(header)}
+    tr = load_track(track)
+    x, y = tr.to_global(col["s"], col["e_y"])
+    yaw = tr.heading(col["s"]) + col["e_psi"]
+    cols = ["t", "x", "y", "yaw", "v_x", "v_y", "yaw_rate", "delta", "a_x"]
+    return cols, np.column_stack([col["t"], x, y, yaw, col["v_x"], col["v_y"], col["yaw_rate"], col["delta"], col["a_x"]])
+
+
+def _log_text(base: Path, folder: Path, sep: str = ",", eol: str = "\n", bom: bool = False, t_scale: float = 1.0,
+              zero: str | None = None) -> Path:
+    cols, data = global_log(base, folder)
+    data[:, 0] *= t_scale
+    if zero is not None:
+        data[:, cols.index(zero)] = 0.0
+    lines = [sep.join(cols)] + [sep.join(f"{v:.10g}" for v in r) for r in data]
+    p = folder / "log.csv"
+    p.write_bytes(("\ufeff" if bom else "").encode() + eol.join(lines).encode() + eol.encode())
+    return p
+
+
+def _map_elsewhere(base: Path, folder: Path) -> Path:
+    """A map naming its track file relative to the map's own folder (used from another folder)."""
+    from gprace.tracks import load_track
+
+    maps = folder / "maps"
+    maps.mkdir(exist_ok=True)
+    tr = load_track("circle_100")
+    smp = tr.sample(2.0)
+    rows = "\n".join(f"{x:.4f},{y:.4f},{wr:.3f},{wl:.3f}" for x, y, wr, wl in
+                     zip(smp.x, smp.y, tr.width_right(smp.s), tr.width_left(smp.s)))
+    (maps / "track.csv").write_text("# x_m,y_m,w_tr_right_m,w_tr_left_m\n" + rows + "\n")
+    m = maps / "map.toml"
+    m.write_text('track = "track.csv"\n')
+    return m
+
+
+def _s_continuous(folder: Path, res: Outcome) -> list[str]:
+    """Without a track: s must not jump inside a lap (the issue: jumps over 100 m, 1,579 times)."""
+    from gprace.io.runs import read_run
+
+    p = folder / "out" / "r.h5"
+    if res.code != 0 or not p.exists():
+        return []
+    run = read_run(p)
+    ds = np.diff(run.data["s"])
+    same_lap = np.diff(run.data["lap"]) == 0
+    jumps = int(np.sum(np.abs(ds[same_lap]) > 20 * max(float(np.median(np.abs(ds))), 1e-3)))
+    return [f"s jumps {jumps} times inside a lap"] if jumps else []
+
+
+def ingest_cases(rng: np.random.Generator, per_class: int = 1) -> list[Case]:
+    """The reader rows of issue 38 (BOM, CRLF and ';' files, ns/us time, map paths relative to
+    the map, constant channels, a log of another track, s without a track), for the ingest helper."""
+    o = _out
+    cases = []
+    for _ in range(per_class):
+        cases += [
+            Case("import", "UTF-8 BOM", lambda f, b: ["import", _log_text(b, f, bom=True), "--track", "circle_100",
+                                                      "-o", o(f) / "r.h5"],
+                 OneOf((Accepted(), Refused(("BOM",)))), owner="ingest"),
+            Case("import", "CRLF", lambda f, b: ["import", _log_text(b, f, eol="\r\n"), "--track", "circle_100",
+                                                 "-o", o(f) / "r.h5"], Accepted(), owner="ingest"),
+            Case("import", "';'-separated", lambda f, b: ["import", _log_text(b, f, sep=";"), "--track", "circle_100",
+                                                         "-o", o(f) / "r.h5"], OneOf((Accepted(), Refused(("';'",)))),
+                 owner="ingest"),
+            Case("import", "time in ns", lambda f, b: ["import", _log_text(b, f, t_scale=1e9), "--track", "circle_100",
+                                                      "-o", o(f) / "r.h5"], Refused(('t = "ns"',)), owner="ingest"),
+            Case("import", "time in us", lambda f, b: ["import", _log_text(b, f, t_scale=1e6), "--track", "circle_100",
+                                                      "-o", o(f) / "r.h5"], Refused(('t = "us"',)), owner="ingest"),
+            Case("import", "map path relative to the map", lambda f, b: [
+                "import", _log_text(b, f), "--map", _map_elsewhere(b, f), "-o", o(f) / "r.h5"], Accepted(), owner="ingest"),
+            Case("import", "a_x all zeros", lambda f, b: ["import", _log_text(b, f, zero="a_x"), "--track", "circle_100",
+                                                         "-o", o(f) / "r.h5"],
+                 Accepted(("a_x", "constant"), notes=("a_x",)), owner="ingest"),
+            Case("import", "yaw_rate all zeros", lambda f, b: ["import", _log_text(b, f, zero="yaw_rate"), "--track",
+                                                              "circle_100", "-o", o(f) / "r.h5"],
+                 OneOf((Accepted(("yaw_rate", "constant"), notes=("yaw_rate",)), Refused(("yaw_rate",)))), owner="ingest"),
+            Case("import", "log of another track", lambda f, b: ["import", _log_text(b, f), "--track", "gprace_ring",
+                                                                "-o", o(f) / "r.h5"],
+                 OneOf((Refused(("track",)), Accepted(("off the track",), notes=("off the track",)))), owner="ingest"),
+            Case("import", "no track: s within a lap", lambda f, b: ["import", _log_text(b, f), "-o", o(f) / "r.h5"],
+                 Accepted(notes=("reference line", "lap")), after=_s_continuous, owner="ingest"),
+        ]
+    return cases

@@ -68,7 +68,7 @@ def test_an_old_table_is_read_with_a_warning_and_not_rewritten(tmp_path, capsys)
     p = tmp_path / "table.json"
     shutil.copy(OLD, p)
     tab = read_table(p)
-    assert "layout before version 1" in capsys.readouterr().err
+    assert "layout before version" in capsys.readouterr().err
     assert p.read_bytes() == OLD.read_bytes()
     assert tab.racing["explore"].failed_where[0].scenario == 1 and tab.claims["border_hits"].verdict == "not resolved"
     # a hand-trimmed table: the parts it lacks are empty

@@ -396,11 +396,36 @@ def reservoir_merge(
     return Z, Y, total
 
 
+def selector_bytes(M: int, p: int, d: int, block: int = 128) -> float:
+    """Memory of a :class:`DiverseSelector` of ``M`` slots for ``p`` outputs and ``d`` inputs [bytes]:
+    the ``p`` inverses ``M x M``, the rank-one buffers ``p x M x 2 block``, a block's kernel
+    columns and the slots' data, in float64."""
+    return 8.0 * (p * M * M + 3 * p * M * block + M * (d + 2 * p + 1))
+
+
+def dictionary_bytes(M: int, p: int, d: int) -> float:
+    """Memory of a dictionary of ``M`` points kept by diverse selection and fitted by an exact GP
+    (``p`` outputs, ``d`` inputs) [bytes]: the selector (:func:`selector_bytes`) and, per output,
+    the GP's kernel matrix and its Cholesky factor."""
+    return selector_bytes(M, p, d) + 16.0 * p * M * M
+
+
 def select_diverse(
     hyper: GPHyper, Z: np.ndarray, Y: np.ndarray, M: int, outlier_kappa: float | None = 4.0,
-    initial: tuple[np.ndarray, np.ndarray] | None = None,
+    initial: tuple[np.ndarray, np.ndarray] | None = None, what: str = "the dictionary size",
 ) -> tuple[np.ndarray, np.ndarray, SelectionStats]:
-    """Convenience: stream ``(Z, Y)`` into a dictionary (optionally starting from ``initial``)."""
+    """Convenience: stream ``(Z, Y)`` into a dictionary (optionally starting from ``initial``).
+
+    The dictionary never holds more points than it is given, so its slots are made for at most
+    that many (``M`` beyond the data keeps all of it, at the cost of the data, not of ``M``); if
+    even those do not fit in memory, an InputError names ``what`` (the option that set ``M``).
+    """
+    from gprace.resources import check_size
+
+    n = (len(initial[0]) if initial is not None else 0) + len(Z)
+    M = max(1, min(int(M), n))
+    check_size(f"{what}: a diverse dictionary of {M:,} points", M, lambda m: selector_bytes(m, hyper.p, hyper.d),
+               " points")
     sel = DiverseSelector(hyper, M, outlier_kappa)
     if initial is not None and len(initial[0]):
         Zi, Yi = initial
@@ -413,5 +438,6 @@ def select_diverse(
 
 
 __all__ = [
-    "DiverseSelector", "SelectionStats", "random_subsample", "reservoir_merge", "select_diverse",
+    "DiverseSelector", "SelectionStats", "random_subsample", "reservoir_merge", "select_diverse", "selector_bytes",
+    "dictionary_bytes",
 ]

@@ -154,7 +154,8 @@ def _stream(selection: str, previous, Znew, Ynew, max_points: int, seed: int, mo
 
     hyper, hyper_source = _selection_hyper(model, previous, gp, kernel, Znew, Ynew, seed)
     initial = (previous.Z, previous.Y) if previous is not None and len(previous.Z) else None
-    Z, Y, st = select_diverse(hyper, Znew, Ynew, max_points, outlier_kappa, initial=initial)
+    Z, Y, st = select_diverse(hyper, Znew, Ynew, max_points, outlier_kappa, initial=initial,
+                              what=f"--max-points {max_points}")
     stats = {**st.as_dict(), "hyperparameters_from": hyper_source}
     return Z, Y, (previous.n_seen if previous is not None else 0) + len(Znew), stats, hyper
 

@@ -152,14 +152,17 @@ def print_table(tab: dict, as_json: bool) -> None:
                   f"trajectories (start times in the first seed: {points})", ["steps ahead", *errs], erows)
     print_coverage(t.coverage)
     if t.claims:
+        from gprace.verdict import MIN_SAMPLES
+
         crows = []
         for name, c in t.claims.items():
             fmt = ".4f" if name.startswith("ey_error") else ".3g"
             crows.append([name, _cell(c, fmt), " ".join("-" if lo is None else f"[{lo:{fmt}}, {hi:{fmt}}]"
-                                                        for lo, hi in c.seed_ci), c.verdict])
+                                                        for lo, hi in c.seed_ci),
+                          "-" if c.tracks is None else c.tracks, c.shown_verdict(t.settings.get("tracks"))])
         console.table("Claims: exploration - baseline (the paper: lower, except more overtakes); a claim holds only "
-                      "where every seed's 95% interval over tracks is on its side", ["figure", "difference",
-                      "interval per seed", "verdict"], crows)
+                      "where every seed's 95% interval over tracks is on its side, and no verdict from fewer than "
+                      f"{MIN_SAMPLES} tracks", ["figure", "difference", "interval per seed", "tracks", "verdict"], crows)
 
 
 def head2head_cmd(

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gprace.h2h.config import H2HConfig, MPCConfig
+from gprace.interrupt import check as check_interrupt
 from gprace.model import NominalModel, State
 from gprace.model.nominal import rk4_expression
 
@@ -278,6 +279,7 @@ class NMPC:
         try:
             for attempt in range(3 if cold else 1):  # a cold start may continue from its last iterate
                 res = self._solver(**args)
+                check_interrupt()  # IPOPT stops at Ctrl-C as if it had failed: no fallback, no retry
                 stats = self._solver.stats()
                 status = str(stats.get("return_status", ""))
                 ok = bool(stats.get("success", False)) or status == "Solved_To_Acceptable_Level"

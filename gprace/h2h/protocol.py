@@ -194,6 +194,19 @@ class Settings(CommandSettings):
             from gprace.backends import gps
 
             gps.get(self.backend)  # an unknown name lists the registered ones
+        from gprace.gp.selection import dictionary_bytes
+        from gprace.resources import check_size
+
+        check_size(f"--dict-size {self.dict_size}", self.dict_size,
+                   lambda m: dictionary_bytes(m, len(OUTPUTS), len(FEATURES)), " points")
+        # the records of a batch are held together (the table, the datasets): RACE_NUMBERS per step and car
+        cfg = H2HConfig()
+        race = 8.0 * RACE_NUMBERS * 2 * (self.max_time / cfg.dt + 1)
+        for option, n, per, unit in (("--tracks", self.tracks, race * max(len(self.raced), 1), " tracks"),
+                                     ("--runs", self.runs, race, " races")):
+            check_size(f"{option} {n} with --max-time {self.max_time:g}", n, lambda k, per=per: k * per, unit)
+        check_size(f"--samples {self.samples}", self.samples,
+                   lambda k: 8.0 * RACE_NUMBERS * k * cfg.horizon * max(self.workers, 1), " samples")
         known = set(OFFLINE) | {"init", "oracle"}
         for p in (*self.raced, *self.offline):
             if p not in known:
@@ -221,6 +234,10 @@ class Settings(CommandSettings):
                 "baseline_tracks": self.baseline_tracks, "blocking_weight": self.blocking_weight,
                 "explore_minutes": self.explore_minutes}
 
+
+RACE_NUMBERS = 40
+"""Numbers kept per race step and car (states, measurements, inputs, predictions, the GP's
+training pairs), for the size checks of :class:`Settings`."""
 
 PATH_KEYS = ("model", "explore_data", "record", "models")
 """Task entries that are file locations: their contents enter the task as ``*_hash`` entries."""
@@ -731,6 +748,7 @@ def calibrate(st: Settings, out: Path, model_paths: dict[str, Path]) -> dict[str
     Returns ``{predictor: calibration}``, also written to ``calib/calibration.json`` (the first pass
     to ``calib/calibration_oracle.json``, the history of the passes to ``calib/passes.json``)."""
     from gprace.h2h.spread import at_least, settled
+    from gprace.io.artifacts import write_text_atomic
 
     names = calibrated_names(st, model_paths)
     if not names:
@@ -739,7 +757,7 @@ def calibrate(st: Settings, out: Path, model_paths: dict[str, Path]) -> dict[str
     cal = _fit_calibration(st, _calibration_errors(st, folder, calib_tasks(st), names, model_paths, "calibration"), names)
     drivers = [p for p in st.raced if p in names][: st.calib_runs]
     if drivers:
-        (folder / "calibration_oracle.json").write_text(json.dumps(cal, indent=1))
+        write_text_atomic(folder / "calibration_oracle.json", json.dumps(cal, indent=1))
         first, driving, history = st.calib_runs, cal, []
         for k in range(2, 2 + st.calib_passes):
             sub, arrays = folder if k == 2 else folder / f"pass{k}", []
@@ -761,8 +779,8 @@ def calibrate(st: Settings, out: Path, model_paths: dict[str, Path]) -> dict[str
             console.warn(f"calibration: not settled after {st.calib_passes} driven passes; the raced predictors keep "
                          f"the larger of the last two calibrations (see {folder / 'passes.json'})")
         cal = {p: at_least(driving[p], fitted[p]) if p in drivers else fitted[p] for p in names}
-        (folder / "passes.json").write_text(json.dumps(history, indent=1))
-    (folder / "calibration.json").write_text(json.dumps(cal, indent=1))
+        write_text_atomic(folder / "passes.json", json.dumps(history, indent=1))
+    write_text_atomic(folder / "calibration.json", json.dumps(cal, indent=1))
     return cal
 
 

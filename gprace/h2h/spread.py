@@ -12,7 +12,8 @@ A claim of the paper (exploration against the baseline) is a difference ``explor
 with a claimed sign. It ``holds`` only where, in every seed, the 95 % bootstrap interval of the
 difference lies on the claimed side of zero; it ``fails`` where in every seed it lies on the other
 side; ``seeds disagree`` where some seeds show it and others the opposite, ``not resolved``
-otherwise (the difference is within the spread).
+otherwise (the difference is within the spread), and ``too few samples for a verdict`` where
+fewer tracks than :data:`gprace.verdict.MIN_SAMPLES` are behind it (:mod:`gprace.verdict`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from gprace.verdict import verdict
 
 if TYPE_CHECKING:
     from gprace.h2h.records import RaceAttrs, Record
@@ -139,7 +142,8 @@ def summarise(per_seed: list[TrackData], B: int = BOOTSTRAP, seed: int = 0) -> d
         row = {"values": vals, **seed_stats(vals), "ci": _interval(mean_boot)}
         if name.startswith("diff."):
             row["seed_ci"] = [_interval(b[name]) for b in boot]
-            row["verdict"] = verdict(row["seed_ci"], claimed=CLAIMED_SIGN.get(name.split(".", 1)[1], -1))
+            row["tracks"] = min(claim_tracks(td).get(name, td.n) for td in per_seed)
+            row["verdict"] = verdict(row["seed_ci"], claimed=CLAIMED_SIGN.get(name.split(".", 1)[1], -1), n=row["tracks"])
         out[name] = row
     return out
 
@@ -149,26 +153,20 @@ CLAIMED_SIGN = {"overtakes": +1}
 overtake time) except the number of overtakes, which it raises."""
 
 
-def verdict(seed_ci: list[list[float | None]], claimed: int = -1) -> str:
-    """``holds`` / ``fails`` / ``seeds disagree`` / ``not resolved`` from each seed's interval of
-    ``explore - baseline`` and the claimed sign (-1: exploration lowers the figure)."""
-    side = []
-    for lo, hi in seed_ci:
-        if lo is None:
-            side.append(0)
-        elif claimed * hi > 0 and claimed * lo > 0:
-            side.append(1)  # the whole interval on the claimed side
-        elif claimed * hi < 0 and claimed * lo < 0:
-            side.append(-1)
-        else:
-            side.append(0)
-    if side and all(s == 1 for s in side):
-        return "holds"
-    if side and all(s == -1 for s in side):
-        return "fails"
-    if 1 in side and -1 in side:
-        return "seeds disagree"
-    return "not resolved"
+def claim_tracks(td: TrackData) -> dict[str, int]:
+    """Per claim (``diff.*``): the tracks behind its difference, the samples of its bootstrap: every
+    track for the counts, the tracks where both predictors overtook inside for the overtake time,
+    the tracks with offline start times for the e_y errors."""
+    out: dict[str, int] = {}
+    if "explore" in td.border and "baseline" in td.border:
+        for f in ("border_hits", "collisions", "overtakes"):
+            out[f"diff.{f}"] = td.n
+        both = td.inside & np.isfinite(td.overtake_time["explore"]) & np.isfinite(td.overtake_time["baseline"])
+        out["diff.overtake_time"] = int(both.sum())
+    if "explore" in td.err_sum and "baseline" in td.err_sum:
+        for k in range(td.err_sum["explore"].shape[1]):
+            out[f"diff.ey_error_{k + 1}"] = int((td.err_count > 0).sum())
+    return out
 
 
 # ----------------------------------------------------------------------------------------------

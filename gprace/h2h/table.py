@@ -24,7 +24,7 @@ from gprace.io.records import Num, parse_record, read_json
 if TYPE_CHECKING:
     from gprace.h2h.records import RaceAttrs, Record
 
-TABLE_VERSION = 1
+TABLE_VERSION = 2  # 2: the claims' tracks, and "too few samples for a verdict" (issue 38)
 
 
 class FailedRace(Frozen):
@@ -98,7 +98,18 @@ class Claim(Figure):
     """Exploration minus baseline for one of the paper's claims."""
 
     seed_ci: list[list[float | None]] = Field(description="each seed's 95 % interval over tracks")
-    verdict: str = Field(description="holds, fails, seeds disagree or not resolved (gprace.h2h.spread.verdict)")
+    tracks: int | None = Field(None, description="tracks behind the difference, fewest over seeds (None: a table "
+                               "of before version 2)")
+    verdict: str = Field(description="holds, fails, seeds disagree, not resolved or too few samples for a verdict "
+                         "(gprace.verdict)")
+
+    def shown_verdict(self, tracks: int | None = None) -> str:
+        """The verdict, or too few samples where the tracks behind it (``tracks`` for a table of
+        before version 2, which stored no count) are below the minimum (gprace.verdict)."""
+        from gprace.verdict import MIN_SAMPLES, TOO_FEW
+
+        n = self.tracks if self.tracks is not None else tracks
+        return TOO_FEW if n is not None and n < MIN_SAMPLES else self.verdict
 
 
 class H2HTable(ChainTable):

@@ -4,7 +4,8 @@ Layout: root attributes ``kind`` (run, dataset, model, plan, ...), ``schema`` (i
 ``gprace_version``, ``config_hash``, ``seed``, ``created`` (ISO time) plus any scalar or string
 ``attrs`` of the stage; arrays under ``/data/<name>``; nested groups for structured payloads
 (``/groups/<group>/<name>``). No pickle anywhere. Writes are atomic: a temporary file in the same
-folder, then :func:`os.replace`.
+folder, then :func:`os.replace`. Nothing is written once the command was interrupted
+(:func:`gprace.interrupt.check`): what a solver computed across Ctrl-C is not a result.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from gprace import __version__
+from gprace import __version__, interrupt
 from gprace.errors import ArtifactError, InputError
 
 SCHEMA = 1
@@ -68,14 +69,20 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` through a hidden sibling and :func:`os.replace`: a killed
     run leaves the old file or the new one, never half of one (every JSON record, marker and page
     gprace writes goes through here; the scan skips the hidden sibling)."""
+    interrupt.check()
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 
 def write_artifact(path: str | Path, art: Artifact) -> Path:
+    interrupt.check()
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from gprace.errors import InputError, at_row
+from gprace.interrupt import check
 from gprace.io.artifacts import Artifact, read_artifact, write_artifact
 
 RUN_COLUMNS = ("t", "s", "e_y", "e_psi", "v_x", "v_y", "yaw_rate", "delta", "a_x", "kappa")
@@ -154,10 +155,15 @@ def write_run_csv(run: Run, path: str | Path) -> Path:
     path = Path(path)
     cols = list(RUN_COLUMNS) + [c for c in run.data if c not in RUN_COLUMNS and np.ndim(run.data[c]) == 1]
     arr = np.column_stack([np.asarray(run.data[c], dtype=float) for c in cols])
+    check()  # a run driven across Ctrl-C is not a result
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
-    np.savetxt(tmp, arr, delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
-    tmp.replace(path)
+    try:
+        np.savetxt(tmp, arr, delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     if "inputs" in run.meta:
         _write_sidecar(run.meta, path)
     return path

@@ -67,7 +67,7 @@ class MPCSettings(CommandSettings):
 
     N: int = Field(20, ge=1, description="horizon [steps]")
     dt: float = Field(0.05, gt=0, description="step [s]")
-    beta: float = Field(0.6, description="probability of each chance constraint, in (0, 1)")
+    beta: float = Field(0.6, gt=0, lt=1, description="probability of each chance constraint, in (0, 1)")
     solver: str = Field("clarabel", description="QP backend (registry gprace.solver)")
     margin: float = Field(0.1, ge=0, description="distance kept from the border on top of half the car width [m]")
     integrator: str = Field("rk4", description='prediction step: "rk4" (default) or "euler" (the paper\'s)')

@@ -177,6 +177,8 @@ def _solve(nlp: dict, args: dict, settings: PlanSettings, track) -> tuple[np.nda
     """IPOPT with the fast settings, then once more with its robust defaults if those failed."""
     import casadi as ca
 
+    from gprace.interrupt import check as check_interrupt
+
     opts = {
         "ipopt.print_level": settings.print_level, "print_time": 0, "ipopt.sb": "yes",
         "ipopt.max_iter": settings.max_iter, "ipopt.tol": settings.tol, "ipopt.linear_solver": "mumps",
@@ -188,12 +190,14 @@ def _solve(nlp: dict, args: dict, settings: PlanSettings, track) -> tuple[np.nda
     opts.update(_extra_opts())
     solver = ca.nlpsol("plan", "ipopt", nlp, opts)
     sol = solver(**args)
+    check_interrupt()  # IPOPT stops at Ctrl-C as if it had failed: that is no reason for the second try
     stats = solver.stats()
     if not stats["success"]:
         # the fast settings failed (seen with a strong GP compensation): IPOPT's robust defaults
         opts.update({"ipopt.mu_strategy": "adaptive", "ipopt.mu_init": 0.1, "ipopt.bound_push": 1e-2, "ipopt.bound_frac": 1e-2})
         solver = ca.nlpsol("plan", "ipopt", nlp, opts)
         sol = solver(**args)
+        check_interrupt()
         stats = solver.stats()
     if not stats["success"]:
         raise SolverError(f"plan: IPOPT did not converge on {track.name!r} ({stats['return_status']}, {stats['iter_count']} iterations)")

@@ -10,6 +10,7 @@ outcome of head-to-head races, verdict of a diagnosis). Unknown kinds still get 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -124,18 +125,55 @@ def artifact_kind(path: str | Path) -> str | None:
         return None
 
 
+def _has(*keys: str) -> Callable[[Any], bool]:
+    return lambda o: isinstance(o, dict) and set(keys) <= set(o)
+
+
+def _values_have(*keys: str) -> Callable[[Any], bool]:
+    """A dict of dicts (one per predictor or dataset), each with ``keys``."""
+    return lambda o: (isinstance(o, dict) and bool(o) and all(isinstance(v, dict) and set(keys) <= set(v)
+                                                                for v in o.values()))
+
+
+def _entries_have(*keys: str) -> Callable[[Any], bool]:
+    return lambda o: isinstance(o, list) and bool(o) and all(isinstance(v, dict) and set(keys) <= set(v) for v in o)
+
+
+# Every JSON gprace writes or prints, by the keys its writer always sets (most specific first); what
+# a command prints with --json is ``<command>_result``. ``gprace show`` names the kind, the report
+# files them by it. A test writes each and checks that none is taken for another.
+JSON_KINDS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
+    ("diagnosis", _has("verdict", "channels"), "gprace diagnose --json"),
+    ("h2h_table", lambda o: isinstance(o, dict) and bool({"racing", "ey_error"} & set(o)), "eval head2head: table.json"),
+    ("timetrial_summary", _has("rows", "by_iteration"), "iterate: summary.json"),
+    ("timetrial_comparison", _has("variants", "per_trial", "oracle"), "gprace eval timetrial --json"),
+    ("iterate_settings", _has("alphas", "iterations", "trials"), "iterate: settings.json"),
+    ("iteration_record", _has("iteration", "trial", "alpha", "planned", "driven"), "iterate: record.json"),
+    ("oracle_lap", lambda o: isinstance(o, dict) and "known" in o and bool({"planned", "why"} & set(o)),
+     "iterate: oracle.json"),
+    ("h2h_calibration", _values_have("scale", "floor"), "eval head2head: calib/calibration*.json"),
+    ("h2h_calibration_passes", _entries_have("pass", "settled", "fitted"), "eval head2head: calib/passes.json"),
+    ("show_result", _has("path", "format", "kind", "results"), "gprace show --json"),
+    ("simulate_result", _has("output", "samples", "duration_s", "lap_times"), "gprace simulate --json"),
+    ("import_result", _has("output", "source", "samples", "reference"), "gprace import --json"),
+    ("import_meta", _has("source_file", "source_sha256", "map_toml", "import_version"), "import: <run>.meta.json"),
+    ("plan_result", _has("output", "method", "lap_time", "nodes"), "gprace plan --json"),
+    ("run_result", _has("output", "lap_time", "planned_lap_time", "completed"), "gprace run --json"),
+    ("select_data_result", _has("output", "feature_map", "selection", "points", "max_points"), "gprace select-data --json"),
+    ("retrain_result", _has("output", "backend", "kernel", "outputs", "points"), "gprace retrain --json"),
+    ("eval_gp_result", _has("model", "run", "feature_map", "outputs", "samples"), "gprace eval gp --json"),
+    ("track_show_result", _has("name", "closed", "length_m", "min_radius_m"), "gprace track show --json"),
+    ("h2h_train_result", _has("model", "backend", "points", "quality"), "gprace h2h train --json"),
+    ("h2h_explore_result", _has("dataset", "points"), "gprace h2h explore --json"),
+    ("h2h_collect_result", _values_have("path", "points"), "gprace h2h collect --json"),
+)
+
+
 def json_kind(obj: Any) -> str:
-    """Classify a result JSON: ``diagnosis``, ``h2h_table``, ``timetrial_summary`` or ``json``."""
-    if isinstance(obj, dict):
-        if "verdict" in obj and "channels" in obj:
-            return "diagnosis"
-        if "racing" in obj or "ey_error" in obj:
-            return "h2h_table"
-        keys = set(obj)
-        if keys & {"iterations", "rows", "trials"} or any("lap" in k for k in keys):
-            return "timetrial_summary"
-    if isinstance(obj, list) and obj and isinstance(obj[0], dict) and any("lap" in k for k in obj[0]):
-        return "timetrial_summary"
+    """Classify a result JSON by :data:`JSON_KINDS` (``json`` for anything else)."""
+    for kind, test, _ in JSON_KINDS:
+        if test(obj):
+            return kind
     return "json"
 
 

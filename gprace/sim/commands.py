@@ -27,7 +27,7 @@ def register(app: typer.Typer) -> None:
 
         import numpy as np
 
-        from gprace.config import SimulateConfig, load_plant, validate
+        from gprace.config import SimulateConfig, from_options, load_plant
         from gprace.console import console
         from gprace.io.artifacts import check_output
         from gprace.io.runs import write_run, write_run_csv
@@ -35,16 +35,18 @@ def register(app: typer.Typer) -> None:
         check_output(output)
         check_output(csv, "--csv")
         from gprace.sim import lap_times, run_hash, simulate
+        from gprace.sim.simulate import check_budget
         from gprace.tracks import load_track
 
-        cfg = validate(
+        cfg = from_options(
             SimulateConfig,
             {"dt": dt, "laps": laps, "speed_scale": speed_scale, "weave_amplitude": weave,
              "weave_wavelength": wavelength, "seed": seed},
-            "simulate options",
+            {"weave_amplitude": "--weave"},
         )
         plant_cfg = load_plant(plant)
         trk = load_track(track)
+        check_budget(plant_cfg, trk, cfg)
         console.info(f"simulate: driving {plant} on {trk.name} for {laps:g} lap(s)")
         t0 = time.perf_counter()
         run = simulate(plant_cfg, trk, cfg)
@@ -57,10 +59,10 @@ def register(app: typer.Typer) -> None:
         console.info(f"simulated {run.n} steps in {elapsed:.1f} s")
         if as_json:
             console.json({"output": str(output), "samples": run.n, "duration_s": float(run.data["t"][-1]),
-                          "plant": plant_cfg.kind, "track": trk.name, "lap_times": list(lap_times(run)),
+                          "plant": plant, "plant_kind": plant_cfg.kind, "track": trk.name, "lap_times": list(lap_times(run)),
                           "border_hit_samples": hits})
             return
         console.result(
-            f"wrote {output}: {run.n} samples, {run.data['t'][-1]:.1f} s, plant {plant_cfg.kind}, "
+            f"wrote {output}: {run.n} samples, {run.data['t'][-1]:.1f} s, plant {plant} ({plant_cfg.kind}), "
             f"track {trk.name}, lap times [s]: {laps_t}, border-hit samples: {hits}"
         )

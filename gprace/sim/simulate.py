@@ -21,9 +21,32 @@ from gprace.console import console
 from gprace.errors import RunFailedError
 from gprace.io.runs import Run
 from gprace.plants import make_plant
+from gprace.resources import check_size
 from gprace.sim.controller import ReferenceController
 from gprace.sim.record import border_hits, lap_times_of, run_columns
 from gprace.sim.stop import run_end
+
+
+STEP_NUMBERS = 48
+"""Numbers kept per recorded step (the buffers here and the run's columns), for the memory check."""
+
+
+def _budget(ctrl: ReferenceController, track, sim_config: SimulateConfig) -> tuple[float, int]:
+    """The distance to drive and the step budget (the slowest progress allowed: 0.3 of the mean
+    speed of the controller's profile); a budget that cannot be held in memory is refused."""
+    dt = sim_config.dt
+    goal = sim_config.laps * track.length if track.closed else track.length
+    n_max = int(math.ceil(goal / max(0.3 * float(np.mean(ctrl.profile.v)), 1e-3) / dt)) + 10
+    per_lap = (n_max - 10) / (sim_config.laps if track.closed else 1.0)
+    check_size(f"--laps {sim_config.laps:g} at --dt {dt:g} s ({n_max:,} steps at most)", n_max,
+               lambda n: 8.0 * STEP_NUMBERS * n, say=lambda n: f"{max(n - 10, 0) / per_lap:.4g} laps")
+    return goal, n_max
+
+
+def check_budget(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> None:
+    """What :func:`simulate` checks before it drives, for a command to check before it starts."""
+    _budget(ReferenceController(plant_config.vehicle, track, sim_config.dt, sim_config.speed_scale,
+                                sim_config.weave_amplitude, sim_config.weave_wavelength), track, sim_config)
 
 
 def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Run:
@@ -38,9 +61,8 @@ def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Ru
     x0, u0 = ctrl.initial_state(0.0)
     y = plant.reset(x0, u0)
 
-    goal = sim_config.laps * track.length if track.closed else track.length
+    goal, n_max = _budget(ctrl, track, sim_config)
     v_mean = float(np.mean(ctrl.profile.v))
-    n_max = int(math.ceil(goal / max(0.3 * v_mean, 1e-3) / dt)) + 10
     v_stall = 0.2 * min(v_mean, float(ctrl.profile.v.min()) + 1e-9)
 
     Y = np.empty((n_max + 1, 6))

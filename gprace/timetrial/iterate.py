@@ -58,7 +58,7 @@ from gprace.timetrial.record import IterateSummary, IterationRecord, read_record
 class IterateSettings(CommandSettings):
     """The iterative double-GP time trial (``gprace iterate``; defaults: the paper's schedule)."""
 
-    OPTIONS: ClassVar[dict[str, str]] = {"alphas": "--alpha", "dictionary_size": "--dictionary"}
+    OPTIONS: ClassVar[dict[str, str]] = {"alphas": "--alpha", "dictionary_size": "--dictionary-size"}
 
     alphas: tuple[float, ...] = Field((0.857, 0.714, 0.0), description="exploration weight of iteration 1, 2, ...; "
                                       "the last holds for the rest")
@@ -103,7 +103,18 @@ class IterateSettings(CommandSettings):
         dyn_feature_set(self.features)
         solvers.get(self.solver)  # an unknown name lists the registered ones, before any planning
         quantile_factor(self.beta)
+        self._check_dictionary_size()
         return self
+
+    def _check_dictionary_size(self) -> None:
+        """Both GPs' dictionaries (selection and exact fit) must fit in memory, before any work."""
+        from gprace.gp.features import dyn_feature_set, feature_map
+        from gprace.gp.selection import dictionary_bytes
+        from gprace.resources import check_size
+
+        p, d = sum(len(feature_map(k).output_names) for k in ("tracking", "planning")), len(dyn_feature_set(self.features))
+        check_size(f"--dictionary-size {self.dictionary_size}", self.dictionary_size,
+                   lambda m: dictionary_bytes(m, p, d), " points")
 
     def alpha(self, i: int) -> float:
         """alpha of iteration i >= 1."""

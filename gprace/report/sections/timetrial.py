@@ -106,8 +106,8 @@ def timetrial_variants(found: Found) -> dict[Path, dict[str, Any]]:
     interrupted loop, else from the run artifacts' lap times.
     """
     roots: dict[Path, dict[str, Any]] = {}
-    for p in found.of("timetrial_summary"):
-        if p.name == "summary.json" or (p.parent / "settings.json").exists():
+    for p in found.of("timetrial_summary", "iterate_settings"):
+        if p.name in ("summary.json", "settings.json") or (p.parent / "settings.json").exists():
             roots.setdefault(p.parent, {})
     for p in found.of("run") + found.of("plan"):
         r = _iterate_root(p, found.root)

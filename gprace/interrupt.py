@@ -1,0 +1,145 @@
+"""Ctrl-C and SIGTERM: one way to stop, in the command's process and in every worker it started.
+
+The first signal sets a flag of the process (:func:`requested`) and raises ``KeyboardInterrupt``
+where the process is: the command unwinds, its output-folder lock is released, and the CLI prints
+one line and exits 130. Later signals only set the flag (a second Ctrl-C does not interrupt the
+clean-up). A worker process raises only inside a task (an idle worker would print a traceback from
+the pool's own code); the executor turns the task into an interrupted result, never a finished one.
+
+Native solvers take the signal themselves: CasADi catches the ``KeyboardInterrupt`` raised inside
+an IPOPT iteration, returns a failed solve and prints a warning. So a result is recorded only
+after :func:`check` (every artifact and JSON writer of :mod:`gprace.io.artifacts` calls it, and
+the solver wrappers after a solve): a solve cut short by the signal is never stored as a result
+and is computed again when the command is rerun. From the signal on, the process's stderr is
+quiet (the solvers' warnings, Python's "Exception ignored" notes) until the CLI restores it for
+its one line.
+
+Tasks on Dask workers run in other processes, usually on other machines: the executor sets a
+named Dask event when the command is interrupted, and :func:`requested` in such a task also reads
+it (:func:`task_stop`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import signal
+import sys
+from collections.abc import Callable, Iterator
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+_state = {"flag": False, "raised": False, "worker": False, "in_task": False, "stderr": None}
+_stop: contextvars.ContextVar[Callable[[], bool] | None] = contextvars.ContextVar("gprace_task_stop", default=None)
+
+
+class _Quiet:
+    """A stderr that swallows what is written to it (after the signal)."""
+
+    def write(self, text: str) -> int:
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+    def isatty(self) -> bool:
+        return False
+
+
+def requested() -> bool:
+    """Was this process (or, in a Dask task, its command) interrupted?"""
+    if _state["flag"]:
+        return True
+    stop = _stop.get()
+    return bool(stop is not None and stop())
+
+
+def check() -> None:
+    """Raise ``KeyboardInterrupt`` if the command was interrupted (call before recording a result)."""
+    if requested():
+        raise KeyboardInterrupt
+
+
+def _handler(signum, frame) -> None:
+    _state["flag"] = True
+    if _state["stderr"] is None:
+        _state["stderr"] = sys.stderr
+        sys.stderr = _Quiet()
+    if _state["raised"] or (_state["worker"] and not _state["in_task"]):
+        return
+    _state["raised"] = True
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def handled() -> Iterator[None]:
+    """Ctrl-C and SIGTERM handled as above for the duration of one command (the CLI's entry).
+
+    Outside the main thread (a caller's own thread) the handlers cannot be installed: Python then
+    keeps its default Ctrl-C and the flag is never set by a signal.
+    """
+    reset()
+    try:
+        old = {s: signal.signal(s, _handler) for s in SIGNALS}
+    except ValueError:  # not the main thread of the interpreter
+        old = {}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        restore_stderr()
+        reset()
+
+
+def reset() -> None:
+    _state.update(flag=False, raised=False)
+
+
+def restore_stderr() -> None:
+    """The stderr of before the signal (the CLI prints its line there)."""
+    if _state["stderr"] is not None:
+        sys.stderr = _state["stderr"]
+        _state["stderr"] = None
+
+
+def worker_init() -> None:
+    """Initializer of a local worker process: the signal interrupts a task, never the idle worker."""
+    _state.update(worker=True, flag=False, raised=False, in_task=False)
+    for s in SIGNALS:
+        signal.signal(s, _handler)
+
+
+@contextlib.contextmanager
+def task(stop: Callable[[], bool] | None = None) -> Iterator[None]:
+    """The span of one task in a worker; ``stop`` is the remote stop flag of a Dask task."""
+    token = _stop.set(stop)
+    was = _state["in_task"]
+    _state["in_task"] = True
+    try:
+        if requested():  # signalled before the task began (an idle worker, or a solver swallowed it)
+            raise KeyboardInterrupt
+        yield
+    finally:
+        _state["in_task"] = was
+        _stop.reset(token)
+
+
+def task_stop(name: str, every: float = 1.0) -> Callable[[], bool]:
+    """A stop flag read from the Dask event ``name`` (at most once per ``every`` seconds)."""
+    import time
+
+    seen = {"at": -float("inf"), "set": False}
+
+    def stop() -> bool:
+        if not seen["set"] and time.monotonic() - seen["at"] >= every:
+            from distributed import Event
+
+            seen["at"] = time.monotonic()
+            try:
+                seen["set"] = bool(Event(name).is_set())
+            except Exception:  # noqa: BLE001 -- no scheduler reachable: nobody can have asked to stop
+                seen["set"] = False
+        return seen["set"]
+
+    return stop
