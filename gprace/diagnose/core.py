@@ -24,6 +24,11 @@ from gprace.model import Effect, NominalModel
 from gprace.model.dynamics import State, dynamics
 from gprace.model.ops import NP
 
+INPUT_KINDS = {"delta": ("commanded", "measured"), "a_x": ("commanded", "measured", "derived", "absent"),
+               "v_cmd": ("commanded",)}
+"""What each input of a recording is (``run.meta["inputs"]``, written by the importer's map)."""
+DEFAULT_INPUTS = {"delta": "commanded", "a_x": "commanded"}
+"""Recordings without ``meta["inputs"]`` (gprace's own simulate/synth runs) log the commands."""
 CHANNELS = ("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s")
 DYNAMIC = (0, 1, 2)  # v_x, v_y, yaw_rate: the channels fitted and tested for structure
 TESTED = (0, 1, 2, 3, 4)  # channels with a structure statistic (s is reported via e_psi/e_y)
@@ -44,6 +49,13 @@ class Dataset:
     sources: list[str]
     ks: np.ndarray = field(repr=False, default=None)  # curvature table (s + rec * _OFFSET)
     kv: np.ndarray = field(repr=False, default=None)
+    A: np.ndarray = field(repr=False, default=None)  # (N,) the recorded a_x, whatever its kind (regimes)
+    inputs: dict = field(default_factory=lambda: dict(DEFAULT_INPUTS))  # kind of every input
+    longitudinal: str = "force"  # how U[:, 1] drives v_x (gprace.model.dynamics.LONGITUDINAL)
+
+    def __post_init__(self) -> None:
+        if self.A is None:
+            self.A = self.U[:, 1].copy()
 
     @property
     def n(self) -> int:
@@ -77,10 +89,49 @@ class Dataset:
         return out
 
 
+def input_kinds(run: Run) -> dict[str, str]:
+    """The kind of every input of ``run`` (``meta["inputs"]``; the defaults for runs without it);
+    an unknown kind, or a speed command declared without its ``v_cmd`` column, is an InputError."""
+    given = run.meta.get("inputs") if isinstance(run.meta, dict) else None
+    kinds = dict(DEFAULT_INPUTS)
+    if isinstance(given, str):  # stored as JSON text by a writer that flattens attributes
+        import json
+
+        given = json.loads(given)
+    for k, v in (given or {}).items():
+        if k not in INPUT_KINDS or v not in INPUT_KINDS[k]:
+            raise InputError(f"{run.source}: input kind {k} = {v!r} unknown (known: "
+                             + "; ".join(f"{q}: {', '.join(vs)}" for q, vs in INPUT_KINDS.items()) + ")")
+        kinds[k] = v
+    if kinds.get("v_cmd") and "v_cmd" not in run.data:
+        raise InputError(f"{run.source}: the inputs name a speed command but the recording has no column 'v_cmd'")
+    return kinds
+
+
+def longitudinal_input(kinds: dict[str, str]) -> str:
+    """How the recording drives ``v_x`` in the model: a commanded ``a_x`` through the forces
+    (``"force"``), else a speed command through the car's speed loop (``"speed"``), else the
+    measured or derived ``a_x`` kinematically (``"kinematic"``). Commands come first: they are
+    inputs, while a measured acceleration already holds the response the model should predict."""
+    if kinds.get("a_x") == "commanded":
+        return "force"
+    if kinds.get("v_cmd") == "commanded":
+        return "speed"
+    return "kinematic"
+
+
 def build_dataset(runs: list[Run], min_samples: int = 200) -> Dataset:
-    """Stack recordings; checks period, length and lap structure (InputError naming the file)."""
+    """Stack recordings; checks period, length, lap structure and that every recording has the
+    same kind of inputs (InputError naming the file)."""
     if not runs:
         raise InputError("diagnose: no recording given")
+    kinds = input_kinds(runs[0])
+    mode = longitudinal_input(kinds)
+    for r in runs[1:]:
+        k = input_kinds(r)
+        if longitudinal_input(k) != mode or k.get("delta") != kinds.get("delta"):
+            raise InputError(f"{r.source}: inputs {k} differ from {runs[0].source}'s {kinds}; "
+                             "diagnose recordings with the same kind of inputs together")
     dts = [r.dt for r in runs]
     dt = float(dts[0])
     for r, d in zip(runs, dts):
@@ -92,10 +143,13 @@ def build_dataset(runs: list[Run], min_samples: int = 200) -> Dataset:
             f"{runs[0].source if len(runs) == 1 else 'recordings'}: {total} samples "
             f"({total * dt:.1f} s); diagnosis needs at least {min_samples} ({min_samples * dt:.0f} s)"
         )
-    Ys, Us, ks, recs, laps, ts, Ls, tabs_s, tabs_k = [], [], [], [], [], [], [], [], []
+    Ys, Us, As, ks, recs, laps, ts, Ls, tabs_s, tabs_k = [], [], [], [], [], [], [], [], [], []
     lap0 = 0
     for i, r in enumerate(runs):
         Y, U = r.states(), r.inputs()
+        As.append(U[:, 1].copy())
+        if mode == "speed":
+            U[:, 1] = r["v_cmd"]
         s = Y[:, State.S]
         ds = np.diff(s)
         wraps = np.flatnonzero(ds < -0.5 * max(np.ptp(s), 1e-9))
@@ -124,14 +178,31 @@ def build_dataset(runs: list[Run], min_samples: int = 200) -> Dataset:
     ds = Dataset(
         Y=np.vstack(Ys), U=np.vstack(Us), kappa=np.concatenate(ks), rec=np.concatenate(recs),
         lap=np.concatenate(laps), t=np.concatenate(ts), dt=dt, L=np.asarray(Ls, dtype=float),
-        sources=[r.source for r in runs],
+        sources=[r.source for r in runs], A=np.concatenate(As), inputs=kinds, longitudinal=mode,
     )
     ds.ks, ds.kv = np.concatenate(tabs_s), np.concatenate(tabs_k)
     return ds
 
 
+def model_for(vehicle, data: Dataset, effects=()) -> NominalModel:
+    """The vehicle's model driven by the recordings' inputs as they are (``data.longitudinal``)."""
+    return NominalModel(vehicle, list(effects), data.longitudinal)
+
+
 # --------------------------------------------------------------------------------------------
 # prediction
+
+
+def lag_commands(model: NominalModel, data: Dataset) -> np.ndarray:
+    """(n, 2) what each actuator lag delays at every sample: the road-wheel angle commanded
+    (steering gain and offset applied) and the a_x commanded (a speed command through the speed
+    loop, at the recorded speed)."""
+    p = model.params
+    C = data.U.astype(float, copy=True)
+    C[:, 0] = p.steer_gain * C[:, 0] + p.steer_offset
+    if p.longitudinal == "speed":
+        C[:, 1] = (p.speed_gain * C[:, 1] - data.Y[:, State.V_X]) / p.speed_tau
+    return C
 
 
 def lag_states(model: NominalModel, data: Dataset) -> np.ndarray:
@@ -139,6 +210,7 @@ def lag_states(model: NominalModel, data: Dataset) -> np.ndarray:
     from scipy.signal import lfilter
 
     cols = []
+    cmd = None
     for e in model.effects:
         if not e.n_states:
             continue
@@ -146,11 +218,13 @@ def lag_states(model: NominalModel, data: Dataset) -> np.ndarray:
         if idx is None or e.n_states != 1:  # unknown stateful effect: start at its default
             cols.append(e.initial_states(data.U))
             continue
+        if cmd is None:
+            cmd = lag_commands(model, data)
         a = float(np.exp(-data.dt / e.values["tau"]))
         z = np.empty(data.n)
         for r in np.unique(data.rec):
             m = np.flatnonzero(data.rec == r)
-            u = data.U[m, idx]
+            u = cmd[m, idx]
             # z[k+1] = a z[k] + (1-a) u[k], z[0] = u[0]
             y, _ = lfilter([0.0, 1.0 - a], [1.0, -a], u, zi=[u[0]])
             z[m] = y

@@ -172,12 +172,16 @@ class Ctx:
 # stages
 
 
-def prepare(runs: list[Run], H: int) -> Prepared:
-    """Cut every recording to the model's envelope, stack them, list the gap-free windows."""
+def prepare(runs: list[Run], H: int, wheelbase: float | None = None) -> Prepared:
+    """Cut every recording to the model's envelope (judged on the scale of the car: its
+    ``wheelbase``), stack them, list the gap-free windows."""
     kept, envs = [], []
     for r in runs:
-        mask, rep = envelope(r.data, r.source)
+        mask, rep = envelope(r.data, r.source, wheelbase)
         envs.append(rep)
+        if rep.samples_moving == 0:
+            raise InputError(f"{r.source}: no moving sample (v_x never reaches the standstill speed "
+                             f"{rep.standstill_speed:.2g} m/s of this car)")
         if not mask.any():
             raise InputError(f"{r.source}: no sample inside the model's envelope ({rep.note()})")
         kept.append(r if mask.all() else r.slice(mask))
@@ -220,7 +224,7 @@ def evaluate(p: Prepared, model: NominalModel, sigma: np.ndarray, seed: int, sub
 
 def screen(p: Prepared, vehicle: VehicleConfig, seed: int) -> Screened:
     """Noise estimate and the nominal model's evaluation."""
-    m0 = NominalModel(vehicle)
+    m0 = core.model_for(vehicle, p.data)
     sigma = core.estimate_noise(m0, p.data, p.starts, p.H, 2, seed=seed)
     ev = evaluate(p, m0, sigma, seed + 1)
     scale = np.array([ev.stats[c].rmse_twin for c in DYNAMIC])
@@ -378,7 +382,7 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
                          f"{', '.join(e.name for e in effects)} {'is' if len(effects) == 1 else 'are'} in the model "
                          f"(t = {t:.1f}): they trade off, reported as ambiguous, not named")
             log(f"diagnose: {notes[-1]}")
-    m1 = NominalModel(vehicle, [e.fit.effect() for e in effects])
+    m1 = core.model_for(vehicle, p.data, [e.fit.effect() for e in effects])
     ev1 = evaluate(p, m1, s.sigma, seed + 2, scale=s.scale) if effects else s.nominal
     ex0, ex1 = _excess(s.nominal), _excess(ev1)
     share_left = np.where(ex0 > 0, ex1 / np.maximum(ex0, 1e-300), 0.0)
@@ -393,7 +397,7 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
             notes.append(f"{e.name} fits part of the error but leaves "
                          f"{', '.join(CHANNELS[TESTED[i]] for i in bad)} structured: not named")
         effects = [e for e in effects if e not in [r[0] for r in rejected]]
-        m1 = NominalModel(vehicle, [e.fit.effect() for e in effects])
+        m1 = core.model_for(vehicle, p.data, [e.fit.effect() for e in effects])
         ev1 = evaluate(p, m1, s.sigma, seed + 2, scale=s.scale) if effects else s.nominal
     heldout = _heldout(ctx, [e.fit for e in effects]) if effects else None
     return Verified(tuple(effects), ev1, heldout, tuple(notes))
@@ -422,7 +426,7 @@ def _diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int, seed: in
               augmented_name: str | None, log: Callable[[str], None] | None) -> Diagnosis:
     t0 = time.perf_counter()
     log = log or (lambda s: None)
-    p = prepare(runs, int(horizon))
+    p = prepare(runs, int(horizon), vehicle.wheelbase)
     data = p.data
     for env in p.envelopes:
         if env.excluded:
@@ -464,7 +468,7 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, veh
     structured = nom.structured
     verdict = "mismatch" if structured else "no_significant_mismatch"
     effects = ver.effects if verdict == "mismatch" else ()
-    l_nom = np.mean(ctx.prob.residuals(NominalModel(vehicle), ctx.eval_w) ** 2, axis=1).mean(axis=0)
+    l_nom = np.mean(ctx.prob.residuals(core.model_for(vehicle, p.data), ctx.eval_w) ** 2, axis=1).mean(axis=0)
     channels_json = []
     for st, s1, pr, c in zip(nom.stats, aug.stats, nom.pred, TESTED):
         d = {"name": st.name, "structured": c in structured, "statistic": round(float(st.statistic), 3),
@@ -541,7 +545,7 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, veh
 def excitation(data: core.Dataset) -> dict[str, str]:
     """Effects the recordings cannot identify, with the reason (missing excitation)."""
     vx, r = data.Y[:, State.V_X], data.Y[:, State.YAW_RATE]
-    ax, delta = data.U[:, Input.A_X], data.U[:, Input.DELTA]
+    ax, delta = data.A, data.U[:, Input.DELTA]
     ay = np.abs(vx * r)
     out: dict[str, str] = {}
     lateral = np.quantile(ay, 0.9) > 2.0

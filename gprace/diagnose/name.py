@@ -94,7 +94,7 @@ class Problem:
     base: list = field(default_factory=list)  # Effect objects already in the model
 
     def model(self, extra=()) -> NominalModel:
-        return NominalModel(self.vehicle, list(self.base) + list(extra))
+        return NominalModel(self.vehicle, list(self.base) + list(extra), self.data.longitudinal)
 
     def residuals(self, model: NominalModel, starts: np.ndarray) -> np.ndarray:
         """(m, H, 3) normalised multi-step errors of the dynamic channels."""

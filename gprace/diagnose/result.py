@@ -134,7 +134,18 @@ class Excluded(Frozen):
     samples: int = Field(ge=0, description="samples in the recording")
     samples_excluded: int = Field(0, ge=0, description="samples cut out")
     seconds_excluded: Num = Field(0.0, description="seconds cut out (gaps not counted)")
+    samples_moving: int | None = Field(None, ge=0, description="samples driving forward faster than the "
+                                       "standstill speed (absent in results of before issue 36)")
+    moving_kept: int | None = Field(None, ge=0, description="of those, the samples kept")
+    standstill_speed: float | None = Field(None, description="speed [m/s] below which the car counted as standing "
+                                           "(scaled to the car and the recording)")
     excluded: list[Exclusion] = Field(default_factory=list, description="the stretches cut out")
+
+    @model_serializer(mode="wrap")
+    def _drop_absent(self, handler):
+        """The envelope's scale (issue 36) stays out of results that did not record it."""
+        return {k: v for k, v in handler(self).items()
+                if not (v is None and k in ("samples_moving", "moving_kept", "standstill_speed"))}
 
 
 class ResidualProfile(Frozen):

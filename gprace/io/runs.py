@@ -31,7 +31,8 @@ INPUT_COLUMNS = ("delta", "a_x")
 _PLAUSIBLE = {
     "v_x": (0.5, 120.0, "km/h instead of m/s?"),
     "v_y": (0.9, 8.0, "km/h instead of m/s?"),
-    "yaw_rate": (0.9, 2.0, "deg/s instead of rad/s?"),
+    # a 1:10 car on a 25 m track turns at 2 to 3.5 rad/s; deg/s is caught by the consistency check too
+    "yaw_rate": (0.9, 6.0, "deg/s instead of rad/s?"),
     "e_psi": (0.9, 1.0, "degrees instead of rad?"),  # a car drifting round a skidpad holds 0.9 rad
     "delta": (0.9, 0.5, "degrees instead of rad? steering-wheel instead of road-wheel angle?"),
     "a_x": (0.9, 30.0, "not m/s^2?"),
