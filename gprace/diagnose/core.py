@@ -249,13 +249,93 @@ def predict(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, subs
 
     ``Z`` (n, nz) are effect states at every sample, ``Z0`` (m, nz) at the window starts (for a
     batch whose windows carry different effect parameters); by default from the command history.
+    A window slower than RK4 with ``substeps`` can integrate stably at this period gets more
+    substeps (:func:`stiff_substeps`); the others are computed exactly as asked.
     """
     Y0 = data.Y[starts] if Y0 is None else Y0
     if Z0 is None:
         if Z is None:
             Z = lag_states(model, data) if model.nx > 6 else np.zeros((data.n, 0))
         Z0 = Z[starts]
-    X = initial_states(model, Y0, Z0).T.copy()  # (nx, m): rows contiguous for the hot loop
+    sub = np.maximum(stiff_substeps(model, data, starts, H), substeps)
+    if np.all(sub == substeps):
+        return _predict(model, data, starts, H, substeps, Y0, Z0)
+    out = np.empty((len(starts), H, 6))
+    for k in np.unique(sub):  # a few groups: the slow windows get the substeps they need
+        idx = np.flatnonzero(sub == k)
+        out[idx] = _predict(_subset(model, idx, len(starts)), data, starts[idx], H, int(k), Y0[idx], Z0[idx])
+    return out
+
+
+STIFF_H_LAMBDA = 2.0
+"""RK4 step times the fastest lateral eigenvalue kept below this (RK4 is stable to 2.78 on the
+negative real axis): a stiff car at walking pace needs more than one substep per sample."""
+MAX_SUBSTEPS = 16
+
+
+def stiff_substeps(model: NominalModel, data: Dataset, starts: np.ndarray, H: int) -> np.ndarray:
+    """(m,) RK4 substeps each window needs for a stable lateral integration at its slowest speed.
+
+    The linearised lateral dynamics' fastest rate is bounded by the trace of their Jacobian,
+    ``(C_f + C_r)/(m v) + (l_f^2 C_f + l_r^2 C_r)/(I_z v)`` with the axles' cornering stiffness
+    ``C = mu F_z B C`` (1:10 car, 2 m/s: 55/s; a 790 kg car on race tires at 1.6 m/s: 200/s)."""
+    p = model.params
+    cf = p.mu * p.fz_front * p.bf * p.cf
+    cr = p.mu * p.fz_rear * p.br * p.cr
+    idx = np.minimum(starts[:, None] + np.arange(H + 1)[None, :], data.n - 1)
+    v = np.maximum(np.abs(data.Y[idx, State.V_X]).min(axis=1), p.vmin)
+    lam = (cf + cr) / (p.m * v) + (p.lf**2 * cf + p.lr**2 * cr) / (p.iz * v)
+    return np.clip(np.ceil(lam * data.dt / STIFF_H_LAMBDA), 1, MAX_SUBSTEPS).astype(int)
+
+
+def _subset(model: NominalModel, idx: np.ndarray, m: int) -> NominalModel:
+    """A copy of ``model`` whose per-window parameter arrays (of length ``m``) keep ``idx``."""
+    import copy
+    from dataclasses import fields, replace
+
+    def cut(v):
+        return v[idx] if isinstance(v, np.ndarray) and v.shape == (m,) else v
+
+    out = copy.copy(model)
+    out.params = replace(model.params, **{f.name: cut(getattr(model.params, f.name)) for f in fields(model.params)})
+    effects = []
+    for e in model.effects:
+        e2 = copy.copy(e)
+        e2.values = {k: cut(v) for k, v in e.values.items()}
+        effects.append(e2)
+    out.effects = effects
+    return out
+
+
+COMPILED = True
+"""Predict with the compiled kernel (:mod:`gprace.diagnose.fastpredict`) where it runs the model;
+False: numpy everywhere (the reference, for tests)."""
+
+
+def _compiled_states(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, substeps: int,
+                     X0: np.ndarray) -> np.ndarray | None:
+    if not COMPILED:
+        return None
+    from gprace.diagnose.fastpredict import predict_states
+
+    return predict_states(model, data, starts, H, substeps, X0, _OFFSET)
+
+
+def _measured(model: NominalModel, S: np.ndarray) -> np.ndarray:
+    """Measured channels (m, H, 6) of model states (m, H, nx)."""
+    if not any(type(e).measure is not Effect.measure for e in model.effects):
+        return S[..., :6]
+    m, H, nx = S.shape
+    return model.measure(S.reshape(m * H, nx)).reshape(m, H, 6)
+
+
+def _predict(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, substeps: int,
+             Y0: np.ndarray, Z0: np.ndarray) -> np.ndarray:
+    X = initial_states(model, Y0, Z0)
+    S = _compiled_states(model, data, starts, H, substeps, X)
+    if S is not None:
+        return _measured(model, S)
+    X = X.T.copy()  # (nx, m): rows contiguous for the hot loop
     kfun = _kappa_lookup(data, data.rec[starts])
     UT = data.U.T
     sensor = any(type(e).measure is not Effect.measure for e in model.effects)
@@ -364,14 +444,19 @@ def make_twin(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, si
     steps = seg + H
     N = data.n
     Z = lag_states(model, data) if model.nx > 6 else np.zeros((N, 0))
-    X = initial_states(model, data.Y[anchors], Z[anchors]).T.copy()
-    kfun = _kappa_lookup(data, data.rec[anchors])
+    X = initial_states(model, data.Y[anchors], Z[anchors])
     traj = np.empty((len(anchors), steps + 1, 6))
-    traj[:, 0] = model.measure(X.T)
-    for j in range(steps):
-        idx = np.minimum(anchors + j, N - 1)
-        X = rk4_batch(model, X, data.U.T[:, idx], kfun, data.dt, fine)
-        traj[:, j + 1] = model.measure(X.T)
+    traj[:, 0] = model.measure(X)
+    S = _compiled_states(model, data, anchors, steps, fine, X)
+    if S is not None:
+        traj[:, 1:] = model.measure(S.reshape(-1, S.shape[2])).reshape(len(anchors), steps, 6)
+    else:
+        X = X.T.copy()
+        kfun = _kappa_lookup(data, data.rec[anchors])
+        for j in range(steps):
+            idx = np.minimum(anchors + j, N - 1)
+            X = rk4_batch(model, X, data.U.T[:, idx], kfun, data.dt, fine)
+            traj[:, j + 1] = model.measure(X.T)
     pos = starts - anchors[inv]
     Y0s, Ts = [], []
     for _ in range(realisations):
@@ -405,3 +490,44 @@ def estimate_noise(model: NominalModel, data: Dataset, starts: np.ndarray, H: in
         got = _robust_std(E[:, 0, :])
         sigma = sigma * np.where(got > 0, target / np.maximum(got, 1e-12), 1.0)
     return sigma
+
+
+# --------------------------------------------------------------------------------------------
+# fitting
+
+
+def batched_least_squares(batch: Callable[[list[np.ndarray]], np.ndarray], x0: np.ndarray, lo: np.ndarray,
+                          hi: np.ndarray, x_scale: np.ndarray, max_nfev: int, step: float | None = None):
+    """Bounded least squares (scipy's trust-region reflective) of the residual vector
+    ``batch([x])[0]``, where ``batch(X)`` evaluates ``k`` parameter vectors in ONE call (``(k, n)``).
+
+    The Jacobian is scipy's forward difference ('2-point' steps, one-sided inside the bounds) with
+    every parameter's step in the same batch, and it reuses the residuals ``fun`` has just
+    evaluated at that point: a Jacobian costs one model evaluation, not one per parameter.
+    Returns scipy's ``OptimizeResult``.
+    """
+    from scipy.optimize import least_squares
+
+    step = float(np.sqrt(np.finfo(float).eps)) if step is None else step
+    last: dict = {}  # least_squares asks for fun(x), then jac(x) at the same x
+
+    def fun(x):
+        r = batch([x])[0]
+        last.update(x=np.array(x, copy=True), r=r)
+        return r
+
+    def jac(x):
+        sign = np.where(x >= 0, 1.0, -1.0)
+        h = step * sign * np.maximum(1.0, np.abs(x))
+        h = np.where((x + h > hi) | (x + h < lo), -h, h)
+        h = (x + h) - x
+        steps = [x + np.eye(len(x))[i] * h[i] for i in range(len(x))]
+        if "x" in last and np.array_equal(last["x"], x):
+            R0, R = last["r"], batch(steps)
+        else:
+            R = batch([x] + steps)
+            R0, R = R[0], R[1:]
+        return ((R - R0) / h[:, None]).T
+
+    x0 = np.clip(np.asarray(x0, dtype=float), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+    return least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=x_scale, method="trf", max_nfev=max_nfev)

@@ -7,6 +7,10 @@ Each stage is a function returning a small frozen result (see ``docs/decisions.m
 - :func:`screen` estimates the sensor noise, evaluates the nominal model (multi-step errors, noise
   twin, predictability of the error per regime and per region of the lap) and says which
   channels carry structured error;
+- :func:`calibrate` fits the nominal parameters the recordings identify (cornering stiffness,
+  steering offset and gain, yaw inertia, drag, rolling resistance, the speed loop, peak friction
+  at the limit; :mod:`gprace.diagnose.calibrate`) and applies them when their held-out gain is
+  significant: the missing physics is then named against the calibrated car;
 - :func:`locate` turns the regions found on structured channels into starting windows;
 - :func:`name` adds catalogue effects one by one, each only when it improves held-out prediction
   beyond the effects already chosen (over all windows or where it acts);
@@ -31,7 +35,7 @@ import numpy as np
 from scipy.stats import norm
 
 from gprace.config import EffectConfig, VehicleConfig
-from gprace.diagnose import core, locate, name as nm, screen as scr
+from gprace.diagnose import calibrate as cal, core, locate, name as nm, screen as scr
 from gprace.diagnose.core import CHANNELS, DYNAMIC, TESTED
 from gprace.diagnose.result import DiagnosisResult, residual_profile
 from gprace.errors import InputError
@@ -166,6 +170,25 @@ class Ctx:
     heldout_memo: dict = field(default_factory=dict, compare=False, repr=False)
     """Cross-validated losses per set of fitted effects (parsimony and the final held-out fit
     ask for the same set more than once)."""
+    skip: frozenset = frozenset()
+    """Catalogue effects not tried: the calibration fits their parameter as a nominal one, or the
+    recordings' inputs cannot test them."""
+
+
+@dataclass(frozen=True)
+class Calibrated:
+    """The calibration stage: the calibrated vehicle (the nominal one when not applied), the fit,
+    its held-out test, and the screening of the calibrated model the effects are named against."""
+
+    vehicle: VehicleConfig
+    fit: cal.CalFit | None
+    applied: bool
+    baseline: Screened
+    gain: float = 0.0  # held-out relative gain over the nominal model
+    t: float = 0.0
+    where: str = ""
+    heldout: np.ndarray | None = None  # (3,) per-channel normalised held-out MSE, calibrated
+    considered: tuple[str, ...] = ()
 
 
 # --------------------------------------------------------------------------------------------
@@ -228,7 +251,58 @@ def screen(p: Prepared, vehicle: VehicleConfig, seed: int) -> Screened:
     sigma = core.estimate_noise(m0, p.data, p.starts, p.H, 2, seed=seed)
     ev = evaluate(p, m0, sigma, seed + 1)
     scale = np.array([ev.stats[c].rmse_twin for c in DYNAMIC])
-    return Screened(sigma, ev, scale, excitation(p.data))
+    return Screened(sigma, ev, scale, excitation(p.data, vehicle.wheelbase))
+
+
+def calibrate(p: Prepared, s: Screened, ctx: Ctx, vehicle: VehicleConfig, seed: int,
+              log: Callable[[str], None]) -> Calibrated:
+    """Fit the nominal parameters the recordings identify, inside their bounds; apply them when
+    the held-out gain over the nominal model (cross-validated by lap, refitted without the held-out
+    fold) is significant, and screen the calibrated model (:mod:`gprace.diagnose.calibrate`).
+    Nothing to calibrate when the nominal model leaves no structured error."""
+    params = cal.applicable(p.data.longitudinal)
+    none = Calibrated(vehicle, None, False, s, considered=tuple(q.name for q in params))
+    if not s.nominal.structured or not params:
+        return none
+    prob = ctx.prob
+    lo, hi = cal.bounds(vehicle, params, cal.v_top(p.data))
+    log(f"diagnose: calibrating {len(params)} nominal parameters ({', '.join(q.name for q in params)})")
+    f = cal.identify(prob, params, cal.start(vehicle, params), lo, hi, ctx.fit_w, log=log)
+    if not f.params:
+        return replace(none, fit=f)
+    lo, hi = cal.bounds(vehicle, f.params, cal.v_top(p.data))
+    l0_ch = np.mean(prob.residuals(prob.model(), ctx.eval_w) ** 2, axis=1)
+    l1_ch = np.empty_like(l0_ch)
+    for fo in np.unique(ctx.fold):  # by lap: refitted without the held-out fold
+        te = ctx.fold == fo
+        tr = ctx.eval_w[~te][:: max(1, int((~te).sum()) // 400)]
+        g = cal.fit(prob, f.params, f.x, lo, hi, tr, max_nfev=10)
+        l1_ch[te] = np.mean(cal.residual_sets(prob, f.params, [g.x], ctx.eval_w[te])[0] ** 2, axis=1)
+    chans = sorted(({1, 2} if any(q.needs == "lateral" for q in f.params) else set())
+                   | ({0} if any(q.needs != "lateral" for q in f.params) else set()))
+    l0, l1 = l0_ch[:, chans].mean(axis=1), l1_ch[:, chans].mean(axis=1)
+    ok, where, t = _significant(ctx, l0, l1)
+    gain = float((l0.mean() - l1.mean()) / max(l0.mean(), 1e-12))
+    log(f"diagnose: calibration held-out gain {100 * gain:.1f}% (t = {t:.1f}, {where or 'not significant'})")
+    if not ok:
+        return replace(none, fit=f, gain=gain, t=t)
+    veh = cal.with_values(vehicle, cal.values(vehicle, f.params, f.x))
+    ev = evaluate(p, core.model_for(veh, p.data), s.sigma, seed + 3, scale=s.scale)
+    log(f"diagnose: calibrated model structured: {[CHANNELS[c] for c in sorted(ev.structured)] or 'none'}")
+    return Calibrated(veh, f, True, replace(s, nominal=ev), gain, t, where, l1_ch.mean(axis=0),
+                      none.considered)
+
+
+def recalibrate(c: Calibrated, ctx: Ctx, named: Named, nominal: VehicleConfig) -> Calibrated:
+    """The calibration refitted with the named effects in the model (one pass, warm-started), so a
+    parameter that absorbed part of a missing effect before it was named gives it back."""
+    if not c.applied or not named.effects or c.fit is None:
+        return c
+    prob = replace(ctx.prob, vehicle=nominal, base=[e.fit.effect() for e in named.effects])
+    lo, hi = cal.bounds(nominal, c.fit.params, cal.v_top(prob.data))
+    f = cal.covariance(prob, cal.fit(prob, c.fit.params, c.fit.x, lo, hi, ctx.fit_w, max_nfev=20), lo, hi)
+    f.dropped = c.fit.dropped
+    return replace(c, vehicle=cal.with_values(nominal, cal.values(nominal, f.params, f.x)), fit=f)
 
 
 def locate_windows(s: Screened) -> Located:
@@ -298,7 +372,7 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, log: Callable[[str], 
         l0_ch = np.mean(prob.residuals(cur, ctx.eval_w) ** 2, axis=1)
         l0 = l0_ch.mean(axis=1)
         names = [n for n in EFFECTS if n not in {f.name for f in fits} and n not in s.not_identifiable
-                 and {CHANNELS.index(ch) for ch in EFFECTS[n].channels} & dyn_struct]
+                 and n not in ctx.skip and {CHANNELS.index(ch) for ch in EFFECTS[n].channels} & dyn_struct]
         log(f"diagnose: round {rnd + 1}: screening {len(names)} candidate effects")
         cands = []
         for n in names:  # a few iterations from every starting point, on the screening windows
@@ -316,9 +390,13 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, log: Callable[[str], 
         cv = {f.name: nm.cv_channel_losses(prob, f, ctx.eval_w, ctx.fold,
                                             fit_stride=max(1, len(ctx.eval_w) // 400)) for f in top}
         best = min(top, key=lambda f: cv[f.name].mean())
-        l1 = cv[best.name].mean(axis=1)
+        # tested on the channels it acts on: a large error elsewhere (a v_x no lateral effect can
+        # touch) must not dilute the relevance of a lateral gain
+        chb = _channels(best.name)
+        l0 = l0_ch[:, chb].mean(axis=1)
+        l1 = cv[best.name][:, chb].mean(axis=1)
         ok, where, t = _significant(ctx, l0, l1)
-        log(f"diagnose: round {rnd + 1}: best {best.name} held-out gain "
+        log(f"diagnose: round {rnd + 1}: best {best.name} held-out gain on {', '.join(CHANNELS[c] for c in chb)} "
             f"{100 * (l0.mean() - l1.mean()) / max(l0.mean(), 1e-12):.1f}% (t = {t:.1f}, {where or 'not significant'})")
         searched.append({"round": rnd + 1, "candidates": {f.name: float(cv[f.name].mean()) for f in top},
                          "baseline": float(l0.mean())})
@@ -328,7 +406,7 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, log: Callable[[str], 
         for f in top:
             if f is best:
                 continue
-            lf = cv[f.name].mean(axis=1)
+            lf = cv[f.name][:, chb].mean(axis=1)
             _, t_f = nm.gain_test(l0, lf, ctx.bid)
             _, t_diff = nm.gain_test(lf, l1, ctx.bid)
             if (lf.mean() - l1.mean()) <= nm.AMBIGUOUS_SHARE * (l0.mean() - l1.mean()) and t_diff < 2.0 \
@@ -336,12 +414,12 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, log: Callable[[str], 
                 group.append(f)
         named = min(group, key=lambda f: (len(f.free), cv[f.name].mean()))
         ln = cv[named.name]
-        ch = [CHANNELS.index(c) for c in EFFECTS[named.name].channels]
+        ch = _channels(named.name)
         chosen.append(NamedEffect(
             fit=named,
             heldout_before={CHANNELS[c]: float(np.sqrt(l0_ch[:, c].mean()) * s.scale[c]) for c in ch},
             heldout_after={CHANNELS[c]: float(np.sqrt(ln[:, c].mean()) * s.scale[c]) for c in ch},
-            improvement=float(1.0 - np.sqrt(ln.mean() / l0_ch.mean())),
+            improvement=float(1.0 - np.sqrt(ln[:, ch].mean() / l0_ch[:, ch].mean())),
             ambiguous_with=tuple(f.name for f in group if f is not named), where=where))
     return Named(tuple(chosen), tuple(searched))
 
@@ -370,8 +448,9 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
         if len(effects) < 2:
             break
         fits = [e.fit for e in effects]
-        l_all = _heldout_losses(ctx, fits)
-        l_wo = _heldout_losses(ctx, [f for j, f in enumerate(fits) if j != i])
+        ch = _channels(fits[i].name)
+        l_all = _heldout_channels_of(ctx, fits)[:, ch].mean(axis=1)
+        l_wo = _heldout_channels_of(ctx, [f for j, f in enumerate(fits) if j != i])[:, ch].mean(axis=1)
         ok, where, t = _significant(ctx, l_wo, l_all)
         if not ok:
             drop = effects.pop(i)
@@ -431,20 +510,32 @@ def _diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int, seed: in
     for env in p.envelopes:
         if env.excluded:
             log(f"diagnose: {env.note()}")
-    log(f"diagnose: {data.n} samples, {len(data.L)} recording(s), {data.laps_total} lap(s), horizon {p.H}")
+    log(f"diagnose: {data.n} samples, {len(data.L)} recording(s), {data.laps_total} lap(s), horizon {p.H}, "
+        f"inputs {data.inputs} (v_x by {data.longitudinal})")
     s = screen(p, vehicle, seed)
     log(f"diagnose: noise sigma {np.round(s.sigma, 4).tolist()}, structured: "
         f"{[CHANNELS[c] for c in sorted(s.nominal.structured)] or 'none'}")
-    loc = locate_windows(s)
     ctx = _context(p, vehicle, s)
-    named = fit(ctx, name(p, s, loc, ctx, log))
-    ver = verify(p, s, ctx, named, vehicle, seed, log)
-    report = _report(p, s, ctx, named, ver, vehicle, augmented_name)
+    c = calibrate(p, s, ctx, vehicle, seed, log)
+    untestable = input_limits(data)
+    skip = frozenset(untestable) | frozenset(q.supersedes for q in cal.PARAMS
+                                             if q.supersedes and q.name in c.considered)
+    ctx_c = replace(ctx, prob=replace(ctx.prob, vehicle=c.vehicle), skip=skip, heldout_memo={})
+    named = name(p, c.baseline, locate_windows(c.baseline), ctx_c, log)
+    c2 = recalibrate(c, ctx_c, named, vehicle)
+    if c2 is not c:
+        ctx_c = replace(ctx_c, prob=replace(ctx_c.prob, vehicle=c2.vehicle), heldout_memo={})
+        c = c2
+    named = fit(ctx_c, named)
+    ver = verify(p, c.baseline, ctx_c, named, c.vehicle, seed, log)
+    report = _report(p, s, ctx, c, named, ver, vehicle, augmented_name, untestable)
     report["residual_profile"] = residual_along_track(p, s.nominal, ver.augmented)
     report["runtime_s"] = round(time.perf_counter() - t0, 2)
     result = DiagnosisResult.model_validate(report)  # a failure here is a bug of the pipeline, not bad input
-    effects = ver.effects if result.verdict == "mismatch" else ()
-    aug_vehicle = vehicle.model_copy(update={"effects": tuple(vehicle.effects) + tuple(
+    mismatch = result.verdict == "mismatch"
+    effects = ver.effects if mismatch else ()
+    base = c.vehicle if mismatch else vehicle
+    aug_vehicle = base.model_copy(update={"effects": tuple(vehicle.effects) + tuple(
         EffectConfig(name=e.name, params={k: float(v) for k, v in e.fit.values().items()}) for e in effects)})
     return Diagnosis(result, aug_vehicle)
 
@@ -462,34 +553,39 @@ def residual_along_track(p: Prepared, nominal: Evaluation, augmented: Evaluation
     return residual_profile(s, before, after, noise, locate.BIN_METRES)
 
 
-def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, vehicle: VehicleConfig,
-            augmented_name: str | None) -> dict[str, Any]:
+def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver: Verified,
+            vehicle: VehicleConfig, augmented_name: str | None, untestable: dict[str, str]) -> dict[str, Any]:
     nom, aug = s.nominal, ver.augmented
     structured = nom.structured
     verdict = "mismatch" if structured else "no_significant_mismatch"
     effects = ver.effects if verdict == "mismatch" else ()
     l_nom = np.mean(ctx.prob.residuals(core.model_for(vehicle, p.data), ctx.eval_w) ** 2, axis=1).mean(axis=0)
+    l_cal = c.heldout if c.applied else l_nom
+    l_aug = ver.heldout_after if ver.heldout_after is not None else l_cal
     channels_json = []
-    for st, s1, pr, c in zip(nom.stats, aug.stats, nom.pred, TESTED):
-        d = {"name": st.name, "structured": c in structured, "statistic": round(float(st.statistic), 3),
+    for st, s1, pr, ch in zip(nom.stats, aug.stats, nom.pred, TESTED):
+        d = {"name": st.name, "structured": ch in structured, "statistic": round(float(st.statistic), 3),
              "rmse_nominal": float(st.rmse), "rmse_noise_floor": float(st.rmse_twin),
              "rmse_augmented": float(s1.rmse),
              "predictability": {"t": pr.t, "heldout_share": pr.gain,
                                 "where": [{"subset": x.label, "t": x.t, "heldout_share": x.gain} for x in pr.subsets]}}
-        if c in DYNAMIC:
-            d["heldout_rmse_nominal"] = float(np.sqrt(l_nom[c]) * s.scale[c])
-            d["heldout_rmse_augmented"] = float(np.sqrt(ver.heldout_after[c]) * s.scale[c]) \
-                if ver.heldout_after is not None else d["heldout_rmse_nominal"]
-        if c in structured:
-            d["regime"] = locate.regime(p.data, p.starts, p.H, nom.Ed, nom.Et, c)
+        if c.applied:
+            d["rmse_calibrated"] = float(c.baseline.nominal.stats[TESTED.index(ch)].rmse)
+        if ch in DYNAMIC:
+            d["heldout_rmse_nominal"] = float(np.sqrt(l_nom[ch]) * s.scale[ch])
+            if c.applied:
+                d["heldout_rmse_calibrated"] = float(np.sqrt(l_cal[ch]) * s.scale[ch])
+            d["heldout_rmse_augmented"] = float(np.sqrt(l_aug[ch]) * s.scale[ch])
+        if ch in structured:
+            d["regime"] = locate.regime(p.data, p.starts, p.H, nom.Ed, nom.Et, ch)
             if pr.subsets:
                 d["regime"] += "; predictable where: " + ", ".join(x.label for x in pr.subsets)
         channels_json.append(d)
     regions_json = []
-    for c in TESTED:
-        if c not in structured:
+    for ch in TESTED:
+        if ch not in structured:
             continue
-        for g in nom.regions[c]:
+        for g in nom.regions[ch]:
             regions_json.append({"channel": g.channel, "s_start": round(g.s_start, 1), "s_end": round(g.s_end, 1),
                                  "description": f"{g.description}; seen in {g.laps_seen} of {g.laps_total} lap(s)"})
     eff_json = []
@@ -507,14 +603,16 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, veh
                          "significant_where": e.where})
     ex0, ex1 = _excess(nom), _excess(aug)
     unexplained = {}
-    for st, c in zip(nom.stats, TESTED):
-        if c in structured and c in aug.structured:
-            unexplained[st.name] = float(np.sqrt(ex1[TESTED.index(c)]))
-    for c in TESTED:
-        if c in aug.structured and effects:
-            for g in aug.regions[c]:
+    for st, ch in zip(nom.stats, TESTED):
+        if ch in structured and ch in aug.structured:
+            unexplained[st.name] = float(np.sqrt(ex1[TESTED.index(ch)]))
+    after = "the calibration and the named effects" if c.applied and effects else (
+        "the calibration" if c.applied else "the named effects")
+    for ch in TESTED:
+        if ch in aug.structured and (effects or c.applied):
+            for g in aug.regions[ch]:
                 regions_json.append({"channel": g.channel, "s_start": round(g.s_start, 1), "s_end": round(g.s_end, 1),
-                                     "description": f"unexplained after the named effects: {g.description}"})
+                                     "description": f"unexplained after {after}: {g.description}"})
     tot0 = float(sum(ex0[i] / nom.stats[i].rmse_twin**2 for i in range(3)))
     tot1 = float(sum(ex1[i] / aug.stats[i].rmse_twin**2 for i in range(3)))
     explained = (1.0 - tot1 / tot0) if tot0 > 0 else 0.0
@@ -535,40 +633,82 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, veh
         "notes": notes,
         "noise_sigma": {CHANNELS[i]: float(s.sigma[i]) for i in range(6)},
         "samples": int(p.data.n), "horizon": p.H,
+        "inputs": _inputs_json(p.data, untestable),
+        "calibration": _calibration_json(c, vehicle, verdict),
     }
+
+
+def _inputs_json(data: core.Dataset, untestable: dict[str, str]) -> dict[str, Any]:
+    """What the recordings' inputs are, how the model uses them, what each channel can test."""
+    mode = data.longitudinal
+    vx = {"force": "the longitudinal forces (powertrain command, drag, rolling resistance, grade)",
+          "speed": "the car's speed loop and the longitudinal forces (drag, rolling resistance, grade)",
+          "kinematic": ("nothing of the longitudinal forces: v_x follows the measured a_x"
+                        + (" (only the road grade, which an accelerometer does not feel)"
+                           if data.inputs.get("a_x") == "measured" else ""))}[mode]
+    lat = "the lateral and yaw physics (tires, inertia, loads, steering and its lag"
+    lat += ")" if data.inputs.get("delta") == "commanded" else ": a measured angle may still lead the tires)"
+    return {**{k: data.inputs.get(k) for k in ("delta", "a_x", "v_cmd")}, "longitudinal": mode,
+            "tests": {"v_x": vx, "v_y": lat, "yaw_rate": lat},
+            "not_testable": [{"effect": e, "reason": why} for e, why in untestable.items()]}
+
+
+def _calibration_json(c: Calibrated, vehicle: VehicleConfig, verdict: str) -> dict[str, Any]:
+    applied = c.applied and verdict == "mismatch"
+    params = c.fit.report(vehicle) if c.fit is not None and len(c.fit.params) else []
+    return {"applied": applied, "considered": list(c.considered),
+            "heldout_gain": round(float(c.gain), 4), "t": round(float(c.t), 2),
+            "significant_where": c.where,
+            "parameters": params,
+            "not_identified": [{"name": n, "reason": why} for n, why in (c.fit.dropped.items() if c.fit else ())]}
 
 
 # --------------------------------------------------------------------------------------------
 # helpers
 
 
-def excitation(data: core.Dataset) -> dict[str, str]:
-    """Effects the recordings cannot identify, with the reason (missing excitation)."""
+def excitation(data: core.Dataset, wheelbase: float | None = None) -> dict[str, str]:
+    """Effects the recordings cannot identify, with the reason (missing excitation). Thresholds are
+    accelerations in g and relative speed changes, so they hold for a 1:10 car as for a full-size one."""
     vx, r = data.Y[:, State.V_X], data.Y[:, State.YAW_RATE]
     ax, delta = data.A, data.U[:, Input.DELTA]
     ay = np.abs(vx * r)
+    g = 9.81
     out: dict[str, str] = {}
-    lateral = np.quantile(ay, 0.9) > 2.0
-    speed_var = np.std(vx) > 1.0
-    long_var = np.std(ax) > 0.3
-    steer_var = np.std(delta) > 2e-3
-    combined = np.mean((np.abs(ax) > 1.5) & (ay > 2.0)) > 0.02
+    lateral = np.quantile(ay, 0.9) > 0.2 * g
+    speed_var = np.std(vx) > 0.05 * max(float(np.mean(np.abs(vx))), 1e-9)
+    long_var = np.std(ax) > 0.03 * g
+    demand = vx * vx * delta / wheelbase if wheelbase else vx * delta * 10.0  # steering's lateral demand
+    steer_var = np.std(demand) > 0.02 * g if wheelbase else np.std(delta) > 2e-3
+    combined = np.mean((np.abs(ax) > 0.15 * g) & (ay > 0.2 * g)) > 0.02
     lat = ["downforce", "load_transfer", "tire_load_sensitivity", "combined_slip", "tire_friction",
            "cornering_stiffness", "friction_patch", "yaw_inertia"]
     if not lateral:
         for e in lat:
-            out[e] = "no cornering (|a_y| stays below 2 m/s^2): tire and load effects are invisible"
+            out[e] = "no cornering (|a_y| stays below 0.2 g): tire and load effects are invisible"
     if not speed_var:
         for e in ("aero_drag", "rolling_resistance", "downforce"):
             out.setdefault(e, "speed nearly constant: speed-dependent forces cannot be told from constant ones")
     if not long_var:
-        out.setdefault("drivetrain_lag", "a_x command nearly constant: a drivetrain lag has nothing to delay")
+        out.setdefault("drivetrain_lag", "a_x nearly constant: a drivetrain lag has nothing to delay")
     if not steer_var:
         out.setdefault("steering_lag", "steering nearly constant: a steering lag has nothing to delay")
         out.setdefault("yaw_inertia", "steering nearly constant: no yaw acceleration to weigh the inertia")
     if not combined:
         for e in ("load_transfer", "combined_slip"):
             out.setdefault(e, "no braking or drive while cornering: longitudinal-lateral coupling is invisible")
+    return out
+
+
+def input_limits(data: core.Dataset) -> dict[str, str]:
+    """Catalogue effects the recordings' inputs cannot test, with the reason."""
+    out: dict[str, str] = {}
+    if data.longitudinal == "kinematic":
+        why = f"a_x is {data.inputs.get('a_x')}: v_x follows it, the longitudinal forces are inside it"
+        for e in ("aero_drag", "rolling_resistance", "drivetrain_lag"):
+            out[e] = why
+        if data.inputs.get("a_x") != "measured":
+            out["road_grade"] = why + " (the grade too, unlike an accelerometer's)"
     return out
 
 
@@ -589,11 +729,17 @@ def _sub(model: NominalModel, sub: int) -> int:
     return min(s, 20)
 
 
-def _heldout_losses(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
-    """Cross-validated per-window normalised squared error (m,) of the model with ``fits``."""
+def _channels(name: str) -> list[int]:
+    """Indices of the dynamic channels a catalogue effect acts on."""
+    return [CHANNELS.index(c) for c in EFFECTS[name].channels]
+
+
+def _heldout_channels_of(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
+    """Cross-validated per-window, per-channel normalised squared error (m, 3) of the model with
+    ``fits`` (the model itself, nothing to refit, when there are none)."""
     if not fits:
-        return np.mean(ctx.prob.residuals(ctx.prob.model(), ctx.eval_w) ** 2, axis=(1, 2))
-    return _heldout_channels(ctx, fits).mean(axis=1)
+        return np.mean(ctx.prob.residuals(ctx.prob.model(), ctx.eval_w) ** 2, axis=1)
+    return _heldout_channels(ctx, fits)
 
 
 def _heldout_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:

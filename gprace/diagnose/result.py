@@ -25,7 +25,8 @@ from gprace.config import Frozen
 from gprace.console import jsonable
 from gprace.io.records import NAN, Num, parse_record, read_json
 
-RESULT_VERSION = 1
+RESULT_VERSION = 2
+"""2 (issue 36): the inputs and calibration sections, calibrated RMSEs per channel, the envelope's scale."""
 SIGNIFICANT = 5
 """Significant digits of the stored profile's errors (a 10 m bin's mean error; the JSON stays small)."""
 
@@ -47,7 +48,8 @@ class Predictability(Frozen):
                                               description="subsets whose test passed the corrected threshold")
 
 
-_ABSENT_WHEN_NONE = frozenset({"predictability", "heldout_rmse_nominal", "heldout_rmse_augmented", "regime"})
+_ABSENT_WHEN_NONE = frozenset({"predictability", "heldout_rmse_nominal", "heldout_rmse_augmented", "regime",
+                               "rmse_calibrated", "heldout_rmse_calibrated"})
 
 
 class Channel(Frozen):
@@ -64,6 +66,10 @@ class Channel(Frozen):
         None, description="dynamic channels only: cross-validated RMSE of the nominal model")
     heldout_rmse_augmented: float | None = Field(
         None, description="dynamic channels only: cross-validated RMSE of the augmented model")
+    rmse_calibrated: float | None = Field(
+        None, description="multi-step RMSE of the calibrated model (only when a calibration was applied)")
+    heldout_rmse_calibrated: float | None = Field(
+        None, description="dynamic channels, calibration applied: cross-validated RMSE of the calibrated model")
     regime: str | None = Field(None, description="structured channels only: where and when the error grows")
 
     @model_serializer(mode="wrap")
@@ -104,6 +110,57 @@ class Effect(Frozen):
     improvement: Num = Field(NAN, description="relative held-out RMSE reduction when it was added")
     ambiguous_with: list[str] = Field(default_factory=list, description="effects that fit about as well")
     significant_where: str = Field("all windows", description="where its held-out gain was significant")
+
+
+class CalibratedParameter(Frozen):
+    """A nominal parameter the diagnosis fitted (gprace.diagnose.calibrate)."""
+
+    name: str = Field(description="parameter (cornering_stiffness_front, steering_offset, speed_loop_rate, ...)")
+    field: str = Field(description="the vehicle TOML field it sets (the speed loop's two set speed_loop_tau "
+                       "and speed_loop_gain together)")
+    unit: str = Field("", description="unit of the value")
+    nominal: Num = Field(description="value in the nominal vehicle")
+    value: Num = Field(description="calibrated value")
+    ci95: list[Num] = Field(min_length=2, max_length=2, description="95 % interval (cluster sandwich)")
+    spread_ratio: Num = Field(NAN, description="posterior / prior spread (identified below 1/5)")
+    at_bound: bool = Field(False, description="pressed against a bound of its physical range")
+
+
+class NotIdentified(Frozen):
+    """A nominal parameter the recordings do not identify (kept at its nominal value)."""
+
+    name: str = Field(description="parameter")
+    reason: str = Field(description="how far the data narrow its stated range")
+
+
+class Calibration(Frozen):
+    """The calibration of the nominal parameters before any effect is named (issue 36)."""
+
+    applied: bool = Field(description="the calibrated values are in the augmented vehicle (held-out gain significant)")
+    considered: list[str] = Field(default_factory=list, description="parameters the inputs let it test")
+    heldout_gain: Num = Field(0.0, description="relative held-out loss reduction over the nominal model (by lap)")
+    t: Num = Field(0.0, description="paired block statistic of that gain")
+    significant_where: str = Field("", description="where the gain was significant ('' when it was not)")
+    parameters: list[CalibratedParameter] = Field(default_factory=list, description="identified parameters")
+    not_identified: list[NotIdentified] = Field(default_factory=list, description="kept at their nominal values")
+
+
+class InputTest(Frozen):
+    """An effect the recordings' inputs cannot test."""
+
+    effect: str = Field(description="catalogue name")
+    reason: str = Field(description="why")
+
+
+class Inputs(Frozen):
+    """The recordings' inputs as the model used them, and what each channel could test."""
+
+    delta: str | None = Field(None, description="steering: commanded or measured")
+    a_x: str | None = Field(None, description="a_x: commanded, measured, derived or absent")
+    v_cmd: str | None = Field(None, description="a speed command, when the log has one")
+    longitudinal: str = Field(description="how v_x is driven: force (a_x commanded), speed (speed loop) or kinematic")
+    tests: dict[str, str] = Field(default_factory=dict, description="per dynamic channel: what its error can test")
+    not_testable: list[InputTest] = Field(default_factory=list, description="effects these inputs cannot test")
 
 
 class NotIdentifiable(Frozen):
@@ -197,6 +254,13 @@ class DiagnosisResult(Frozen):
     runtime_s: Num = Field(NAN, description="wall time of the diagnosis [s]")
     residual_profile: ResidualProfile | None = Field(
         None, description="the residual along the track (None: a result of before the schema)")
+    inputs: Inputs | None = Field(None, description="the inputs and what they let the diagnosis test (issue 36)")
+    calibration: Calibration | None = Field(None, description="the calibrated nominal parameters (issue 36)")
+
+    @model_serializer(mode="wrap")
+    def _drop_absent(self, handler):
+        """Sections a result of before issue 36 does not have stay out of its JSON."""
+        return {k: v for k, v in handler(self).items() if not (v is None and k in ("inputs", "calibration"))}
 
     def to_json(self) -> dict[str, Any]:
         """The JSON-ready dump (NaN as None): what ``--json`` prints."""
