@@ -153,9 +153,9 @@ class VehicleConfig(Frozen):
     steering_gain: float = Field(1.0, gt=0, le=10.0, description="road-wheel angle per unit of the steering "
                                  "input (a servo's or column's ratio error) [-]")
     steering_offset: float = Field(0.0, ge=-0.5, le=0.5, description="offset added to the road-wheel angle [rad]")
-    speed_loop_tau: float = Field(0.5, gt=0, le=60.0, description="time constant of the car's own speed "
+    speed_loop_tau: float = Field(0.5, gt=0, le=1e4, description="time constant of the car's own speed "
                                   "controller, when a recording's longitudinal input is a speed command [s]")
-    speed_loop_gain: float = Field(1.0, gt=0, le=10.0, description="speed the car's controller aims at per unit "
+    speed_loop_gain: float = Field(1.0, gt=0, le=1e4, description="speed the car's controller aims at per unit "
                                    "of the speed command [-]")
 
     OPTIONAL_AT_DEFAULT: ClassVar[dict[str, float]] = {

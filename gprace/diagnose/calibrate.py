@@ -40,6 +40,9 @@ IDENTIFIED = 5.0
 RIDGE = 1e-8
 """Ridge on the information matrix in prior units: an unseen direction keeps about its prior spread."""
 MAX_NFEV = 40
+RELEVANT = 0.01
+"""A calibrated value counts as a finding (``changed``) when putting it back to nominal costs more
+than this share of the noise floor's mean square (the naming's MIN_GAIN)."""
 
 
 @dataclass(frozen=True)
@@ -67,12 +70,12 @@ class CalParam:
 
 
 PARAMS: tuple[CalParam, ...] = (
-    CalParam("cornering_stiffness_front", "tire.b_front", "1/rad",
-             "front tire stiffness factor B (linear-range cornering stiffness mu F_z B C)", True, True, 0.2, 5.0,
-             "lateral", "cornering_stiffness"),
-    CalParam("cornering_stiffness_rear", "tire.b_rear", "1/rad",
-             "rear tire stiffness factor B (linear-range cornering stiffness mu F_z B C)", True, True, 0.2, 5.0,
-             "lateral", "cornering_stiffness"),
+    CalParam("cornering_stiffness_front", "tire.b_front", "N/rad",
+             "front axle's cornering stiffness mu F_z B C (the linear range's slope; written as B)", True, True,
+             0.2, 5.0, "lateral", "cornering_stiffness"),
+    CalParam("cornering_stiffness_rear", "tire.b_rear", "N/rad",
+             "rear axle's cornering stiffness mu F_z B C (the linear range's slope; written as B)", True, True,
+             0.2, 5.0, "lateral", "cornering_stiffness"),
     CalParam("steering_offset", "steering_offset", "rad",
              "offset of the road-wheel angle from the steering input", False, False, -0.1, 0.1, "lateral",
              "steering_offset"),
@@ -86,12 +89,12 @@ PARAMS: tuple[CalParam, ...] = (
              0.0, 0.1, "longitudinal", "rolling_resistance", True),
     CalParam("speed_loop_rate", "speed_loop_tau", "1/s",
              "rate 1/tau_v of the car's speed controller (near 0: the command sets an acceleration)", False, True,
-             0.01, 50.0, "speed"),
+             0.01, 50.0, "speed", natural_lower=True),
     CalParam("speed_loop_authority", "speed_loop_gain", "1/s",
              "acceleration per m/s of speed command, k_v / tau_v, of the car's speed controller", False, True,
              0.05, 100.0, "speed"),
-    CalParam("peak_friction", "mu", "-", "tire-road friction ratio mu (the peak of the tire curve)", True, True,
-             0.5, 2.0, "lateral"),
+    CalParam("peak_friction", "mu", "-", "tire-road friction ratio mu: the peak of the tire curve, at the "
+             "cornering stiffness of the two parameters above", True, True, 0.5, 2.0, "lateral"),
 )
 """In priority order: when several parameters are not identified, the last of them is fixed first
 (peak friction before the stiffness it trades off with in the linear range)."""
@@ -125,7 +128,20 @@ def nominal_value(vehicle: VehicleConfig, p: CalParam) -> float:
         return 1.0 / vehicle.speed_loop_tau
     if p.name == "speed_loop_authority":
         return vehicle.speed_loop_gain / vehicle.speed_loop_tau
+    if p.name.startswith("cornering_stiffness_"):
+        axle = p.name.rsplit("_", 1)[1]
+        return _slope(vehicle, axle, vehicle.mu, getattr(vehicle.tire, f"b_{axle}"))
     return _field(vehicle, p.field)
+
+
+def _axle_load(vehicle: VehicleConfig, axle: str) -> float:
+    other = vehicle.l_r if axle == "front" else vehicle.l_f
+    return vehicle.mass * G * other / (vehicle.l_f + vehicle.l_r)
+
+
+def _slope(vehicle: VehicleConfig, axle: str, mu, b):
+    """The axle's cornering stiffness mu F_z B C [N/rad] (static load)."""
+    return mu * _axle_load(vehicle, axle) * b * getattr(vehicle.tire, f"c_{axle}")
 
 
 def to_coord(p: CalParam, value: np.ndarray | float, nominal: float) -> np.ndarray:
@@ -163,8 +179,17 @@ def values(vehicle: VehicleConfig, params: list[CalParam], z: np.ndarray) -> dic
 
 def vehicle_fields(vehicle: VehicleConfig, vals: dict[str, np.ndarray | float]) -> dict[str, np.ndarray | float]:
     """Parameter values (by name; arrays allowed) -> VehicleConfig field values; the speed loop's
-    rate and authority become ``speed_loop_tau`` and ``speed_loop_gain``."""
-    out = {BY_NAME[n].field: v for n, v in vals.items() if not n.startswith("speed_loop_")}
+    rate and authority become ``speed_loop_tau`` and ``speed_loop_gain``; an axle's cornering
+    stiffness its ``B`` at the (calibrated) peak friction, and a calibrated peak friction keeps the
+    slope of an axle whose stiffness is not calibrated (only the tire's limit moves)."""
+    out = {BY_NAME[n].field: v for n, v in vals.items()
+           if not n.startswith("speed_loop_") and not n.startswith("cornering_stiffness_")}
+    mu = vals.get("peak_friction", vehicle.mu)
+    for axle in ("front", "rear"):
+        key = f"cornering_stiffness_{axle}"
+        c_nom = _slope(vehicle, axle, vehicle.mu, getattr(vehicle.tire, f"b_{axle}"))
+        if key in vals or "peak_friction" in vals:
+            out[f"tire.b_{axle}"] = np.asarray(vals.get(key, c_nom)) / _slope(vehicle, axle, np.asarray(mu), 1.0)
     if "speed_loop_rate" in vals or "speed_loop_authority" in vals:
         rate = vals.get("speed_loop_rate", 1.0 / vehicle.speed_loop_tau)
         auth = vals.get("speed_loop_authority", vehicle.speed_loop_gain / vehicle.speed_loop_tau)
@@ -239,21 +264,41 @@ class CalFit:
     ratio: np.ndarray | None = None  # posterior / prior spread per parameter
     at_bound: np.ndarray | None = None  # (p,) bool
     dropped: dict[str, str] = field(default_factory=dict)  # not identified -> why
+    lo: np.ndarray | None = None  # bounds of the fitted coordinates
+    hi: np.ndarray | None = None
+    profile: np.ndarray | None = None  # d(loss)/d(coordinate offset^2) with the others refitted
 
     def sd(self) -> np.ndarray:
         if self.cov is None:
             return np.full(len(self.x), np.nan)
         return np.sqrt(np.maximum(np.diag(self.cov), 0.0))
 
+    def relevance(self, vehicle: VehicleConfig) -> np.ndarray:
+        """Per parameter: how much the mean normalised squared error per residual would grow if it
+        were put back to its nominal value and the others refitted (the profile of the linearised
+        cost: ``delta^2 / (J^T J)^-1_ii / N``), in units of the noise floor."""
+        if self.profile is None:
+            return np.full(len(self.x), np.nan)
+        return (self.x - start(vehicle, self.params)) ** 2 * self.profile
+
     def report(self, vehicle: VehicleConfig) -> list[dict]:
-        """Per parameter: value and 95 % interval in its own unit, nominal, bounds, flags."""
+        """Per parameter: value and 95 % interval in its own unit, nominal, bounds, flags.
+        ``changed``: the interval excludes the nominal value AND putting it back would cost more
+        than :data:`RELEVANT` of the noise floor (a 0.1 % steering gain the data resolve is
+        real but no finding)."""
         out = []
-        for p, z, sd, r, b in zip(self.params, self.x, self.sd(), self.ratio, self.at_bound):
+        rel = self.relevance(vehicle)
+        for i, (p, z, sd, r, b) in enumerate(zip(self.params, self.x, self.sd(), self.ratio, self.at_bound)):
             nom = nominal_value(vehicle, p)
-            out.append({"name": p.name, "field": p.field, "unit": p.unit, "nominal": nom,
-                        "value": float(from_coord(p, z, nom)),
-                        "ci95": [float(from_coord(p, z - 1.96 * sd, nom)), float(from_coord(p, z + 1.96 * sd, nom))],
-                        "spread_ratio": float(r), "at_bound": bool(b)})
+            if b and self.lo is not None:  # pressed against a bound: the bound itself
+                z = self.lo[i] if z - self.lo[i] < self.hi[i] - z else self.hi[i]
+            lo, hi = float(from_coord(p, z - 1.96 * sd, nom)), float(from_coord(p, z + 1.96 * sd, nom))
+            value = float(from_coord(p, z, nom))
+            out.append({"name": p.name, "field": p.field, "unit": p.unit, "nominal": nom, "value": value,
+                        "ci95": [lo, hi], "spread_ratio": float(r), "at_bound": bool(b),
+                        "relevance": float(rel[i]),
+                        "changed": bool(not (lo <= nom <= hi) and abs(value - nom) > 1e-9 * max(abs(nom), 1.0)
+                                        and rel[i] > RELEVANT)})
         return out
 
 
@@ -267,7 +312,8 @@ def fit(prob, params: list[CalParam], x0: np.ndarray, lo: np.ndarray, hi: np.nda
         return np.where(np.isfinite(R), R, 1e3)
 
     sol = batched_least_squares(batch, x0, lo, hi, sd_prior, max_nfev)
-    return CalFit(list(params), sol.x, float(np.mean(sol.fun**2)), np.asarray(sol.jac), sol.fun, starts)
+    return CalFit(list(params), sol.x, float(np.mean(sol.fun**2)), np.asarray(sol.jac), sol.fun, starts,
+                  lo=np.asarray(lo, float), hi=np.asarray(hi, float))
 
 
 def covariance(prob, f: CalFit, lo: np.ndarray, hi: np.ndarray) -> CalFit:
@@ -304,6 +350,9 @@ def covariance(prob, f: CalFit, lo: np.ndarray, hi: np.ndarray) -> CalFit:
         ratio[free] = r
         cov[np.ix_(free, free)] = cov_s * np.outer(sd_prior[free], sd_prior[free])
     f.cov, f.ratio, f.at_bound = cov, ratio, at
+    Af = f.jac.T @ f.jac  # the profile of the linearised cost (all parameters, at a bound too)
+    Af = Af + RIDGE * max(float(np.trace(Af)), 1e-300) * np.eye(p)
+    f.profile = 1.0 / np.maximum(np.diag(np.linalg.inv(Af)), 1e-300) / max(len(f.res), 1)
     return f
 
 
@@ -314,8 +363,10 @@ def identify(prob, params: list[CalParam], x0: np.ndarray, lo: np.ndarray, hi: n
     params, x, lo_, hi_ = list(params), np.array(x0, float), np.array(lo, float), np.array(hi, float)
     dropped: dict[str, str] = {}
     veh = prob.vehicle
+    nfev = max_nfev
     while params:
-        f = covariance(prob, fit(prob, params, x, lo_, hi_, starts, max_nfev), lo_, hi_)
+        f = covariance(prob, fit(prob, params, x, lo_, hi_, starts, nfev), lo_, hi_)
+        nfev = max_nfev
         edge = [i for i in range(len(params)) if f.at_bound[i]
                 and not (params[i].natural_lower and f.x[i] - lo_[i] < hi_[i] - f.x[i])]
         bad = [i for i in range(len(params)) if not f.ratio[i] < 1.0 / IDENTIFIED]
@@ -339,6 +390,31 @@ def identify(prob, params: list[CalParam], x0: np.ndarray, lo: np.ndarray, hi: n
     f = CalFit([], np.zeros(0), ratio=np.zeros(0), at_bound=np.zeros(0, bool), cov=np.zeros((0, 0)))
     f.dropped = dropped
     return f
+
+
+def as_effects(parameters: list[dict]) -> dict[str, dict[str, float]]:
+    """The catalogue effects that changed calibrated parameters stand for, with the effect's
+    parameter values (``cornering_stiffness`` front/rear factors, ``yaw_inertia`` factor,
+    ``steering_offset``, ``aero_drag`` c_d and ``rolling_resistance`` c_rr as differences from
+    the nominal): what a diagnosis without the calibration stage would have named."""
+    out: dict[str, dict[str, float]] = {}
+    for d in parameters:
+        q = BY_NAME.get(d["name"])
+        if q is None or not q.supersedes or not d.get("changed"):
+            continue
+        nom, v = d["nominal"], d["value"]
+        if q.supersedes == "cornering_stiffness":
+            e = out.setdefault("cornering_stiffness", {"front": 1.0, "rear": 1.0})
+            e["front" if q.name.endswith("front") else "rear"] = v / nom
+        elif q.supersedes == "yaw_inertia":
+            out["yaw_inertia"] = {"factor": v / nom}
+        elif q.supersedes == "steering_offset":
+            out["steering_offset"] = {"offset": v - nom}
+        elif q.supersedes == "aero_drag":
+            out["aero_drag"] = {"c_d": v - nom}
+        elif q.supersedes == "rolling_resistance":
+            out["rolling_resistance"] = {"c_rr": v - nom}
+    return out
 
 
 def v_top(data) -> float:

@@ -325,8 +325,10 @@ def _measured(model: NominalModel, S: np.ndarray) -> np.ndarray:
     """Measured channels (m, H, 6) of model states (m, H, nx)."""
     if not any(type(e).measure is not Effect.measure for e in model.effects):
         return S[..., :6]
-    m, H, nx = S.shape
-    return model.measure(S.reshape(m * H, nx)).reshape(m, H, 6)
+    out = np.empty(S.shape[:2] + (6,))
+    for j in range(S.shape[1]):  # per horizon step: sensor parameters may be per window
+        out[:, j] = model.measure(S[:, j])
+    return out
 
 
 def _predict(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, substeps: int,
@@ -449,7 +451,7 @@ def make_twin(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, si
     traj[:, 0] = model.measure(X)
     S = _compiled_states(model, data, anchors, steps, fine, X)
     if S is not None:
-        traj[:, 1:] = model.measure(S.reshape(-1, S.shape[2])).reshape(len(anchors), steps, 6)
+        traj[:, 1:] = _measured(model, S)
     else:
         X = X.T.copy()
         kfun = _kappa_lookup(data, data.rec[anchors])

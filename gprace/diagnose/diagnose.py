@@ -35,7 +35,7 @@ import numpy as np
 from scipy.stats import norm
 
 from gprace.config import EffectConfig, VehicleConfig
-from gprace.diagnose import calibrate as cal, core, locate, name as nm, screen as scr
+from gprace.diagnose import calibrate as cal, core, crossval as cv_, locate, name as nm, screen as scr
 from gprace.diagnose.core import CHANNELS, DYNAMIC, TESTED
 from gprace.diagnose.result import DiagnosisResult, residual_profile
 from gprace.errors import InputError
@@ -48,6 +48,8 @@ HORIZON = 15
 one-step sensor noise, short enough that open-loop predictions stay on the recorded path."""
 
 MAX_EFFECTS = 3
+CAL_CV_NFEV = 4
+"""Model evaluations of each fold's calibration refit (warm-started at the full fit)."""
 MIN_WINDOWS = 150
 UNEXPLAINED_SHARE = 0.1
 """A named effect whose channels keep more than this share of their structured error is not
@@ -187,8 +189,10 @@ class Calibrated:
     gain: float = 0.0  # held-out relative gain over the nominal model
     t: float = 0.0
     where: str = ""
-    heldout: np.ndarray | None = None  # (3,) per-channel normalised held-out MSE, calibrated
+    heldout: np.ndarray | None = None  # (m, 3) per-window, per-channel held-out losses, calibrated
     considered: tuple[str, ...] = ()
+    round: int = -1  # the naming round in which it was applied
+    tested: bool = False  # its held-out gain was tested (not when effects explained everything first)
 
 
 # --------------------------------------------------------------------------------------------
@@ -254,43 +258,52 @@ def screen(p: Prepared, vehicle: VehicleConfig, seed: int) -> Screened:
     return Screened(sigma, ev, scale, excitation(p.data, vehicle.wheelbase))
 
 
-def calibrate(p: Prepared, s: Screened, ctx: Ctx, vehicle: VehicleConfig, seed: int,
-              log: Callable[[str], None]) -> Calibrated:
-    """Fit the nominal parameters the recordings identify, inside their bounds; apply them when
-    the held-out gain over the nominal model (cross-validated by lap, refitted without the held-out
-    fold) is significant, and screen the calibrated model (:mod:`gprace.diagnose.calibrate`).
-    Nothing to calibrate when the nominal model leaves no structured error."""
+def calibrate(p: Prepared, s: Screened, ctx: Ctx, vehicle: VehicleConfig, log: Callable[[str], None]) -> Calibrated:
+    """Fit the nominal parameters the recordings identify, inside their bounds
+    (:mod:`gprace.diagnose.calibrate`), and cross-validate them by lap (refitted without the
+    held-out fold). The result is the first candidate of :func:`name`: applied there when it
+    explains the structured error better than any catalogue effect and significantly. Nothing to
+    calibrate when the nominal model leaves no structured error."""
     params = cal.applicable(p.data.longitudinal)
     none = Calibrated(vehicle, None, False, s, considered=tuple(q.name for q in params))
     if not s.nominal.structured or not params:
         return none
-    prob = ctx.prob
     lo, hi = cal.bounds(vehicle, params, cal.v_top(p.data))
     log(f"diagnose: calibrating {len(params)} nominal parameters ({', '.join(q.name for q in params)})")
-    f = cal.identify(prob, params, cal.start(vehicle, params), lo, hi, ctx.fit_w, log=log)
+    f = cal.identify(ctx.prob, params, cal.start(vehicle, params), lo, hi, ctx.fit_w, log=log)
     if not f.params:
         return replace(none, fit=f)
-    lo, hi = cal.bounds(vehicle, f.params, cal.v_top(p.data))
-    l0_ch = np.mean(prob.residuals(prob.model(), ctx.eval_w) ** 2, axis=1)
-    l1_ch = np.empty_like(l0_ch)
-    for fo in np.unique(ctx.fold):  # by lap: refitted without the held-out fold
+    return replace(none, fit=f, heldout=_cv_calibration(ctx, vehicle, f))
+
+
+def _cv_calibration(ctx: Ctx, vehicle: VehicleConfig, f: cal.CalFit) -> np.ndarray:
+    """(m, 3) held-out losses of the calibration ``f`` (the model's effects ``ctx.prob.base`` in),
+    refitted without each fold by iterations: the calibration moves far from the nominal car,
+    where one linearised step from the full fit falls short (INI F1TENTH: 62 % against 84 %)."""
+    prob = ctx.prob
+    lo, hi = cal.bounds(vehicle, f.params, cal.v_top(prob.data))
+    out = np.empty((len(ctx.eval_w), 3))
+    for fo in np.unique(ctx.fold):
         te = ctx.fold == fo
         tr = ctx.eval_w[~te][:: max(1, int((~te).sum()) // 400)]
-        g = cal.fit(prob, f.params, f.x, lo, hi, tr, max_nfev=10)
-        l1_ch[te] = np.mean(cal.residual_sets(prob, f.params, [g.x], ctx.eval_w[te])[0] ** 2, axis=1)
-    chans = sorted(({1, 2} if any(q.needs == "lateral" for q in f.params) else set())
-                   | ({0} if any(q.needs != "lateral" for q in f.params) else set()))
-    l0, l1 = l0_ch[:, chans].mean(axis=1), l1_ch[:, chans].mean(axis=1)
-    ok, where, t = _significant(ctx, l0, l1)
-    gain = float((l0.mean() - l1.mean()) / max(l0.mean(), 1e-12))
-    log(f"diagnose: calibration held-out gain {100 * gain:.1f}% (t = {t:.1f}, {where or 'not significant'})")
-    if not ok:
-        return replace(none, fit=f, gain=gain, t=t)
-    veh = cal.with_values(vehicle, cal.values(vehicle, f.params, f.x))
+        g = cal.fit(prob, f.params, f.x, lo, hi, tr, max_nfev=CAL_CV_NFEV)
+        out[te] = np.mean(cal.residual_sets(prob, f.params, [g.x], ctx.eval_w[te])[0] ** 2, axis=1)
+    return out
+
+
+def _cal_channels(f: cal.CalFit) -> list[int]:
+    return sorted(({1, 2} if any(q.needs == "lateral" for q in f.params) else set())
+                  | ({0} if any(q.needs != "lateral" for q in f.params) else set()))
+
+
+def _apply_calibration(p: Prepared, s: Screened, c: Calibrated, vehicle: VehicleConfig, seed: int,
+                       log: Callable[[str], None]) -> Calibrated:
+    """The calibrated vehicle and the screening of the calibrated model (for the report and as the
+    baseline of the effects named after it)."""
+    veh = cal.with_values(vehicle, cal.values(vehicle, c.fit.params, c.fit.x))
     ev = evaluate(p, core.model_for(veh, p.data), s.sigma, seed + 3, scale=s.scale)
-    log(f"diagnose: calibrated model structured: {[CHANNELS[c] for c in sorted(ev.structured)] or 'none'}")
-    return Calibrated(veh, f, True, replace(s, nominal=ev), gain, t, where, l1_ch.mean(axis=0),
-                      none.considered)
+    log(f"diagnose: calibrated model structured: {[CHANNELS[i] for i in sorted(ev.structured)] or 'none'}")
+    return replace(c, vehicle=veh, applied=True, baseline=replace(s, nominal=ev))
 
 
 def recalibrate(c: Calibrated, ctx: Ctx, named: Named, nominal: VehicleConfig) -> Calibrated:
@@ -317,7 +330,7 @@ def locate_windows(s: Screened) -> Located:
 def _context(p: Prepared, vehicle: VehicleConfig, s: Screened) -> Ctx:
     starts = p.starts
     prob = nm.Problem(vehicle, p.data, p.H, s.scale, substeps=1)
-    fit_stride = max(1, len(starts) // 400)
+    fit_stride = max(1, -(-len(starts) // 400))  # at most 400 fit windows
     eval_w = starts[:: max(1, len(starts) // 2500)]
     subsets = tuple((lab, m) for lab, m in scr.regimes(p.data, eval_w, p.H) if m.sum() >= 20)
     t_sub = max(scr.T_SUBSET_MIN, float(norm.isf(scr.FAMILY_ALPHA / max(len(subsets) * MAX_EFFECTS, 1))))
@@ -350,58 +363,77 @@ def _significant(ctx: Ctx, l0: np.ndarray, l1: np.ndarray) -> tuple[bool, str, f
     return best
 
 
-def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, log: Callable[[str], None]) -> Named:
-    """Greedy forward selection of catalogue effects by held-out gain beyond those already chosen."""
+def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, c: Calibrated, seed: int,
+         log: Callable[[str], None]) -> tuple[Named, Calibrated]:
+    """Greedy forward selection by held-out gain beyond what is already in the model. The first
+    candidate is the calibration of the nominal parameters (issue 36): it is applied when no
+    catalogue effect explains the structured error significantly better (a mis-set stiffness is
+    calibrated, not named), and it stays a candidate, refitted with the effects chosen so far,
+    until it is applied or fails its test (a missing downforce is named, not absorbed into
+    stiffness factors)."""
+    nominal = ctx.prob.vehicle
     chosen: list[NamedEffect] = []
     searched: list[dict] = []
     dyn_struct = set(s.nominal.dynamic_structured)
     if not dyn_struct:
-        return Named((), ())
-    for rnd in range(MAX_EFFECTS):
+        return Named((), ()), c
+    candidate = c.fit is not None and bool(c.fit.params)
+    for rnd in range(MAX_EFFECTS + 1):
+        ctx_r = replace(ctx, prob=replace(ctx.prob, vehicle=c.vehicle if c.applied else nominal))
         fits = [e.fit for e in chosen]
         if len(fits) >= 2:  # the earlier effects were fitted without the latest one: refit
-            fits = [nm.refit(_with_base(ctx.prob, fits, i), f, ctx.fit_w) for i, f in enumerate(fits)]
+            fits = [nm.refit(_with_base(ctx_r.prob, fits, i), f, ctx.fit_w) for i, f in enumerate(fits)]
             chosen = [replace(e, fit=f) for e, f in zip(chosen, fits)]
-        prob = replace(ctx.prob, base=[f.effect() for f in fits])
+        prob = replace(ctx_r.prob, base=[f.effect() for f in fits])
         cur = prob.model()
-        if chosen:  # stop when what is left is noise (against the same noise estimate)
+        if chosen or c.applied:  # stop when what is left is noise (against the same noise estimate)
             left = evaluate(p, cur, s.sigma, 0, scale=s.scale, Et=s.nominal.Et).dynamic_structured
             if not left:
                 break
             dyn_struct = set(left)
         l0_ch = np.mean(prob.residuals(cur, ctx.eval_w) ** 2, axis=1)
-        l0 = l0_ch.mean(axis=1)
-        names = [n for n in EFFECTS if n not in {f.name for f in fits} and n not in s.not_identifiable
-                 and n not in ctx.skip and {CHANNELS.index(ch) for ch in EFFECTS[n].channels} & dyn_struct]
-        log(f"diagnose: round {rnd + 1}: screening {len(names)} candidate effects")
-        cands = []
-        for n in names:  # a few iterations from every starting point, on the screening windows
-            inits = nm.starts_for(n, loc.windows)
-            f = nm.fit_effect(prob, n, ctx.screen_w, inits, max_nfev=nm.PRESCREEN_NFEV) if inits else None
-            if f is not None:
-                cands.append(f)
-        if not cands:
+        if candidate and chosen:  # the calibration with the effects named so far in the model
+            cf = cal.covariance(prob, cal.fit(prob, c.fit.params, c.fit.x, *cal.bounds(
+                nominal, c.fit.params, cal.v_top(p.data)), ctx.fit_w, max_nfev=20),
+                *cal.bounds(nominal, c.fit.params, cal.v_top(p.data)))
+            cf.dropped = c.fit.dropped
+            c = replace(c, fit=cf, heldout=_cv_calibration(replace(ctx, prob=prob), nominal, cf))
+        best, cv, top = None, {}, []
+        if len(chosen) < MAX_EFFECTS:
+            best, cv, top = _best_effect(prob, loc, s, ctx, dyn_struct, fits, rnd, log)
+        # the calibration or the best effect first? (in a tie the calibration: calibrate, then name)
+        cal_first = candidate and (best is None or not _clearly_better(
+            ctx, cv[best.name].mean(axis=1), c.heldout.mean(axis=1)))
+        effect_ok = False
+        for what in (("calibration", "effect") if cal_first else ("effect", "calibration")):
+            if what == "calibration" and candidate:
+                chans = _cal_channels(c.fit)
+                l0, l1 = l0_ch[:, chans].mean(axis=1), c.heldout[:, chans].mean(axis=1)
+                ok, where, t = _significant(ctx, l0, l1)
+                gain = float((l0.mean() - l1.mean()) / max(l0.mean(), 1e-12))
+                log(f"diagnose: round {rnd + 1}: calibration held-out gain on "
+                    f"{', '.join(CHANNELS[i] for i in chans)} {100 * gain:.1f}% (t = {t:.1f}, {where or 'not significant'})")
+                c = replace(c, gain=gain, t=t, where=where if ok else "", tested=True)
+                candidate = False
+                if ok:
+                    c = replace(_apply_calibration(p, s, c, nominal, seed, log), round=rnd)
+                    break
+            elif what == "effect" and best is not None:
+                chb = _channels(best.name)
+                l0 = l0_ch[:, chb].mean(axis=1)
+                l1 = cv[best.name][:, chb].mean(axis=1)
+                effect_ok, where, t = _significant(ctx, l0, l1)
+                log(f"diagnose: round {rnd + 1}: best {best.name} held-out gain on "
+                    f"{', '.join(CHANNELS[i] for i in chb)} {100 * (l0.mean() - l1.mean()) / max(l0.mean(), 1e-12):.1f}% "
+                    f"(t = {t:.1f}, {where or 'not significant'})")
+                searched.append({"round": rnd + 1, "candidates": {f.name: float(cv[f.name].mean()) for f in top},
+                                 "baseline": float(l0_ch.mean())})
+                if effect_ok:
+                    break
+        else:  # neither was accepted
             break
-        cands.sort(key=lambda f: f.cost)
-        # only the most promising continue to the full screening fit, warm-started
-        cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=20) for f in cands[: nm.PRESCREEN_KEEP]),
-                       key=lambda f: f.cost)
-        top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in cands[: nm.SCREEN_TOP]]
-        cv = {f.name: nm.cv_channel_losses(prob, f, ctx.eval_w, ctx.fold,
-                                            fit_stride=max(1, len(ctx.eval_w) // 400)) for f in top}
-        best = min(top, key=lambda f: cv[f.name].mean())
-        # tested on the channels it acts on: a large error elsewhere (a v_x no lateral effect can
-        # touch) must not dilute the relevance of a lateral gain
-        chb = _channels(best.name)
-        l0 = l0_ch[:, chb].mean(axis=1)
-        l1 = cv[best.name][:, chb].mean(axis=1)
-        ok, where, t = _significant(ctx, l0, l1)
-        log(f"diagnose: round {rnd + 1}: best {best.name} held-out gain on {', '.join(CHANNELS[c] for c in chb)} "
-            f"{100 * (l0.mean() - l1.mean()) / max(l0.mean(), 1e-12):.1f}% (t = {t:.1f}, {where or 'not significant'})")
-        searched.append({"round": rnd + 1, "candidates": {f.name: float(cv[f.name].mean()) for f in top},
-                         "baseline": float(l0.mean())})
-        if not ok:
-            break
+        if not effect_ok:  # the calibration was applied: name effects against the calibrated car
+            continue
         group = [best]
         for f in top:
             if f is best:
@@ -417,11 +449,45 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, log: Callable[[str], 
         ch = _channels(named.name)
         chosen.append(NamedEffect(
             fit=named,
-            heldout_before={CHANNELS[c]: float(np.sqrt(l0_ch[:, c].mean()) * s.scale[c]) for c in ch},
-            heldout_after={CHANNELS[c]: float(np.sqrt(ln[:, c].mean()) * s.scale[c]) for c in ch},
+            heldout_before={CHANNELS[i]: float(np.sqrt(l0_ch[:, i].mean()) * s.scale[i]) for i in ch},
+            heldout_after={CHANNELS[i]: float(np.sqrt(ln[:, i].mean()) * s.scale[i]) for i in ch},
             improvement=float(1.0 - np.sqrt(ln[:, ch].mean() / l0_ch[:, ch].mean())),
             ambiguous_with=tuple(f.name for f in group if f is not named), where=where))
-    return Named(tuple(chosen), tuple(searched))
+    return Named(tuple(chosen), tuple(searched)), c
+
+
+def _clearly_better(ctx: Ctx, l_effect: np.ndarray, l_cal: np.ndarray) -> bool:
+    """An effect wins over the calibration only when its held-out loss is lower and the paired
+    block t of the difference exceeds 2: in a tie the nominal parameters are calibrated first."""
+    if l_effect.mean() >= l_cal.mean():
+        return False
+    _, t = nm.gain_test(l_cal, l_effect, ctx.bid)
+    return t > 2.0
+
+
+def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_struct: set, fits: list,
+                 rnd: int, log: Callable[[str], None]) -> tuple[nm.Fit | None, dict, list]:
+    """The catalogue effect with the lowest held-out loss this round: every candidate one
+    linearised step from every starting point, the most promising fitted on, the best three
+    cross-validated. (best, {name: (m, 3) held-out losses}, the cross-validated fits)."""
+    names = [n for n in EFFECTS if n not in {f.name for f in fits} and n not in s.not_identifiable
+             and n not in ctx.skip and {CHANNELS.index(ch) for ch in EFFECTS[n].channels} & dyn_struct]
+    log(f"diagnose: round {rnd + 1}: screening {len(names)} candidate effects")
+    cands = []
+    for n in names:  # one linearised step from every starting point, on the screening windows
+        inits = nm.starts_for(n, loc.windows)
+        f = cv_.prescreen(prob, n, ctx.screen_w, inits) if inits else None
+        if f is not None:
+            cands.append(f)
+    if not cands:
+        return None, {}, []
+    cands.sort(key=lambda f: f.cost)
+    # only the most promising continue to the full screening fit, warm-started
+    cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=20) for f in cands[: nm.PRESCREEN_KEEP]),
+                   key=lambda f: f.cost)
+    top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in cands[: nm.SCREEN_TOP]]
+    cv = {f.name: cv_.cv_losses(prob, [cv_.effect_block(f, prob.data)], ctx.eval_w, ctx.fold) for f in top}
+    return min(top, key=lambda f: cv[f.name].mean()), cv, top
 
 
 def fit(ctx: Ctx, named: Named) -> Named:
@@ -516,18 +582,21 @@ def _diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int, seed: in
     log(f"diagnose: noise sigma {np.round(s.sigma, 4).tolist()}, structured: "
         f"{[CHANNELS[c] for c in sorted(s.nominal.structured)] or 'none'}")
     ctx = _context(p, vehicle, s)
-    c = calibrate(p, s, ctx, vehicle, seed, log)
     untestable = input_limits(data)
+    c = calibrate(p, s, ctx, vehicle, log)
     skip = frozenset(untestable) | frozenset(q.supersedes for q in cal.PARAMS
                                              if q.supersedes and q.name in c.considered)
-    ctx_c = replace(ctx, prob=replace(ctx.prob, vehicle=c.vehicle), skip=skip, heldout_memo={})
-    named = name(p, c.baseline, locate_windows(c.baseline), ctx_c, log)
+    ctx = replace(ctx, skip=skip)
+    named, c = name(p, s, locate_windows(s), ctx, c, seed, log)
+    ctx_c = replace(ctx, prob=replace(ctx.prob, vehicle=c.vehicle), heldout_memo={})
     c2 = recalibrate(c, ctx_c, named, vehicle)
     if c2 is not c:
         ctx_c = replace(ctx_c, prob=replace(ctx_c.prob, vehicle=c2.vehicle), heldout_memo={})
         c = c2
     named = fit(ctx_c, named)
-    ver = verify(p, c.baseline, ctx_c, named, c.vehicle, seed, log)
+    # an effect is judged against what it was named on: the calibrated model when the
+    # calibration came first, the nominal one otherwise
+    ver = verify(p, c.baseline if c.applied and c.round == 0 else s, ctx_c, named, c.vehicle, seed, log)
     report = _report(p, s, ctx, c, named, ver, vehicle, augmented_name, untestable)
     report["residual_profile"] = residual_along_track(p, s.nominal, ver.augmented)
     report["runtime_s"] = round(time.perf_counter() - t0, 2)
@@ -560,7 +629,7 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
     verdict = "mismatch" if structured else "no_significant_mismatch"
     effects = ver.effects if verdict == "mismatch" else ()
     l_nom = np.mean(ctx.prob.residuals(core.model_for(vehicle, p.data), ctx.eval_w) ** 2, axis=1).mean(axis=0)
-    l_cal = c.heldout if c.applied else l_nom
+    l_cal = c.heldout.mean(axis=0) if c.applied else l_nom
     l_aug = ver.heldout_after if ver.heldout_after is not None else l_cal
     channels_json = []
     for st, s1, pr, ch in zip(nom.stats, aug.stats, nom.pred, TESTED):
@@ -656,7 +725,7 @@ def _inputs_json(data: core.Dataset, untestable: dict[str, str]) -> dict[str, An
 def _calibration_json(c: Calibrated, vehicle: VehicleConfig, verdict: str) -> dict[str, Any]:
     applied = c.applied and verdict == "mismatch"
     params = c.fit.report(vehicle) if c.fit is not None and len(c.fit.params) else []
-    return {"applied": applied, "considered": list(c.considered),
+    return {"applied": applied, "tested": bool(c.tested), "considered": list(c.considered),
             "heldout_gain": round(float(c.gain), 4), "t": round(float(c.t), 2),
             "significant_where": c.where,
             "parameters": params,
@@ -752,17 +821,8 @@ def _heldout_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
 
 
 def _cv_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
-    prob, eval_w, fold = ctx.prob, ctx.eval_w, ctx.fold
-    out = np.empty((len(eval_w), 3))
-    for fo in np.unique(fold):
-        tr = eval_w[fold != fo][:: max(1, len(eval_w) // 500)]
-        te = fold == fo
-        fs = list(fits)
-        for i, f in enumerate(fs):
-            fs[i] = nm.refit(_with_base(prob, fs, i), f, tr)
-        m = prob.model([f.effect() for f in fs])
-        out[te] = np.mean(prob.residuals(m, eval_w[te]) ** 2, axis=1)
-    return out
+    """Every effect refitted jointly without each fold (one linearised step, :mod:`crossval`)."""
+    return cv_.cv_losses(ctx.prob, [cv_.effect_block(f, ctx.prob.data) for f in fits], ctx.eval_w, ctx.fold)
 
 
 def _heldout(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:

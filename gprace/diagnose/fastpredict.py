@@ -119,8 +119,8 @@ class Layout:
         return len(self.index)
 
 
-def _layout(longitudinal: str, lags: tuple[str, ...]) -> Layout:
-    names = tuple(n for n in EFFECTS if (n in NEUTRAL or n in lags))
+def _layout(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | None = None) -> Layout:
+    names = tuple(n for n in EFFECTS if (n in NEUTRAL and (only is None or n in only)) or n in lags)
     index = {("params", f): i for i, f in enumerate(PARAM_FIELDS)}
     for n in names:
         for k in EFFECTS[n].params:
@@ -129,14 +129,14 @@ def _layout(longitudinal: str, lags: tuple[str, ...]) -> Layout:
 
 
 @functools.cache
-def _kernel(longitudinal: str, lags: tuple[str, ...]):
+def _kernel(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | None = None):
     """(ctypes function, Layout) of a compiled variant, or None (no compiler, or a failed build)."""
     import casadi as ca
 
     from gprace.backends.compiled import compiled_source
     from gprace.model.nominal import _casadi_ops
 
-    lay = _layout(longitudinal, lags)
+    lay = _layout(longitudinal, lags, only)
     x, u, k = ca.SX.sym("x", lay.nx), ca.SX.sym("u", 2), ca.SX.sym("kappa")
     P = ca.SX.sym("p", lay.np)
     p = Params(**{f: P[lay.index[("params", f)]] for f in PARAM_FIELDS}, longitudinal=longitudinal)
@@ -152,7 +152,7 @@ def _kernel(longitudinal: str, lags: tuple[str, ...]):
     gen.add(F)
     src = gen.dump() + f"\n#define NXS {lay.nx}\n#define SZW {F.sz_w()}\n#define SZIW {F.sz_iw()}\n" \
         f"#define DERIV gprace_deriv\n" + _DRIVER_C
-    tag = f"diagnose_predict_{longitudinal}_{'_'.join(lags) or 'nolag'}"
+    tag = f"diagnose_predict_{longitudinal}_{'_'.join(lags) or 'nolag'}" + ("" if only is None else f"_{len(only)}fx")
     lib = compiled_source(tag, src, ("-O2", "-fno-math-errno"), "diagnosis prediction kernel")
     if lib is None:
         return None
@@ -218,7 +218,7 @@ def predict_states(model: NominalModel, data, starts: np.ndarray, H: int, subste
     pl = plan(model)
     if pl is None:
         return None
-    kern = _kernel(pl[0], pl[1])
+    kern = _kernel(pl[0], pl[1], tuple(e.name for e in pl[2] if e.name in NEUTRAL))
     if kern is None:
         return None
     fn, lay = kern

@@ -85,7 +85,8 @@ def _input_lines(i: Inputs) -> list[str]:
 def _calibration_lines(c: Calibration) -> list[str]:
     if not c.parameters and not c.not_identified:
         return []
-    state = "applied" if c.applied else "not applied: its held-out gain is not significant"
+    state = "applied" if c.applied else ("not applied: its held-out gain is not significant" if c.tested
+                                         else "not needed: the named effects explain the structured error")
     out = [f"  calibrated parameters (held-out gain {100 * c.heldout_gain:.0f}%, t = {c.t:.1f}; {state}):"]
     for p in c.parameters:
         lo, hi = p.ci95

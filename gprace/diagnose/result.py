@@ -124,6 +124,10 @@ class CalibratedParameter(Frozen):
     ci95: list[Num] = Field(min_length=2, max_length=2, description="95 % interval (cluster sandwich)")
     spread_ratio: Num = Field(NAN, description="posterior / prior spread (identified below 1/5)")
     at_bound: bool = Field(False, description="pressed against a bound of its physical range")
+    relevance: Num = Field(NAN, description="growth of the noise-normalised mean square error if it were put "
+                           "back to nominal (the others refitted)")
+    changed: bool = Field(False, description="its 95 % interval excludes the nominal value and the relevance "
+                          "exceeds 0.01 (1 % of the noise floor)")
 
 
 class NotIdentified(Frozen):
@@ -137,6 +141,8 @@ class Calibration(Frozen):
     """The calibration of the nominal parameters before any effect is named (issue 36)."""
 
     applied: bool = Field(description="the calibrated values are in the augmented vehicle (held-out gain significant)")
+    tested: bool = Field(True, description="its held-out gain was tested (False: the named effects explained "
+                         "the structured error before it was needed)")
     considered: list[str] = Field(default_factory=list, description="parameters the inputs let it test")
     heldout_gain: Num = Field(0.0, description="relative held-out loss reduction over the nominal model (by lap)")
     t: Num = Field(0.0, description="paired block statistic of that gain")
@@ -265,6 +271,20 @@ class DiagnosisResult(Frozen):
     def to_json(self) -> dict[str, Any]:
         """The JSON-ready dump (NaN as None): what ``--json`` prints."""
         return jsonable(self.model_dump())
+
+    def findings(self) -> dict[str, dict[str, float]]:
+        """Everything the diagnosis found in the catalogue's terms: the named effects and the
+        effects that the changed calibrated parameters stand for (``cornering_stiffness``,
+        ``steering_offset``, ``aero_drag`` ...; :func:`gprace.diagnose.calibrate.as_effects`),
+        with their parameter values."""
+        from gprace.diagnose.calibrate import as_effects
+
+        out: dict[str, dict[str, float]] = {}
+        if self.calibration is not None and self.calibration.applied:
+            out.update(as_effects([p.model_dump() for p in self.calibration.parameters]))
+        for e in self.effects:
+            out[e.name] = {k: float(p.value) for k, p in e.parameters.items()}
+        return out
 
 
 def residual_profile(s: np.ndarray, before: dict[str, np.ndarray], after: dict[str, np.ndarray],

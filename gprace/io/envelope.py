@@ -31,7 +31,10 @@ size, so that a 1:10 car at 3 m/s and a 790 kg car at 30 m/s are judged alike (i
 
 Every excluded stretch is widened by :data:`MARGIN_S` seconds on both sides (the approach to a
 spin and the recovery after it are transients too), and kept islands shorter than
-:data:`MIN_KEEP_S` between exclusions are dropped as well.
+:data:`MIN_KEEP_S` between exclusions are dropped as well. With the wheelbase these times are in
+the car's own time scale ``sqrt(L / g)`` (0.5 s for a 2.5 m wheelbase, 0.18 s at 1:10): a
+Froude-scaled copy of a drive (lengths x lambda, times and speeds x sqrt(lambda)) loses exactly
+the same samples.
 """
 
 from __future__ import annotations
@@ -62,9 +65,11 @@ G = 9.81
 GAP_FACTOR = 1.5
 """A time step longer than this multiple of the median step is a gap."""
 MARGIN_S = 0.5
-"""Seconds excluded on each side of a spin / standstill / reversing stretch."""
+"""Seconds excluded on each side of a spin / standstill / reversing stretch (reference car)."""
 MIN_KEEP_S = 1.0
-"""Kept stretches shorter than this between two exclusions are excluded too."""
+"""Kept stretches shorter than this between two exclusions are excluded too (reference car)."""
+REFERENCE_WHEELBASE = 2.5
+"""The car whose time scale the times above are given in [m of wheelbase] (sqrt(L/g) = 0.5 s)."""
 
 REASONS = ("kept", "standstill", "reversing", "spin")  # priority order: later wins within a stretch
 
@@ -163,6 +168,14 @@ def standstill_speed(vx: np.ndarray, wheelbase: float | None = None) -> float:
     return max(typical, floor)
 
 
+def time_scale(wheelbase: float | None) -> float:
+    """Factor on the envelope's times: ``sqrt(L / g)`` over that of the 2.5 m reference car
+    (1 without the wheelbase)."""
+    if wheelbase is None or wheelbase <= 0:
+        return 1.0
+    return float(np.sqrt(wheelbase / REFERENCE_WHEELBASE))
+
+
 def envelope(data: dict[str, np.ndarray], source: str = "<memory>",
              wheelbase: float | None = None) -> tuple[np.ndarray, EnvelopeReport]:
     """Keep-mask ``(n,)`` (True = inside the envelope) and the report of what was cut out.
@@ -181,6 +194,7 @@ def envelope(data: dict[str, np.ndarray], source: str = "<memory>",
         return np.ones(n, dtype=bool), EnvelopeReport(source, n)
     dt = float(np.median(np.diff(t)))
     v_stand = standstill_speed(vx, wheelbase)
+    ts = time_scale(wheelbase)
 
     code = np.zeros(n, dtype=np.int8)  # index into REASONS
     stand = np.abs(vx) < v_stand
@@ -197,11 +211,11 @@ def envelope(data: dict[str, np.ndarray], source: str = "<memory>",
         excess = (np.abs(np.asarray(data["yaw_rate"], dtype=float)) - r_kin) * speed
         spin |= excess > SPIN_EXCESS_G * G
     spin |= np.abs(epsi) > WRONG_WAY
-    spin = _sustained(spin, max(int(round(SUSTAIN_S / max(dt, 1e-9))), 1)) & ~stand
+    spin = _sustained(spin, max(int(round(SUSTAIN_S * ts / max(dt, 1e-9))), 1)) & ~stand
     code = np.where(spin & (vx >= -0.5 * v_stand), 3, code).astype(np.int8)
 
     # widen every flagged stretch by the margin (in samples), keeping the strongest reason
-    w = max(int(round(MARGIN_S / max(dt, 1e-9))), 0)
+    w = max(int(round(MARGIN_S * ts / max(dt, 1e-9))), 0)
     grown = code.copy()
     for k in range(1, w + 1):  # loop over the margin width (~10), not over samples
         grown[k:] = np.maximum(grown[k:], code[:-k])
@@ -209,7 +223,7 @@ def envelope(data: dict[str, np.ndarray], source: str = "<memory>",
     keep = grown == 0
 
     # drop short kept islands between exclusions (and at the ends next to one)
-    min_keep = max(int(round(MIN_KEEP_S / max(dt, 1e-9))), 1)
+    min_keep = max(int(round(MIN_KEEP_S * ts / max(dt, 1e-9))), 1)
     starts, ends = _runs(keep)
     if (~keep).any():
         short = (ends - starts + 1) < min_keep
