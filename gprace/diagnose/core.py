@@ -19,7 +19,7 @@ from typing import Callable
 import numpy as np
 
 from gprace.errors import InputError
-from gprace.io.runs import Run
+from gprace.io.runs import DEFAULT_INPUTS, Run
 from gprace.model import Effect, NominalModel
 from gprace.model.dynamics import State, dynamics
 from gprace.model.ops import NP
@@ -27,8 +27,6 @@ from gprace.model.ops import NP
 INPUT_KINDS = {"delta": ("commanded", "measured"), "a_x": ("commanded", "measured", "derived", "absent"),
                "v_cmd": ("commanded",)}
 """What each input of a recording is (``run.meta["inputs"]``, written by the importer's map)."""
-DEFAULT_INPUTS = {"delta": "commanded", "a_x": "commanded"}
-"""Recordings without ``meta["inputs"]`` (gprace's own simulate/synth runs) log the commands."""
 CHANNELS = ("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s")
 DYNAMIC = (0, 1, 2)  # v_x, v_y, yaw_rate: the channels fitted and tested for structure
 TESTED = (0, 1, 2, 3, 4)  # channels with a structure statistic (s is reported via e_psi/e_y)
@@ -93,11 +91,11 @@ def input_kinds(run: Run) -> dict[str, str]:
     """The kind of every input of ``run`` (``meta["inputs"]``; the defaults for runs without it);
     an unknown kind, or a speed command declared without its ``v_cmd`` column, is an InputError."""
     given = run.meta.get("inputs") if isinstance(run.meta, dict) else None
-    kinds = dict(DEFAULT_INPUTS)
     if isinstance(given, str):  # stored as JSON text by a writer that flattens attributes
         import json
 
         given = json.loads(given)
+    kinds = dict(DEFAULT_INPUTS)
     for k, v in (given or {}).items():
         if k not in INPUT_KINDS or v not in INPUT_KINDS[k]:
             raise InputError(f"{run.source}: input kind {k} = {v!r} unknown (known: "
