@@ -59,6 +59,7 @@ MAGNITUDES = {
     "steering_offset": [{"offset": 0.002}, {"offset": 0.005}],
     "yaw_inertia": [{"factor": 1.3}, {"factor": 0.7}],
     "gyro_bias": [{"bias": 0.01}, {"bias": 0.03}],
+    "velocity_misalignment": [{"angle": 0.005}, {"angle": 0.012}],
 }
 PAIRS = [("aero_drag", "steering_lag"), ("downforce", "gyro_bias"), ("road_grade", "steering_offset"),
          ("rolling_resistance", "yaw_inertia")]

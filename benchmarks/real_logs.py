@@ -2,8 +2,9 @@
 
 Recordings (../shared/data/real, read in place, never copied): the INI F1TENTH 1:10 car (run
 2026-01-16 01-45-24, and 01-48-12 for the cross-run check) and the IAC AV-21 at Putnam Park. Each
-is imported with its map file and its own track files only (benchmarks/data/*.map.toml), against
-the vehicle its team publishes (benchmarks/data/ini_f1tenth.toml, iac_av21.toml).
+is imported with its map file (tests/data/real_maps) and its own track files only (the INI centre
+line, Putnam's two boundaries), against the vehicle its team publishes
+(benchmarks/data/ini_f1tenth.toml, iac_av21.toml).
 
 Per recording:
 
@@ -43,25 +44,27 @@ REAL = Path(os.environ.get("GPRACE_REAL_DATA", HERE.parent.parent / "shared" / "
 if not REAL.exists():
     REAL = Path("/work/shared/data/real")
 
+MAPS = HERE.parent / "tests" / "data" / "real_maps"  # the recording maps, written from the files' headers
 RECORDINGS = {
-    "ini": {"vehicle": HERE / "data" / "ini_f1tenth.toml", "map": HERE / "data" / "ini_f1tenth.map.toml",
+    "ini": {"vehicle": HERE / "data" / "ini_f1tenth.toml", "map": MAPS / "ini_f1tenth.map.toml",
             "files": [REAL / "ini_f1tenth_ipz20" / "2026-01-16_01-45-24_IPZ20_rpgd_25Hz_physical.csv"],
             "other": REAL / "ini_f1tenth_ipz20" / "2026-01-16_01-48-12_IPZ20_rpgd_25Hz_physical.csv",
+            "track": REAL / "ini_f1tenth_ipz20" / "centerline.csv",
             "prepared": "ini_01-45-24.h5", "prepared_other": "ini_01-48-12.h5", "dt": 0.04},
-    "iac": {"vehicle": HERE / "data" / "iac_av21.toml", "map": HERE / "data" / "iac_putnam.map.toml",
+    "iac": {"vehicle": HERE / "data" / "iac_av21.toml", "map": MAPS / "iac_putnam.map.toml",
             "files": [REAL / "iac_putnam_park" / "Putnam_park2023_run4_2.csv"], "other": None,
+            "track": [REAL / "iac_putnam_park" / "putnam_inner_bound.csv", REAL / "iac_putnam_park" / "putnam_outer_bound.csv"],
             "prepared": "iac.h5", "prepared_other": None, "dt": 0.04},
 }
 FALL = 0.3
 
 
-def import_run(path: Path, map_file: Path, dt: float):
-    """The recording imported with its map (track and inputs named in the map)."""
+def import_run(path: Path, map_file: Path, track, dt: float):
+    """The recording imported with its map and the track files it came with, as they are."""
     from gprace.ingest.importer import import_recording
     from gprace.ingest.mapping import load_map
 
-    rmap = load_map(map_file)
-    run, _ = import_recording(path, track=getattr(rmap, "track", None), rmap=rmap, map_path=map_file, dt=dt)
+    run, _ = import_recording(path, track=track, rmap=load_map(map_file), map_path=map_file, dt=dt)
     return run
 
 
@@ -73,8 +76,8 @@ def load(key: str, runs_dir: Path | None):
         main = read_run(runs_dir / spec["prepared"])
         other = read_run(runs_dir / spec["prepared_other"]) if spec["prepared_other"] else None
         return main, other
-    main = import_run(spec["files"][0], spec["map"], spec["dt"])
-    other = import_run(spec["other"], spec["map"], spec["dt"]) if spec["other"] else None
+    main = import_run(spec["files"][0], spec["map"], spec["track"], spec["dt"])
+    other = import_run(spec["other"], spec["map"], spec["track"], spec["dt"]) if spec["other"] else None
     return main, other
 
 

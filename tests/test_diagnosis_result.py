@@ -43,7 +43,7 @@ def diag(tmp_path_factory):
 def test_the_printed_json_validates_round_trips_and_keeps_every_key(diag, capsys):
     obj = json.loads(diag["text"])
     assert obj["version"] == RESULT_VERSION
-    assert set(json.loads(OLD.read_text())) | {"version", "residual_profile", "inputs", "calibration"} == set(obj)
+    assert set(json.loads(OLD.read_text())) | {"version", "residual_profile", "inputs", "calibration", "partial_effects"} == set(obj)
     assert [e["name"] for e in obj["effects"]] == ["road_grade"]
     assert "heldout_rmse_nominal" not in obj["channels"][3] and "regime" not in obj["channels"][1]  # as before
     r = parse_result(obj, "diagnosis.json")

@@ -154,6 +154,13 @@ class Verified:
     augmented: Evaluation
     heldout_after: np.ndarray | None  # (3,) normalised held-out MSE of the augmented model
     notes: tuple[str, ...] = field(default_factory=tuple)
+    partial: tuple[NamedEffect, ...] = ()
+    """Effects that improve held-out prediction but leave their channels structured: in the
+    augmented model (the fit improves), not named (the physics may be something else)."""
+
+    @property
+    def modelled(self) -> tuple[NamedEffect, ...]:
+        return self.effects + self.partial
 
 
 @dataclass(frozen=True)
@@ -504,7 +511,7 @@ def fit(ctx: Ctx, named: Named) -> Named:
 def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleConfig, seed: int,
            log: Callable[[str], None]) -> Verified:
     """Parsimony (drop an effect the others make redundant), then the augmented model's
-    evaluation; an effect whose channels stay structured is withdrawn."""
+    evaluation; an effect whose channels stay structured is not named but kept as *partial*."""
     effects = list(named.effects)
     notes: list[str] = []
     if effects:
@@ -537,15 +544,17 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
         bad = [i for i in chs if TESTED[i] in ev1.structured and share_left[i] > UNEXPLAINED_SHARE]
         if bad:
             rejected.append((e, bad))
-    if rejected:  # fall back: name nothing on channels the catalogue cannot explain
+    partial = []
+    if rejected:  # name nothing on channels the catalogue cannot explain; keep what it improves
         for e, bad in rejected:
             notes.append(f"{e.name} fits part of the error but leaves "
-                         f"{', '.join(CHANNELS[TESTED[i]] for i in bad)} structured: not named")
-        effects = [e for e in effects if e not in [r[0] for r in rejected]]
-        m1 = core.model_for(vehicle, p.data, [e.fit.effect() for e in effects])
-        ev1 = evaluate(p, m1, s.sigma, seed + 2, scale=s.scale) if effects else s.nominal
-    heldout = _heldout(ctx, [e.fit for e in effects]) if effects else None
-    return Verified(tuple(effects), ev1, heldout, tuple(notes))
+                         f"{', '.join(CHANNELS[TESTED[i]] for i in bad)} structured: not named (kept in the "
+                         f"augmented model as a partial fit: it improves held-out prediction)")
+        partial = [e for e in effects if e in [r[0] for r in rejected]]
+        effects = [e for e in effects if e not in partial]
+    fits = [e.fit for e in effects + partial]
+    heldout = _heldout(ctx, fits) if fits else None
+    return Verified(tuple(effects), ev1, heldout, tuple(notes), tuple(partial))
 
 
 # --------------------------------------------------------------------------------------------
@@ -602,7 +611,7 @@ def _diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int, seed: in
     report["runtime_s"] = round(time.perf_counter() - t0, 2)
     result = DiagnosisResult.model_validate(report)  # a failure here is a bug of the pipeline, not bad input
     mismatch = result.verdict == "mismatch"
-    effects = ver.effects if mismatch else ()
+    effects = ver.modelled if mismatch else ()
     base = c.vehicle if mismatch else vehicle
     aug_vehicle = base.model_copy(update={"effects": tuple(vehicle.effects) + tuple(
         EffectConfig(name=e.name, params={k: float(v) for k, v in e.fit.values().items()}) for e in effects)})
@@ -657,8 +666,7 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
         for g in nom.regions[ch]:
             regions_json.append({"channel": g.channel, "s_start": round(g.s_start, 1), "s_end": round(g.s_end, 1),
                                  "description": f"{g.description}; seen in {g.laps_seen} of {g.laps_total} lap(s)"})
-    eff_json = []
-    for e in effects:
+    def effect_json(e: NamedEffect) -> dict[str, Any]:
         spec = EFFECTS[e.name].params
         params = {}
         for k, v in e.fit.values().items():
@@ -666,19 +674,23 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
                 continue
             lo, hi = e.fit.ci.get(k, (float("nan"), float("nan")))
             params[k] = {"value": float(v), "ci95": [float(lo), float(hi)], "unit": spec[k].unit}
-        eff_json.append({"name": e.name, "parameters": params, "channels": e.channels,
-                         "heldout_rmse_before": e.heldout_before, "heldout_rmse_after": e.heldout_after,
-                         "improvement": round(e.improvement, 4), "ambiguous_with": list(e.ambiguous_with),
-                         "significant_where": e.where})
+        return {"name": e.name, "parameters": params, "channels": e.channels,
+                "heldout_rmse_before": e.heldout_before, "heldout_rmse_after": e.heldout_after,
+                "improvement": round(e.improvement, 4), "ambiguous_with": list(e.ambiguous_with),
+                "significant_where": e.where}
+
+    eff_json = [effect_json(e) for e in effects]
+    partial_json = [effect_json(e) for e in (ver.partial if verdict == "mismatch" else ())]
     ex0, ex1 = _excess(nom), _excess(aug)
     unexplained = {}
     for st, ch in zip(nom.stats, TESTED):
         if ch in structured and ch in aug.structured:
             unexplained[st.name] = float(np.sqrt(ex1[TESTED.index(ch)]))
-    after = "the calibration and the named effects" if c.applied and effects else (
-        "the calibration" if c.applied else "the named effects")
+    modelled = effects or partial_json
+    after = "the calibration and the effects" if c.applied and modelled else (
+        "the calibration" if c.applied else "the effects")
     for ch in TESTED:
-        if ch in aug.structured and (effects or c.applied):
+        if ch in aug.structured and (modelled or c.applied):
             for g in aug.regions[ch]:
                 regions_json.append({"channel": g.channel, "s_start": round(g.s_start, 1), "s_end": round(g.s_end, 1),
                                      "description": f"unexplained after {after}: {g.description}"})
@@ -694,6 +706,7 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
         "channels": channels_json,
         "regions": regions_json,
         "effects": eff_json,
+        "partial_effects": partial_json,
         "unexplained": unexplained,
         "augmented_vehicle": augmented_name,
         "explained_share": round(max(min(explained, 1.0), 0.0), 4) if verdict == "mismatch" else 0.0,

@@ -39,6 +39,9 @@ def _toml_notes(r: DiagnosisResult) -> list[str]:
                 for p in c.parameters]
     if r.effects:
         out.append("missing physics named: " + ", ".join(e.name for e in r.effects))
+    if r.partial_effects:
+        out.append("partial fits (improve held-out prediction, leave structure; not named): "
+                   + ", ".join(e.name for e in r.partial_effects))
     return out
 
 
@@ -58,6 +61,11 @@ def summary_lines(rep: DiagnosisResult | dict[str, Any]) -> list[str]:
     if r.effects:
         out.append("  missing physics:")
     for e in r.effects:
+        out += _effect_lines(e)
+    if r.partial_effects:
+        out.append("  partial fits (improve held-out prediction, leave their channels structured; in the augmented"
+                   " vehicle, not named):")
+    for e in r.partial_effects:
         out += _effect_lines(e)
     if r.unexplained:
         out.append("  unexplained structured error (RMS): " + ", ".join(f"{k} {v:.3g}" for k, v in r.unexplained.items()))

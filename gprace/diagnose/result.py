@@ -246,6 +246,9 @@ class DiagnosisResult(Frozen):
     regions: list[Region] = Field(default_factory=list, description="located regions of structured channels "
                                   "(and those left unexplained after the named effects)")
     effects: list[Effect] = Field(default_factory=list, description="named effects (empty without a mismatch)")
+    partial_effects: list[Effect] = Field(default_factory=list, description="effects that improve held-out "
+                                          "prediction but leave their channels structured: in the augmented "
+                                          "vehicle, not named (issue 36)")
     unexplained: dict[str, Num] = Field(default_factory=dict,
                                         description="per channel: structured error RMS the effects leave")
     augmented_vehicle: str | None = Field(None, description="file the augmented vehicle was written to")
@@ -266,7 +269,10 @@ class DiagnosisResult(Frozen):
     @model_serializer(mode="wrap")
     def _drop_absent(self, handler):
         """Sections a result of before issue 36 does not have stay out of its JSON."""
-        return {k: v for k, v in handler(self).items() if not (v is None and k in ("inputs", "calibration"))}
+        out = handler(self)
+        if not out.get("partial_effects") and out.get("inputs") is None:  # a result of before issue 36
+            out.pop("partial_effects", None)
+        return {k: v for k, v in out.items() if not (v is None and k in ("inputs", "calibration"))}
 
     def to_json(self) -> dict[str, Any]:
         """The JSON-ready dump (NaN as None): what ``--json`` prints."""
