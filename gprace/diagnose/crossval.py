@@ -20,7 +20,7 @@ iterations.)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -33,15 +33,18 @@ DAMPING = 1e-3
 
 @dataclass(frozen=True)
 class Block:
-    """Free parameters of one catalogue effect with their bounds and finite-difference step."""
+    """Free parameters of one catalogue effect (or, ``name`` None, of the calibration: ``params``
+    its :class:`~gprace.diagnose.calibrate.CalParam` list, coordinates relative to the problem's
+    vehicle) with their bounds and finite-difference step."""
 
-    name: str
+    name: str | None
     free: tuple[str, ...]
     fixed: dict
     x: np.ndarray
     lo: np.ndarray
     hi: np.ndarray
     step: float
+    params: tuple = ()
 
 
 def effect_block(fit, data) -> Block:
@@ -53,17 +56,34 @@ def effect_block(fit, data) -> Block:
     return Block(fit.name, tuple(fit.free), dict(fit.fixed), np.asarray(fit.x, float), lo, hi, step)
 
 
+def calibration_block(params, x, lo, hi) -> Block:
+    """The calibration's parameters as a block (for joint fits with an effect)."""
+    return Block(None, tuple(p.name for p in params), {}, np.asarray(x, float), np.asarray(lo, float),
+                 np.asarray(hi, float), float(np.sqrt(np.finfo(float).eps)), tuple(params))
+
+
 def _model(prob, blocks: list[Block], X: np.ndarray):
     """The model with every block's parameters taken from the per-window rows ``X`` (m, P)."""
-    effects, j = [], 0
+    from gprace.diagnose import calibrate as cal
+
+    effects, j, upd = [], 0, {}
     for b in blocks:
-        vals = dict(b.fixed)
-        vals.update({k: X[:, j + i] for i, k in enumerate(b.free)})
+        cols = X[:, j:j + len(b.free)]
         j += len(b.free)
+        if b.name is None:
+            veh = prob.vehicle
+            upd.update(cal.params_update(veh, {p.name: cal.from_coord(p, cols[:, i], cal.nominal_value(veh, p))
+                                               for i, p in enumerate(b.params)}))
+            continue
+        vals = dict(b.fixed)
+        vals.update({k: cols[:, i] for i, k in enumerate(b.free)})
         if "s_start" in vals:  # as in the fits: a window at least 1 m long
             vals["s_end"] = np.maximum(vals["s_end"], vals["s_start"] + 1.0)
         effects.append(EFFECTS[b.name](**vals))
-    return prob.model(effects)
+    model = prob.model(effects)
+    if upd:
+        model.params = replace(model.params, **upd)
+    return model
 
 
 def residual_rows(prob, blocks: list[Block], X: np.ndarray, starts: np.ndarray) -> np.ndarray:
@@ -77,6 +97,9 @@ def residual_rows(prob, blocks: list[Block], X: np.ndarray, starts: np.ndarray) 
         for r in range(len(rows)):
             idx = np.flatnonzero(inv.ravel() == r)
             mr = _model(prob, blocks, rows[r:r + 1])
+            mr.params = replace(mr.params, **{f.name: (float(v[0]) if isinstance(v := getattr(mr.params, f.name),
+                                                                               np.ndarray) else v)
+                                               for f in fields(mr.params)})
             for e in mr.effects:
                 e.values = {k: (float(v[0]) if isinstance(v, np.ndarray) else v) for k, v in e.values.items()}
             Z0[idx] = lag_states(mr, prob.data)[starts[idx]]
@@ -193,3 +216,28 @@ def prescreen(prob, name: str, starts: np.ndarray, inits: list[dict]):
         if best is None or cost < best.cost:
             best = nm.Fit(name, list(free), x1, fixed, cost)
     return best
+
+
+def joint_fit(prob, blocks: list[Block], starts: np.ndarray, max_nfev: int = 15) -> list[Block]:
+    """Bounded least squares of all blocks' parameters together (the Jacobian batched), from
+    their current values; the blocks at the solution."""
+    from gprace.diagnose.core import batched_least_squares
+
+    x0 = np.concatenate([b.x for b in blocks])
+    lo = np.concatenate([b.lo for b in blocks])
+    hi = np.concatenate([b.hi for b in blocks])
+    m = len(starts)
+
+    def batch(Xs):
+        Xs = np.asarray(Xs)
+        R = residual_rows(prob, blocks, np.repeat(Xs, m, axis=0), np.tile(starts, len(Xs)))
+        R = R.reshape(len(Xs), -1)
+        return np.where(np.isfinite(R), R, 1e3)
+
+    sol = batched_least_squares(batch, x0, lo, hi, np.maximum((hi - lo) / np.sqrt(12.0), 1e-6), max_nfev)
+    out, j = [], 0
+    for b in blocks:
+        out.append(replace(b, x=sol.x[j:j + len(b.x)]))
+        j += len(b.x)
+    return out
+

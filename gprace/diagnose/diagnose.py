@@ -313,16 +313,23 @@ def _apply_calibration(p: Prepared, s: Screened, c: Calibrated, vehicle: Vehicle
     return replace(c, vehicle=veh, applied=True, baseline=replace(s, nominal=ev))
 
 
-def recalibrate(c: Calibrated, ctx: Ctx, named: Named, nominal: VehicleConfig) -> Calibrated:
-    """The calibration refitted with the named effects in the model (one pass, warm-started), so a
-    parameter that absorbed part of a missing effect before it was named gives it back."""
+def recalibrate(c: Calibrated, ctx: Ctx, named: Named, nominal: VehicleConfig) -> tuple[Calibrated, Named]:
+    """The calibration and the named effects refitted together (warm-started), so a parameter that
+    absorbed part of a missing effect before it was named gives it back; then the calibration's
+    intervals with the effects in the model."""
     if not c.applied or not named.effects or c.fit is None:
-        return c
-    prob = replace(ctx.prob, vehicle=nominal, base=[e.fit.effect() for e in named.effects])
+        return c, named
+    prob = replace(ctx.prob, vehicle=nominal, base=[])
     lo, hi = cal.bounds(nominal, c.fit.params, cal.v_top(prob.data))
-    f = cal.covariance(prob, cal.fit(prob, c.fit.params, c.fit.x, lo, hi, ctx.fit_w, max_nfev=20), lo, hi)
+    blocks = [cv_.calibration_block(c.fit.params, c.fit.x, lo, hi)]
+    blocks += [cv_.effect_block(e.fit, prob.data) for e in named.effects]
+    blocks = cv_.joint_fit(prob, blocks, ctx.fit_w, max_nfev=JOINT_NFEV)
+    effects = tuple(replace(e, fit=replace(e.fit, x=b.x)) for e, b in zip(named.effects, blocks[1:]))
+    prob = replace(prob, base=[e.fit.effect() for e in effects])
+    f = cal.covariance(prob, cal.fit(prob, c.fit.params, blocks[0].x, lo, hi, ctx.fit_w, max_nfev=5), lo, hi)
     f.dropped = c.fit.dropped
-    return replace(c, vehicle=cal.with_values(nominal, cal.values(nominal, f.params, f.x)), fit=f)
+    c = replace(c, vehicle=cal.with_values(nominal, cal.values(nominal, f.params, f.x)), fit=f)
+    return c, replace(named, effects=effects)
 
 
 def locate_windows(s: Screened) -> Located:
@@ -406,8 +413,11 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, c: Calibrated, seed: 
             cf.dropped = c.fit.dropped
             c = replace(c, fit=cf, heldout=_cv_calibration(replace(ctx, prob=prob), nominal, cf))
         best, cv, top = None, {}, []
+        joint: dict[str, cv_.Block] = {}
         if len(chosen) < MAX_EFFECTS:
             best, cv, top = _best_effect(prob, loc, s, ctx, dyn_struct, fits, rnd, log)
+            if c.applied and top:  # may the calibration give back what it absorbed of the effect?
+                best, joint = _joint_with_calibration(replace(prob, vehicle=nominal), c, top, cv, ctx, log)
         # the calibration or the best effect first? (in a tie the calibration: calibrate, then name)
         cal_first = candidate and (best is None or not _clearly_better(
             ctx, cv[best.name].mean(axis=1), c.heldout.mean(axis=1)))
@@ -453,6 +463,10 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, c: Calibrated, seed: 
                 group.append(f)
         named = min(group, key=lambda f: (len(f.free), cv[f.name].mean()))
         ln = cv[named.name]
+        if named.name in joint:  # named with the calibration refitted beside it: keep that calibration
+            xc = joint[named.name].x
+            c = replace(c, fit=replace(c.fit, x=xc),
+                        vehicle=cal.with_values(nominal, cal.values(nominal, c.fit.params, xc)))
         ch = _channels(named.name)
         chosen.append(NamedEffect(
             fit=named,
@@ -461,6 +475,35 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, c: Calibrated, seed: 
             improvement=float(1.0 - np.sqrt(ln[:, ch].mean() / l0_ch[:, ch].mean())),
             ambiguous_with=tuple(f.name for f in group if f is not named), where=where))
     return Named(tuple(chosen), tuple(searched)), c
+
+
+JOINT_TOP = 2
+"""Candidates refitted jointly with the calibration once it is applied."""
+JOINT_NFEV = 30
+"""Evaluations of the final joint refit of the calibration and the named effects."""
+
+
+def _joint_with_calibration(prob: nm.Problem, c: Calibrated, top: list, cv: dict, ctx: Ctx,
+                            log: Callable[[str], None]) -> tuple[nm.Fit, dict]:
+    """The best candidates refitted together with the calibrated parameters (``prob`` on the
+    nominal vehicle, the effects already chosen in it), cross-validated jointly. A calibrated
+    inertia that took a steering lag's place, or a stiffness that took a downforce's, gives it
+    back; a candidate keeps whichever held-out loss is lower. Returns the best and, per candidate
+    that gained, the calibration block it was fitted with."""
+    lo, hi = cal.bounds(prob.vehicle, c.fit.params, cal.v_top(prob.data))
+    joint = {}
+    for f in sorted(top, key=lambda g: cv[g.name].mean())[:JOINT_TOP]:
+        blocks = [cv_.calibration_block(c.fit.params, c.fit.x, lo, hi), cv_.effect_block(f, prob.data)]
+        blocks = cv_.joint_fit(prob, blocks, ctx.fit_w)
+        lj = cv_.cv_losses(prob, blocks, ctx.eval_w, ctx.fold)
+        if lj.mean() < cv[f.name].mean():
+            log(f"diagnose: {f.name} with the calibration refitted beside it: held-out loss "
+                f"{cv[f.name].mean():.3g} -> {lj.mean():.3g}")
+            cv[f.name] = lj
+            i = top.index(f)
+            top[i] = nm.Fit(f.name, f.free, blocks[1].x, f.fixed, f.cost)
+            joint[f.name] = blocks[0]
+    return min(top, key=lambda g: cv[g.name].mean()), joint
 
 
 def _clearly_better(ctx: Ctx, l_effect: np.ndarray, l_cal: np.ndarray) -> bool:
@@ -598,7 +641,7 @@ def _diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int, seed: in
     ctx = replace(ctx, skip=skip)
     named, c = name(p, s, locate_windows(s), ctx, c, seed, log)
     ctx_c = replace(ctx, prob=replace(ctx.prob, vehicle=c.vehicle), heldout_memo={})
-    c2 = recalibrate(c, ctx_c, named, vehicle)
+    c2, named = recalibrate(c, ctx_c, named, vehicle)
     if c2 is not c:
         ctx_c = replace(ctx_c, prob=replace(ctx_c.prob, vehicle=c2.vehicle), heldout_memo={})
         c = c2
