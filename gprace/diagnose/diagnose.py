@@ -481,6 +481,12 @@ JOINT_TOP = 2
 """Candidates refitted jointly with the calibration once it is applied."""
 JOINT_NFEV = 30
 """Evaluations of the final joint refit of the calibration and the named effects."""
+JOINT_ROUND_NFEV = 10
+"""Evaluations of a candidate's joint refit with the calibration (warm-started at both fits)."""
+PRESCREEN_KEEP = 4
+"""Candidates (or starting points) carried from the linearised prescreen to the screening fit."""
+SCREEN_NFEV = 12
+"""Evaluations of the screening fit (warm-started at the prescreen's step)."""
 
 
 def _joint_with_calibration(prob: nm.Problem, c: Calibrated, top: list, cv: dict, ctx: Ctx,
@@ -494,7 +500,7 @@ def _joint_with_calibration(prob: nm.Problem, c: Calibrated, top: list, cv: dict
     joint = {}
     for f in sorted(top, key=lambda g: cv[g.name].mean())[:JOINT_TOP]:
         blocks = [cv_.calibration_block(c.fit.params, c.fit.x, lo, hi), cv_.effect_block(f, prob.data)]
-        blocks = cv_.joint_fit(prob, blocks, ctx.fit_w)
+        blocks = cv_.joint_fit(prob, blocks, ctx.fit_w, max_nfev=JOINT_ROUND_NFEV)
         lj = cv_.cv_losses(prob, blocks, ctx.eval_w, ctx.fold)
         if lj.mean() < cv[f.name].mean():
             log(f"diagnose: {f.name} with the calibration refitted beside it: held-out loss "
@@ -533,7 +539,7 @@ def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_stru
         return None, {}, []
     cands.sort(key=lambda f: f.cost)
     # only the most promising continue to the full screening fit, warm-started
-    cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=20) for f in cands[: nm.PRESCREEN_KEEP]),
+    cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV) for f in cands[:PRESCREEN_KEEP]),
                    key=lambda f: f.cost)
     top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in cands[: nm.SCREEN_TOP]]
     cv = {f.name: cv_.cv_losses(prob, [cv_.effect_block(f, prob.data)], ctx.eval_w, ctx.fold) for f in top}
