@@ -59,6 +59,7 @@ MAGNITUDES = {
     "steering_offset": [{"offset": 0.002}, {"offset": 0.005}],
     "yaw_inertia": [{"factor": 1.3}, {"factor": 0.7}],
     "gyro_bias": [{"bias": 0.01}, {"bias": 0.03}],
+    "velocity_misalignment": [{"angle": 0.005}, {"angle": 0.012}],
 }
 PAIRS = [("aero_drag", "steering_lag"), ("downforce", "gyro_bias"), ("road_grade", "steering_offset"),
          ("rolling_resistance", "yaw_inertia")]
@@ -213,9 +214,18 @@ def run_case(case: dict, laps: float) -> dict:
     t_diag = time.perf_counter() - t0
     cpu_diag = time.process_time() - c0  # diagnose is single-threaded: ~ its time on an idle core
     truth = {n for n, _ in case["effects"]}
-    named = [e["name"] for e in rep["effects"]]
+    # what was found in the catalogue's terms: the named effects and the effects that changed
+    # calibrated nominal parameters stand for (issue 36: a mis-set stiffness, inertia, offset,
+    # drag or rolling resistance is calibrated, not named)
+    from gprace.diagnose.result import parse_result
+
+    found = parse_result(rep, "benchmark").findings()
+    named = list(found)
     amb = {e["name"]: e["ambiguous_with"] for e in rep["effects"]}
+    amb.update({n: [] for n in named if n not in amb})
+    cal = rep.get("calibration") or {}
     row = {**case, "samples": run.n, "verdict": rep["verdict"], "named": named, "ambiguous": amb,
+           "calibrated": [p["name"] for p in cal.get("parameters", []) if p.get("changed")] if cal.get("applied") else [],
            "excluded_s": round(sum(e["seconds_excluded"] for e in rep["excluded"]), 1),
            "unexplained": rep["unexplained"], "t_record": round(t_rec, 1), "t_diagnose": round(t_diag, 1), "cpu_diagnose": round(cpu_diag, 1),
            "load_1min": round(os.getloadavg()[0], 2),
@@ -227,18 +237,18 @@ def run_case(case: dict, laps: float) -> dict:
                set(named) | {a for v in amb.values() for a in v})}
     errs, ious = [], []
     for name, p in case["effects"]:
-        fit = next((e for e in rep["effects"] if e["name"] == name), None)
+        fit = found.get(name)
         if fit is None:
             continue
         for k, v in p.items():
             if k in ("s_start", "s_end", "ramp"):
                 continue
             neutral = 1.0 if k in NEUTRAL_ONE else 0.0
-            if abs(v - neutral) < 1e-12 or k not in fit["parameters"]:
+            if abs(v - neutral) < 1e-12 or k not in fit:
                 continue
-            errs.append(abs(fit["parameters"][k]["value"] - v) / abs(v - neutral))
+            errs.append(abs(fit[k] - v) / abs(v - neutral))
         if "s_start" in p:
-            a, b = fit["parameters"]["s_start"]["value"], fit["parameters"]["s_end"]["value"]
+            a, b = fit["s_start"], fit["s_end"]
             inter = max(0.0, min(b, p["s_end"]) - max(a, p["s_start"]))
             ious.append(inter / (max(b, p["s_end"]) - min(a, p["s_start"])))
     row["param_errors"] = [round(e, 4) for e in errs]
@@ -286,6 +296,7 @@ def _summary(rows: list[dict]) -> dict:
         "min_window_iou": round(float(np.min(ious)), 3) if ious else None,
         "confusion": confusion,
         "misses": [{"truth": [n for n, _ in r["effects"]], "named": r["named"], "ambiguous": r["ambiguous"],
+                "calibrated": r.get("calibrated", []),
                     "unexplained": r["unexplained"], "seed": r["seed"]} for r in synth if not r["exact"]],
         "median_runtime_s": round(float(np.median([r["t_diagnose"] for r in ok])), 1) if ok else None,
         "median_cpu_s": round(float(np.median([r["cpu_diagnose"] for r in ok])), 1) if ok else None,

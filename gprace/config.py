@@ -15,7 +15,7 @@ import tomllib
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_serializer, model_validator
 
 from gprace.errors import ConfigError, InputError
 
@@ -193,6 +193,27 @@ class VehicleConfig(Frozen):
     tire: TireConfig
     limits: LimitsConfig
     effects: tuple[EffectConfig, ...] = Field(default=(), description="extra physics on the nominal model")
+    # inputs as a recording has them (issue 36); left out of dumps at their defaults, so files and
+    # hashes of vehicles that do not set them are unchanged
+    steering_gain: float = Field(1.0, gt=0, le=10.0, description="road-wheel angle per unit of the steering "
+                                 "input (a servo's or column's ratio error) [-]")
+    steering_offset: float = Field(0.0, ge=-0.5, le=0.5, description="offset added to the road-wheel angle [rad]")
+    speed_loop_tau: float = Field(0.5, gt=0, le=1e4, description="time constant of the car's own speed "
+                                  "controller, when a recording's longitudinal input is a speed command [s]")
+    speed_loop_gain: float = Field(1.0, gt=0, le=1e4, description="speed the car's controller aims at per unit "
+                                   "of the speed command [-]")
+
+    OPTIONAL_AT_DEFAULT: ClassVar[dict[str, float]] = {
+        "steering_gain": 1.0, "steering_offset": 0.0, "speed_loop_tau": 0.5, "speed_loop_gain": 1.0}
+
+    @model_serializer(mode="wrap")
+    def _drop_defaults(self, handler):
+        """The fields added by issue 36 stay out of a dump while they hold their defaults."""
+        out = handler(self)
+        for k, d in self.OPTIONAL_AT_DEFAULT.items():
+            if k in out and out[k] == d:
+                del out[k]
+        return out
 
     @field_validator("l_f", "l_r", "width", "length", "cog_height")
     @classmethod

@@ -43,7 +43,7 @@ def diag(tmp_path_factory):
 def test_the_printed_json_validates_round_trips_and_keeps_every_key(diag, capsys):
     obj = json.loads(diag["text"])
     assert obj["version"] == RESULT_VERSION
-    assert set(json.loads(OLD.read_text())) | {"version", "residual_profile"} == set(obj)
+    assert set(json.loads(OLD.read_text())) | {"version", "residual_profile", "inputs", "calibration", "partial_effects"} == set(obj)
     assert [e["name"] for e in obj["effects"]] == ["road_grade"]
     assert "heldout_rmse_nominal" not in obj["channels"][3] and "regime" not in obj["channels"][1]  # as before
     r = parse_result(obj, "diagnosis.json")
@@ -93,7 +93,7 @@ def test_an_old_result_is_read_with_one_warning_and_defaults(tmp_path, capsys):
     shutil.copy(OLD, p)
     r = read_result(p)
     err = capsys.readouterr().err
-    assert err.count("warning:") == 1 and "layout before version 1" in err
+    assert err.count("warning:") == 1 and f"layout before version {RESULT_VERSION}" in err
     assert p.read_bytes() == OLD.read_bytes()  # read, never rewritten
     assert r.version == RESULT_VERSION and r.residual_profile is None
     old = json.loads(OLD.read_text())
@@ -126,11 +126,11 @@ def test_the_report_notes_the_missing_profile_instead_of_recomputing(diag, tmp_p
     assert "residual-along-track plot not drawn (the result predates the stored residual profile" in html
     assert "rerun `gprace diagnose ... --json`" in html
     assert "road_grade" in html  # the rest of the result is drawn
-    assert capsys.readouterr().err.count("layout before version 1") == 1
+    assert capsys.readouterr().err.count(f"layout before version {RESULT_VERSION}") == 1
 
 
 @pytest.mark.parametrize("change, words", [
-    ({"version": RESULT_VERSION + 1}, "version 2 is newer than this gprace reads"),
+    ({"version": RESULT_VERSION + 1}, f"version {RESULT_VERSION + 1} is newer than this gprace reads"),
     ({"verdict": "maybe"}, "verdict"),
     ({"channels": [{"name": "v_x", "structured": True, "statistic": "high", "rmse_nominal": 0.1}]},
      "channels.0.statistic"),

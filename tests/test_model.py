@@ -133,7 +133,7 @@ CHANNELS = {
     "tire_friction": ("v_y", "yaw_rate"), "cornering_stiffness": ("v_y", "yaw_rate"),
     "steering_lag": ("v_y", "yaw_rate"), "steering_offset": ("v_y", "yaw_rate"),
     "drivetrain_lag": ("v_x",), "yaw_inertia": ("yaw_rate",), "friction_patch": ("v_y", "yaw_rate"),
-    "gyro_bias": ("yaw_rate",),
+    "gyro_bias": ("yaw_rate",), "velocity_misalignment": ("v_y",),
 }  # DESIGN.md section 3
 
 PARAMS = {
@@ -144,6 +144,7 @@ PARAMS = {
     "cornering_stiffness": {"front": 1.2, "rear": 0.8}, "steering_lag": {"tau": 0.05},
     "steering_offset": {"offset": 0.01}, "drivetrain_lag": {"tau": 0.2}, "yaw_inertia": {"factor": 1.5},
     "friction_patch": {"factor": 0.7, "s_start": 100.0, "s_end": 140.0}, "gyro_bias": {"bias": 0.02},
+    "velocity_misalignment": {"angle": 0.01},
 }
 
 # near-zero steering so that lateral forces leak into v_x only through F_yf sin(delta) ~ 1 %
@@ -169,6 +170,11 @@ def test_each_effect_changes_exactly_its_channels(audi, name):
     if name == "gyro_bias":  # a sensor effect: dynamics untouched, only the measured yaw rate
         np.testing.assert_array_equal(d, 0.0)
         assert ym[2] == pytest.approx(0.02) and np.all(ym[[0, 1, 3, 4, 5]] == 0.0)
+        return
+    if name == "velocity_misalignment":  # the velocities turned by 0.01 rad; v_x barely moves
+        np.testing.assert_array_equal(d, 0.0)
+        assert ym[1] == pytest.approx(XC[0] * np.sin(0.01) + XC[1] * (np.cos(0.01) - 1.0))
+        assert abs(ym[0]) < 0.05 * abs(ym[1]) and np.all(ym[[2, 3, 4, 5]] == 0.0)
         return
     np.testing.assert_array_equal(ym, 0.0)  # only sensor effects touch the measurement
     big = np.max(np.abs(d[listed]))

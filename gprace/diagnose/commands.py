@@ -36,7 +36,7 @@ def register(app: typer.Typer) -> None:
         res = diagnose(runs, veh, horizon=horizon, seed=seed, augmented_name=str(output) if output else None,
                        log=console.info)
         if output is not None:
-            write_augmented(res.vehicle, output)
+            write_augmented(res.vehicle, output, res.result)
         if plot is not None:
             plot_residuals(res, plot)
         if json_out:

@@ -19,11 +19,14 @@ from typing import Callable
 import numpy as np
 
 from gprace.errors import InputError
-from gprace.io.runs import Run
+from gprace.io.runs import DEFAULT_INPUTS, Run
 from gprace.model import Effect, NominalModel
 from gprace.model.dynamics import State, dynamics
 from gprace.model.ops import NP
 
+INPUT_KINDS = {"delta": ("commanded", "measured"), "a_x": ("commanded", "measured", "derived", "absent"),
+               "v_cmd": ("commanded",)}
+"""What each input of a recording is (``run.meta["inputs"]``, written by the importer's map)."""
 CHANNELS = ("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s")
 DYNAMIC = (0, 1, 2)  # v_x, v_y, yaw_rate: the channels fitted and tested for structure
 TESTED = (0, 1, 2, 3, 4)  # channels with a structure statistic (s is reported via e_psi/e_y)
@@ -44,6 +47,13 @@ class Dataset:
     sources: list[str]
     ks: np.ndarray = field(repr=False, default=None)  # curvature table (s + rec * _OFFSET)
     kv: np.ndarray = field(repr=False, default=None)
+    A: np.ndarray = field(repr=False, default=None)  # (N,) the recorded a_x, whatever its kind (regimes)
+    inputs: dict = field(default_factory=lambda: dict(DEFAULT_INPUTS))  # kind of every input
+    longitudinal: str = "force"  # how U[:, 1] drives v_x (gprace.model.dynamics.LONGITUDINAL)
+
+    def __post_init__(self) -> None:
+        if self.A is None:
+            self.A = self.U[:, 1].copy()
 
     @property
     def n(self) -> int:
@@ -77,10 +87,49 @@ class Dataset:
         return out
 
 
+def input_kinds(run: Run) -> dict[str, str]:
+    """The kind of every input of ``run`` (``meta["inputs"]``; the defaults for runs without it);
+    an unknown kind, or a speed command declared without its ``v_cmd`` column, is an InputError."""
+    given = run.meta.get("inputs") if isinstance(run.meta, dict) else None
+    if isinstance(given, str):  # stored as JSON text by a writer that flattens attributes
+        import json
+
+        given = json.loads(given)
+    kinds = dict(DEFAULT_INPUTS)
+    for k, v in (given or {}).items():
+        if k not in INPUT_KINDS or v not in INPUT_KINDS[k]:
+            raise InputError(f"{run.source}: input kind {k} = {v!r} unknown (known: "
+                             + "; ".join(f"{q}: {', '.join(vs)}" for q, vs in INPUT_KINDS.items()) + ")")
+        kinds[k] = v
+    if kinds.get("v_cmd") and "v_cmd" not in run.data:
+        raise InputError(f"{run.source}: the inputs name a speed command but the recording has no column 'v_cmd'")
+    return kinds
+
+
+def longitudinal_input(kinds: dict[str, str]) -> str:
+    """How the recording drives ``v_x`` in the model: a commanded ``a_x`` through the forces
+    (``"force"``), else a speed command through the car's speed loop (``"speed"``), else the
+    measured or derived ``a_x`` kinematically (``"kinematic"``). Commands come first: they are
+    inputs, while a measured acceleration already holds the response the model should predict."""
+    if kinds.get("a_x") == "commanded":
+        return "force"
+    if kinds.get("v_cmd") == "commanded":
+        return "speed"
+    return "kinematic"
+
+
 def build_dataset(runs: list[Run], min_samples: int = 200) -> Dataset:
-    """Stack recordings; checks period, length and lap structure (InputError naming the file)."""
+    """Stack recordings; checks period, length, lap structure and that every recording has the
+    same kind of inputs (InputError naming the file)."""
     if not runs:
         raise InputError("diagnose: no recording given")
+    kinds = input_kinds(runs[0])
+    mode = longitudinal_input(kinds)
+    for r in runs[1:]:
+        k = input_kinds(r)
+        if longitudinal_input(k) != mode or k.get("delta") != kinds.get("delta"):
+            raise InputError(f"{r.source}: inputs {k} differ from {runs[0].source}'s {kinds}; "
+                             "diagnose recordings with the same kind of inputs together")
     dts = [r.dt for r in runs]
     dt = float(dts[0])
     for r, d in zip(runs, dts):
@@ -92,10 +141,13 @@ def build_dataset(runs: list[Run], min_samples: int = 200) -> Dataset:
             f"{runs[0].source if len(runs) == 1 else 'recordings'}: {total} samples "
             f"({total * dt:.1f} s); diagnosis needs at least {min_samples} ({min_samples * dt:.0f} s)"
         )
-    Ys, Us, ks, recs, laps, ts, Ls, tabs_s, tabs_k = [], [], [], [], [], [], [], [], []
+    Ys, Us, As, ks, recs, laps, ts, Ls, tabs_s, tabs_k = [], [], [], [], [], [], [], [], [], []
     lap0 = 0
     for i, r in enumerate(runs):
         Y, U = r.states(), r.inputs()
+        As.append(U[:, 1].copy())
+        if mode == "speed":
+            U[:, 1] = r["v_cmd"]
         s = Y[:, State.S]
         ds = np.diff(s)
         wraps = np.flatnonzero(ds < -0.5 * max(np.ptp(s), 1e-9))
@@ -124,14 +176,31 @@ def build_dataset(runs: list[Run], min_samples: int = 200) -> Dataset:
     ds = Dataset(
         Y=np.vstack(Ys), U=np.vstack(Us), kappa=np.concatenate(ks), rec=np.concatenate(recs),
         lap=np.concatenate(laps), t=np.concatenate(ts), dt=dt, L=np.asarray(Ls, dtype=float),
-        sources=[r.source for r in runs],
+        sources=[r.source for r in runs], A=np.concatenate(As), inputs=kinds, longitudinal=mode,
     )
     ds.ks, ds.kv = np.concatenate(tabs_s), np.concatenate(tabs_k)
     return ds
 
 
+def model_for(vehicle, data: Dataset, effects=()) -> NominalModel:
+    """The vehicle's model driven by the recordings' inputs as they are (``data.longitudinal``)."""
+    return NominalModel(vehicle, list(effects), data.longitudinal)
+
+
 # --------------------------------------------------------------------------------------------
 # prediction
+
+
+def lag_commands(model: NominalModel, data: Dataset) -> np.ndarray:
+    """(n, 2) what each actuator lag delays at every sample: the road-wheel angle commanded
+    (steering gain and offset applied) and the a_x commanded (a speed command through the speed
+    loop, at the recorded speed)."""
+    p = model.params
+    C = data.U.astype(float, copy=True)
+    C[:, 0] = p.steer_gain * C[:, 0] + p.steer_offset
+    if p.longitudinal == "speed":
+        C[:, 1] = (p.speed_gain * C[:, 1] - data.Y[:, State.V_X]) / p.speed_tau
+    return C
 
 
 def lag_states(model: NominalModel, data: Dataset) -> np.ndarray:
@@ -139,6 +208,7 @@ def lag_states(model: NominalModel, data: Dataset) -> np.ndarray:
     from scipy.signal import lfilter
 
     cols = []
+    cmd = None
     for e in model.effects:
         if not e.n_states:
             continue
@@ -146,11 +216,13 @@ def lag_states(model: NominalModel, data: Dataset) -> np.ndarray:
         if idx is None or e.n_states != 1:  # unknown stateful effect: start at its default
             cols.append(e.initial_states(data.U))
             continue
+        if cmd is None:
+            cmd = lag_commands(model, data)
         a = float(np.exp(-data.dt / e.values["tau"]))
         z = np.empty(data.n)
         for r in np.unique(data.rec):
             m = np.flatnonzero(data.rec == r)
-            u = data.U[m, idx]
+            u = cmd[m, idx]
             # z[k+1] = a z[k] + (1-a) u[k], z[0] = u[0]
             y, _ = lfilter([0.0, 1.0 - a], [1.0, -a], u, zi=[u[0]])
             z[m] = y
@@ -175,13 +247,95 @@ def predict(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, subs
 
     ``Z`` (n, nz) are effect states at every sample, ``Z0`` (m, nz) at the window starts (for a
     batch whose windows carry different effect parameters); by default from the command history.
+    A window slower than RK4 with ``substeps`` can integrate stably at this period gets more
+    substeps (:func:`stiff_substeps`); the others are computed exactly as asked.
     """
     Y0 = data.Y[starts] if Y0 is None else Y0
     if Z0 is None:
         if Z is None:
             Z = lag_states(model, data) if model.nx > 6 else np.zeros((data.n, 0))
         Z0 = Z[starts]
-    X = initial_states(model, Y0, Z0).T.copy()  # (nx, m): rows contiguous for the hot loop
+    sub = np.maximum(stiff_substeps(model, data, starts, H), substeps)
+    if np.all(sub == substeps):
+        return _predict(model, data, starts, H, substeps, Y0, Z0)
+    out = np.empty((len(starts), H, 6))
+    for k in np.unique(sub):  # a few groups: the slow windows get the substeps they need
+        idx = np.flatnonzero(sub == k)
+        out[idx] = _predict(_subset(model, idx, len(starts)), data, starts[idx], H, int(k), Y0[idx], Z0[idx])
+    return out
+
+
+STIFF_H_LAMBDA = 2.0
+"""RK4 step times the fastest lateral eigenvalue kept below this (RK4 is stable to 2.78 on the
+negative real axis): a stiff car at walking pace needs more than one substep per sample."""
+MAX_SUBSTEPS = 16
+
+
+def stiff_substeps(model: NominalModel, data: Dataset, starts: np.ndarray, H: int) -> np.ndarray:
+    """(m,) RK4 substeps each window needs for a stable lateral integration at its slowest speed.
+
+    The linearised lateral dynamics' fastest rate is bounded by the trace of their Jacobian,
+    ``(C_f + C_r)/(m v) + (l_f^2 C_f + l_r^2 C_r)/(I_z v)`` with the axles' cornering stiffness
+    ``C = mu F_z B C`` (1:10 car, 2 m/s: 55/s; a 790 kg car on race tires at 1.6 m/s: 200/s)."""
+    p = model.params
+    cf = p.mu * p.fz_front * p.bf * p.cf
+    cr = p.mu * p.fz_rear * p.br * p.cr
+    idx = np.minimum(starts[:, None] + np.arange(H + 1)[None, :], data.n - 1)
+    v = np.maximum(np.abs(data.Y[idx, State.V_X]).min(axis=1), p.vmin)
+    lam = (cf + cr) / (p.m * v) + (p.lf**2 * cf + p.lr**2 * cr) / (p.iz * v)
+    return np.clip(np.ceil(lam * data.dt / STIFF_H_LAMBDA), 1, MAX_SUBSTEPS).astype(int)
+
+
+def _subset(model: NominalModel, idx: np.ndarray, m: int) -> NominalModel:
+    """A copy of ``model`` whose per-window parameter arrays (of length ``m``) keep ``idx``."""
+    import copy
+    from dataclasses import fields, replace
+
+    def cut(v):
+        return v[idx] if isinstance(v, np.ndarray) and v.shape == (m,) else v
+
+    out = copy.copy(model)
+    out.params = replace(model.params, **{f.name: cut(getattr(model.params, f.name)) for f in fields(model.params)})
+    effects = []
+    for e in model.effects:
+        e2 = copy.copy(e)
+        e2.values = {k: cut(v) for k, v in e.values.items()}
+        effects.append(e2)
+    out.effects = effects
+    return out
+
+
+COMPILED = True
+"""Predict with the compiled kernel (:mod:`gprace.diagnose.fastpredict`) where it runs the model;
+False: numpy everywhere (the reference, for tests)."""
+
+
+def _compiled_states(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, substeps: int,
+                     X0: np.ndarray) -> np.ndarray | None:
+    if not COMPILED:
+        return None
+    from gprace.diagnose.fastpredict import predict_states
+
+    return predict_states(model, data, starts, H, substeps, X0, _OFFSET)
+
+
+def _measured(model: NominalModel, S: np.ndarray) -> np.ndarray:
+    """Measured channels (m, H, 6) of model states (m, H, nx)."""
+    if not any(type(e).measure is not Effect.measure for e in model.effects):
+        return S[..., :6]
+    out = np.empty(S.shape[:2] + (6,))
+    for j in range(S.shape[1]):  # per horizon step: sensor parameters may be per window
+        out[:, j] = model.measure(S[:, j])
+    return out
+
+
+def _predict(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, substeps: int,
+             Y0: np.ndarray, Z0: np.ndarray) -> np.ndarray:
+    X = initial_states(model, Y0, Z0)
+    S = _compiled_states(model, data, starts, H, substeps, X)
+    if S is not None:
+        return _measured(model, S)
+    X = X.T.copy()  # (nx, m): rows contiguous for the hot loop
     kfun = _kappa_lookup(data, data.rec[starts])
     UT = data.U.T
     sensor = any(type(e).measure is not Effect.measure for e in model.effects)
@@ -290,14 +444,19 @@ def make_twin(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, si
     steps = seg + H
     N = data.n
     Z = lag_states(model, data) if model.nx > 6 else np.zeros((N, 0))
-    X = initial_states(model, data.Y[anchors], Z[anchors]).T.copy()
-    kfun = _kappa_lookup(data, data.rec[anchors])
+    X = initial_states(model, data.Y[anchors], Z[anchors])
     traj = np.empty((len(anchors), steps + 1, 6))
-    traj[:, 0] = model.measure(X.T)
-    for j in range(steps):
-        idx = np.minimum(anchors + j, N - 1)
-        X = rk4_batch(model, X, data.U.T[:, idx], kfun, data.dt, fine)
-        traj[:, j + 1] = model.measure(X.T)
+    traj[:, 0] = model.measure(X)
+    S = _compiled_states(model, data, anchors, steps, fine, X)
+    if S is not None:
+        traj[:, 1:] = _measured(model, S)
+    else:
+        X = X.T.copy()
+        kfun = _kappa_lookup(data, data.rec[anchors])
+        for j in range(steps):
+            idx = np.minimum(anchors + j, N - 1)
+            X = rk4_batch(model, X, data.U.T[:, idx], kfun, data.dt, fine)
+            traj[:, j + 1] = model.measure(X.T)
     pos = starts - anchors[inv]
     Y0s, Ts = [], []
     for _ in range(realisations):
@@ -331,3 +490,44 @@ def estimate_noise(model: NominalModel, data: Dataset, starts: np.ndarray, H: in
         got = _robust_std(E[:, 0, :])
         sigma = sigma * np.where(got > 0, target / np.maximum(got, 1e-12), 1.0)
     return sigma
+
+
+# --------------------------------------------------------------------------------------------
+# fitting
+
+
+def batched_least_squares(batch: Callable[[list[np.ndarray]], np.ndarray], x0: np.ndarray, lo: np.ndarray,
+                          hi: np.ndarray, x_scale: np.ndarray, max_nfev: int, step: float | None = None):
+    """Bounded least squares (scipy's trust-region reflective) of the residual vector
+    ``batch([x])[0]``, where ``batch(X)`` evaluates ``k`` parameter vectors in ONE call (``(k, n)``).
+
+    The Jacobian is scipy's forward difference ('2-point' steps, one-sided inside the bounds) with
+    every parameter's step in the same batch, and it reuses the residuals ``fun`` has just
+    evaluated at that point: a Jacobian costs one model evaluation, not one per parameter.
+    Returns scipy's ``OptimizeResult``.
+    """
+    from scipy.optimize import least_squares
+
+    step = float(np.sqrt(np.finfo(float).eps)) if step is None else step
+    last: dict = {}  # least_squares asks for fun(x), then jac(x) at the same x
+
+    def fun(x):
+        r = batch([x])[0]
+        last.update(x=np.array(x, copy=True), r=r)
+        return r
+
+    def jac(x):
+        sign = np.where(x >= 0, 1.0, -1.0)
+        h = step * sign * np.maximum(1.0, np.abs(x))
+        h = np.where((x + h > hi) | (x + h < lo), -h, h)
+        h = (x + h) - x
+        steps = [x + np.eye(len(x))[i] * h[i] for i in range(len(x))]
+        if "x" in last and np.array_equal(last["x"], x):
+            R0, R = last["r"], batch(steps)
+        else:
+            R = batch([x] + steps)
+            R0, R = R[0], R[1:]
+        return ((R - R0) / h[:, None]).T
+
+    x0 = np.clip(np.asarray(x0, dtype=float), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+    return least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=x_scale, method="trf", max_nfev=max_nfev)

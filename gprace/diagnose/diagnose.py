@@ -7,6 +7,10 @@ Each stage is a function returning a small frozen result (see ``docs/decisions.m
 - :func:`screen` estimates the sensor noise, evaluates the nominal model (multi-step errors, noise
   twin, predictability of the error per regime and per region of the lap) and says which
   channels carry structured error;
+- :func:`calibrate` fits the nominal parameters the recordings identify (cornering stiffness,
+  steering offset and gain, yaw inertia, drag, rolling resistance, the speed loop, peak friction
+  at the limit; :mod:`gprace.diagnose.calibrate`) and applies them when their held-out gain is
+  significant: the missing physics is then named against the calibrated car;
 - :func:`locate` turns the regions found on structured channels into starting windows;
 - :func:`name` adds catalogue effects one by one, each only when it improves held-out prediction
   beyond the effects already chosen (over all windows or where it acts);
@@ -31,7 +35,7 @@ import numpy as np
 from scipy.stats import norm
 
 from gprace.config import EffectConfig, VehicleConfig
-from gprace.diagnose import core, locate, name as nm, screen as scr
+from gprace.diagnose import calibrate as cal, core, crossval as cv_, locate, name as nm, screen as scr
 from gprace.diagnose.core import CHANNELS, DYNAMIC, TESTED
 from gprace.diagnose.result import DiagnosisResult, residual_profile
 from gprace.errors import InputError
@@ -44,6 +48,8 @@ HORIZON = 15
 one-step sensor noise, short enough that open-loop predictions stay on the recorded path."""
 
 MAX_EFFECTS = 3
+CAL_CV_NFEV = 4
+"""Model evaluations of each fold's calibration refit (warm-started at the full fit)."""
 MIN_WINDOWS = 150
 UNEXPLAINED_SHARE = 0.1
 """A named effect whose channels keep more than this share of their structured error is not
@@ -148,6 +154,13 @@ class Verified:
     augmented: Evaluation
     heldout_after: np.ndarray | None  # (3,) normalised held-out MSE of the augmented model
     notes: tuple[str, ...] = field(default_factory=tuple)
+    partial: tuple[NamedEffect, ...] = ()
+    """Effects that improve held-out prediction but leave their channels structured: in the
+    augmented model (the fit improves), not named (the physics may be something else)."""
+
+    @property
+    def modelled(self) -> tuple[NamedEffect, ...]:
+        return self.effects + self.partial
 
 
 @dataclass(frozen=True)
@@ -166,18 +179,43 @@ class Ctx:
     heldout_memo: dict = field(default_factory=dict, compare=False, repr=False)
     """Cross-validated losses per set of fitted effects (parsimony and the final held-out fit
     ask for the same set more than once)."""
+    skip: frozenset = frozenset()
+    """Catalogue effects not tried: the calibration fits their parameter as a nominal one, or the
+    recordings' inputs cannot test them."""
+
+
+@dataclass(frozen=True)
+class Calibrated:
+    """The calibration stage: the calibrated vehicle (the nominal one when not applied), the fit,
+    its held-out test, and the screening of the calibrated model the effects are named against."""
+
+    vehicle: VehicleConfig
+    fit: cal.CalFit | None
+    applied: bool
+    baseline: Screened
+    gain: float = 0.0  # held-out relative gain over the nominal model
+    t: float = 0.0
+    where: str = ""
+    heldout: np.ndarray | None = None  # (m, 3) per-window, per-channel held-out losses, calibrated
+    considered: tuple[str, ...] = ()
+    round: int = -1  # the naming round in which it was applied
+    tested: bool = False  # its held-out gain was tested (not when effects explained everything first)
 
 
 # --------------------------------------------------------------------------------------------
 # stages
 
 
-def prepare(runs: list[Run], H: int) -> Prepared:
-    """Cut every recording to the model's envelope, stack them, list the gap-free windows."""
+def prepare(runs: list[Run], H: int, wheelbase: float | None = None) -> Prepared:
+    """Cut every recording to the model's envelope (judged on the scale of the car: its
+    ``wheelbase``), stack them, list the gap-free windows."""
     kept, envs = [], []
     for r in runs:
-        mask, rep = envelope(r.data, r.source)
+        mask, rep = envelope(r.data, r.source, wheelbase)
         envs.append(rep)
+        if rep.samples_moving == 0:
+            raise InputError(f"{r.source}: no moving sample (v_x never reaches the standstill speed "
+                             f"{rep.standstill_speed:.2g} m/s of this car)")
         if not mask.any():
             raise InputError(f"{r.source}: no sample inside the model's envelope ({rep.note()})")
         kept.append(r if mask.all() else r.slice(mask))
@@ -220,11 +258,78 @@ def evaluate(p: Prepared, model: NominalModel, sigma: np.ndarray, seed: int, sub
 
 def screen(p: Prepared, vehicle: VehicleConfig, seed: int) -> Screened:
     """Noise estimate and the nominal model's evaluation."""
-    m0 = NominalModel(vehicle)
+    m0 = core.model_for(vehicle, p.data)
     sigma = core.estimate_noise(m0, p.data, p.starts, p.H, 2, seed=seed)
     ev = evaluate(p, m0, sigma, seed + 1)
     scale = np.array([ev.stats[c].rmse_twin for c in DYNAMIC])
-    return Screened(sigma, ev, scale, excitation(p.data))
+    return Screened(sigma, ev, scale, excitation(p.data, vehicle.wheelbase))
+
+
+def calibrate(p: Prepared, s: Screened, ctx: Ctx, vehicle: VehicleConfig, log: Callable[[str], None]) -> Calibrated:
+    """Fit the nominal parameters the recordings identify, inside their bounds
+    (:mod:`gprace.diagnose.calibrate`), and cross-validate them by lap (refitted without the
+    held-out fold). The result is the first candidate of :func:`name`: applied there when it
+    explains the structured error better than any catalogue effect and significantly. Nothing to
+    calibrate when the nominal model leaves no structured error."""
+    params = cal.applicable(p.data.longitudinal)
+    none = Calibrated(vehicle, None, False, s, considered=tuple(q.name for q in params))
+    if not s.nominal.structured or not params:
+        return none
+    lo, hi = cal.bounds(vehicle, params, cal.v_top(p.data))
+    log(f"diagnose: calibrating {len(params)} nominal parameters ({', '.join(q.name for q in params)})")
+    f = cal.identify(ctx.prob, params, cal.start(vehicle, params), lo, hi, ctx.fit_w, log=log)
+    if not f.params:
+        return replace(none, fit=f)
+    return replace(none, fit=f, heldout=_cv_calibration(ctx, vehicle, f))
+
+
+def _cv_calibration(ctx: Ctx, vehicle: VehicleConfig, f: cal.CalFit) -> np.ndarray:
+    """(m, 3) held-out losses of the calibration ``f`` (the model's effects ``ctx.prob.base`` in),
+    refitted without each fold by iterations: the calibration moves far from the nominal car,
+    where one linearised step from the full fit falls short (INI F1TENTH: 62 % against 84 %)."""
+    prob = ctx.prob
+    lo, hi = cal.bounds(vehicle, f.params, cal.v_top(prob.data))
+    out = np.empty((len(ctx.eval_w), 3))
+    for fo in np.unique(ctx.fold):
+        te = ctx.fold == fo
+        tr = ctx.eval_w[~te][:: max(1, int((~te).sum()) // 400)]
+        g = cal.fit(prob, f.params, f.x, lo, hi, tr, max_nfev=CAL_CV_NFEV)
+        out[te] = np.mean(cal.residual_sets(prob, f.params, [g.x], ctx.eval_w[te])[0] ** 2, axis=1)
+    return out
+
+
+def _cal_channels(f: cal.CalFit) -> list[int]:
+    return sorted(({1, 2} if any(q.needs == "lateral" for q in f.params) else set())
+                  | ({0} if any(q.needs != "lateral" for q in f.params) else set()))
+
+
+def _apply_calibration(p: Prepared, s: Screened, c: Calibrated, vehicle: VehicleConfig, seed: int,
+                       log: Callable[[str], None]) -> Calibrated:
+    """The calibrated vehicle and the screening of the calibrated model (for the report and as the
+    baseline of the effects named after it)."""
+    veh = cal.with_values(vehicle, cal.values(vehicle, c.fit.params, c.fit.x))
+    ev = evaluate(p, core.model_for(veh, p.data), s.sigma, seed + 3, scale=s.scale)
+    log(f"diagnose: calibrated model structured: {[CHANNELS[i] for i in sorted(ev.structured)] or 'none'}")
+    return replace(c, vehicle=veh, applied=True, baseline=replace(s, nominal=ev))
+
+
+def recalibrate(c: Calibrated, ctx: Ctx, named: Named, nominal: VehicleConfig) -> tuple[Calibrated, Named]:
+    """The calibration and the named effects refitted together (warm-started), so a parameter that
+    absorbed part of a missing effect before it was named gives it back; then the calibration's
+    intervals with the effects in the model."""
+    if not c.applied or not named.effects or c.fit is None:
+        return c, named
+    prob = replace(ctx.prob, vehicle=nominal, base=[])
+    lo, hi = cal.bounds(nominal, c.fit.params, cal.v_top(prob.data))
+    blocks = [cv_.calibration_block(c.fit.params, c.fit.x, lo, hi)]
+    blocks += [cv_.effect_block(e.fit, prob.data) for e in named.effects]
+    blocks = cv_.joint_fit(prob, blocks, ctx.fit_w, max_nfev=JOINT_NFEV)
+    effects = tuple(replace(e, fit=replace(e.fit, x=b.x)) for e, b in zip(named.effects, blocks[1:]))
+    prob = replace(prob, base=[e.fit.effect() for e in effects])
+    f = cal.covariance(prob, cal.fit(prob, c.fit.params, blocks[0].x, lo, hi, ctx.fit_w, max_nfev=5), lo, hi)
+    f.dropped = c.fit.dropped
+    c = replace(c, vehicle=cal.with_values(nominal, cal.values(nominal, f.params, f.x)), fit=f)
+    return c, replace(named, effects=effects)
 
 
 def locate_windows(s: Screened) -> Located:
@@ -239,7 +344,7 @@ def locate_windows(s: Screened) -> Located:
 def _context(p: Prepared, vehicle: VehicleConfig, s: Screened) -> Ctx:
     starts = p.starts
     prob = nm.Problem(vehicle, p.data, p.H, s.scale, substeps=1)
-    fit_stride = max(1, len(starts) // 400)
+    fit_stride = max(1, -(-len(starts) // 400))  # at most 400 fit windows
     eval_w = starts[:: max(1, len(starts) // 2500)]
     subsets = tuple((lab, m) for lab, m in scr.regimes(p.data, eval_w, p.H) if m.sum() >= 20)
     t_sub = max(scr.T_SUBSET_MIN, float(norm.isf(scr.FAMILY_ALPHA / max(len(subsets) * MAX_EFFECTS, 1))))
@@ -272,59 +377,85 @@ def _significant(ctx: Ctx, l0: np.ndarray, l1: np.ndarray) -> tuple[bool, str, f
     return best
 
 
-def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, log: Callable[[str], None]) -> Named:
-    """Greedy forward selection of catalogue effects by held-out gain beyond those already chosen."""
+def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, c: Calibrated, seed: int,
+         log: Callable[[str], None]) -> tuple[Named, Calibrated]:
+    """Greedy forward selection by held-out gain beyond what is already in the model. The first
+    candidate is the calibration of the nominal parameters (issue 36): it is applied when no
+    catalogue effect explains the structured error significantly better (a mis-set stiffness is
+    calibrated, not named), and it stays a candidate, refitted with the effects chosen so far,
+    until it is applied or fails its test (a missing downforce is named, not absorbed into
+    stiffness factors)."""
+    nominal = ctx.prob.vehicle
     chosen: list[NamedEffect] = []
     searched: list[dict] = []
     dyn_struct = set(s.nominal.dynamic_structured)
     if not dyn_struct:
-        return Named((), ())
-    for rnd in range(MAX_EFFECTS):
+        return Named((), ()), c
+    candidate = c.fit is not None and bool(c.fit.params)
+    for rnd in range(MAX_EFFECTS + 1):
+        ctx_r = replace(ctx, prob=replace(ctx.prob, vehicle=c.vehicle if c.applied else nominal))
         fits = [e.fit for e in chosen]
         if len(fits) >= 2:  # the earlier effects were fitted without the latest one: refit
-            fits = [nm.refit(_with_base(ctx.prob, fits, i), f, ctx.fit_w) for i, f in enumerate(fits)]
+            fits = [nm.refit(_with_base(ctx_r.prob, fits, i), f, ctx.fit_w) for i, f in enumerate(fits)]
             chosen = [replace(e, fit=f) for e, f in zip(chosen, fits)]
-        prob = replace(ctx.prob, base=[f.effect() for f in fits])
+        prob = replace(ctx_r.prob, base=[f.effect() for f in fits])
         cur = prob.model()
-        if chosen:  # stop when what is left is noise (against the same noise estimate)
+        if chosen or c.applied:  # stop when what is left is noise (against the same noise estimate)
             left = evaluate(p, cur, s.sigma, 0, scale=s.scale, Et=s.nominal.Et).dynamic_structured
             if not left:
                 break
             dyn_struct = set(left)
         l0_ch = np.mean(prob.residuals(cur, ctx.eval_w) ** 2, axis=1)
-        l0 = l0_ch.mean(axis=1)
-        names = [n for n in EFFECTS if n not in {f.name for f in fits} and n not in s.not_identifiable
-                 and {CHANNELS.index(ch) for ch in EFFECTS[n].channels} & dyn_struct]
-        log(f"diagnose: round {rnd + 1}: screening {len(names)} candidate effects")
-        cands = []
-        for n in names:  # a few iterations from every starting point, on the screening windows
-            inits = nm.starts_for(n, loc.windows)
-            f = nm.fit_effect(prob, n, ctx.screen_w, inits, max_nfev=nm.PRESCREEN_NFEV) if inits else None
-            if f is not None:
-                cands.append(f)
-        if not cands:
+        if candidate and chosen:  # the calibration with the effects named so far in the model
+            cf = cal.covariance(prob, cal.fit(prob, c.fit.params, c.fit.x, *cal.bounds(
+                nominal, c.fit.params, cal.v_top(p.data)), ctx.fit_w, max_nfev=20),
+                *cal.bounds(nominal, c.fit.params, cal.v_top(p.data)))
+            cf.dropped = c.fit.dropped
+            c = replace(c, fit=cf, heldout=_cv_calibration(replace(ctx, prob=prob), nominal, cf))
+        best, cv, top = None, {}, []
+        joint: dict[str, cv_.Block] = {}
+        if len(chosen) < MAX_EFFECTS:
+            best, cv, top = _best_effect(prob, loc, s, ctx, dyn_struct, fits, rnd, log)
+            if c.applied and top:  # may the calibration give back what it absorbed of the effect?
+                best, joint = _joint_with_calibration(replace(prob, vehicle=nominal), c, top, cv, ctx, log)
+        # the calibration or the best effect first? (in a tie the calibration: calibrate, then name)
+        cal_first = candidate and (best is None or not _clearly_better(
+            ctx, cv[best.name].mean(axis=1), c.heldout.mean(axis=1)))
+        effect_ok = False
+        for what in (("calibration", "effect") if cal_first else ("effect", "calibration")):
+            if what == "calibration" and candidate:
+                chans = _cal_channels(c.fit)
+                l0, l1 = l0_ch[:, chans].mean(axis=1), c.heldout[:, chans].mean(axis=1)
+                ok, where, t = _significant(ctx, l0, l1)
+                gain = float((l0.mean() - l1.mean()) / max(l0.mean(), 1e-12))
+                log(f"diagnose: round {rnd + 1}: calibration held-out gain on "
+                    f"{', '.join(CHANNELS[i] for i in chans)} {100 * gain:.1f}% (t = {t:.1f}, {where or 'not significant'})")
+                c = replace(c, gain=gain, t=t, where=where if ok else "", tested=True)
+                candidate = False
+                if ok:
+                    c = replace(_apply_calibration(p, s, c, nominal, seed, log), round=rnd)
+                    break
+            elif what == "effect" and best is not None:
+                chb = _channels(best.name)
+                l0 = l0_ch[:, chb].mean(axis=1)
+                l1 = cv[best.name][:, chb].mean(axis=1)
+                effect_ok, where, t = _significant(ctx, l0, l1)
+                log(f"diagnose: round {rnd + 1}: best {best.name} held-out gain on "
+                    f"{', '.join(CHANNELS[i] for i in chb)} {100 * (l0.mean() - l1.mean()) / max(l0.mean(), 1e-12):.1f}% "
+                    f"(t = {t:.1f}, {where or 'not significant'})")
+                searched.append({"round": rnd + 1, "candidates": {f.name: float(cv[f.name].mean()) for f in top},
+                                 "baseline": float(l0_ch.mean())})
+                if effect_ok:
+                    break
+        else:  # neither was accepted
             break
-        cands.sort(key=lambda f: f.cost)
-        # only the most promising continue to the full screening fit, warm-started
-        cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=20) for f in cands[: nm.PRESCREEN_KEEP]),
-                       key=lambda f: f.cost)
-        top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in cands[: nm.SCREEN_TOP]]
-        cv = {f.name: nm.cv_channel_losses(prob, f, ctx.eval_w, ctx.fold,
-                                            fit_stride=max(1, len(ctx.eval_w) // 400)) for f in top}
-        best = min(top, key=lambda f: cv[f.name].mean())
-        l1 = cv[best.name].mean(axis=1)
-        ok, where, t = _significant(ctx, l0, l1)
-        log(f"diagnose: round {rnd + 1}: best {best.name} held-out gain "
-            f"{100 * (l0.mean() - l1.mean()) / max(l0.mean(), 1e-12):.1f}% (t = {t:.1f}, {where or 'not significant'})")
-        searched.append({"round": rnd + 1, "candidates": {f.name: float(cv[f.name].mean()) for f in top},
-                         "baseline": float(l0.mean())})
-        if not ok:
-            break
+        if not effect_ok:  # the calibration was applied: name effects against the calibrated car
+            continue
         group = [best]
         for f in top:
             if f is best:
                 continue
-            lf = cv[f.name].mean(axis=1)
+            lf = cv[f.name][:, chb].mean(axis=1)
             _, t_f = nm.gain_test(l0, lf, ctx.bid)
             _, t_diff = nm.gain_test(lf, l1, ctx.bid)
             if (lf.mean() - l1.mean()) <= nm.AMBIGUOUS_SHARE * (l0.mean() - l1.mean()) and t_diff < 2.0 \
@@ -332,14 +463,87 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, log: Callable[[str], 
                 group.append(f)
         named = min(group, key=lambda f: (len(f.free), cv[f.name].mean()))
         ln = cv[named.name]
-        ch = [CHANNELS.index(c) for c in EFFECTS[named.name].channels]
+        if named.name in joint:  # named with the calibration refitted beside it: keep that calibration
+            xc = joint[named.name].x
+            c = replace(c, fit=replace(c.fit, x=xc),
+                        vehicle=cal.with_values(nominal, cal.values(nominal, c.fit.params, xc)))
+        ch = _channels(named.name)
         chosen.append(NamedEffect(
             fit=named,
-            heldout_before={CHANNELS[c]: float(np.sqrt(l0_ch[:, c].mean()) * s.scale[c]) for c in ch},
-            heldout_after={CHANNELS[c]: float(np.sqrt(ln[:, c].mean()) * s.scale[c]) for c in ch},
-            improvement=float(1.0 - np.sqrt(ln.mean() / l0_ch.mean())),
+            heldout_before={CHANNELS[i]: float(np.sqrt(l0_ch[:, i].mean()) * s.scale[i]) for i in ch},
+            heldout_after={CHANNELS[i]: float(np.sqrt(ln[:, i].mean()) * s.scale[i]) for i in ch},
+            improvement=float(1.0 - np.sqrt(ln[:, ch].mean() / l0_ch[:, ch].mean())),
             ambiguous_with=tuple(f.name for f in group if f is not named), where=where))
-    return Named(tuple(chosen), tuple(searched))
+    return Named(tuple(chosen), tuple(searched)), c
+
+
+JOINT_TOP = 2
+"""Candidates refitted jointly with the calibration once it is applied."""
+JOINT_NFEV = 30
+"""Evaluations of the final joint refit of the calibration and the named effects."""
+JOINT_ROUND_NFEV = 10
+"""Evaluations of a candidate's joint refit with the calibration (warm-started at both fits)."""
+PRESCREEN_KEEP = 4
+"""Candidates (or starting points) carried from the linearised prescreen to the screening fit."""
+SCREEN_NFEV = 12
+"""Evaluations of the screening fit (warm-started at the prescreen's step)."""
+
+
+def _joint_with_calibration(prob: nm.Problem, c: Calibrated, top: list, cv: dict, ctx: Ctx,
+                            log: Callable[[str], None]) -> tuple[nm.Fit, dict]:
+    """The best candidates refitted together with the calibrated parameters (``prob`` on the
+    nominal vehicle, the effects already chosen in it), cross-validated jointly. A calibrated
+    inertia that took a steering lag's place, or a stiffness that took a downforce's, gives it
+    back; a candidate keeps whichever held-out loss is lower. Returns the best and, per candidate
+    that gained, the calibration block it was fitted with."""
+    lo, hi = cal.bounds(prob.vehicle, c.fit.params, cal.v_top(prob.data))
+    joint = {}
+    for f in sorted(top, key=lambda g: cv[g.name].mean())[:JOINT_TOP]:
+        blocks = [cv_.calibration_block(c.fit.params, c.fit.x, lo, hi), cv_.effect_block(f, prob.data)]
+        blocks = cv_.joint_fit(prob, blocks, ctx.fit_w, max_nfev=JOINT_ROUND_NFEV)
+        lj = cv_.cv_losses(prob, blocks, ctx.eval_w, ctx.fold)
+        if lj.mean() < cv[f.name].mean():
+            log(f"diagnose: {f.name} with the calibration refitted beside it: held-out loss "
+                f"{cv[f.name].mean():.3g} -> {lj.mean():.3g}")
+            cv[f.name] = lj
+            i = top.index(f)
+            top[i] = nm.Fit(f.name, f.free, blocks[1].x, f.fixed, f.cost)
+            joint[f.name] = blocks[0]
+    return min(top, key=lambda g: cv[g.name].mean()), joint
+
+
+def _clearly_better(ctx: Ctx, l_effect: np.ndarray, l_cal: np.ndarray) -> bool:
+    """An effect wins over the calibration only when its held-out loss is lower and the paired
+    block t of the difference exceeds 2: in a tie the nominal parameters are calibrated first."""
+    if l_effect.mean() >= l_cal.mean():
+        return False
+    _, t = nm.gain_test(l_cal, l_effect, ctx.bid)
+    return t > 2.0
+
+
+def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_struct: set, fits: list,
+                 rnd: int, log: Callable[[str], None]) -> tuple[nm.Fit | None, dict, list]:
+    """The catalogue effect with the lowest held-out loss this round: every candidate one
+    linearised step from every starting point, the most promising fitted on, the best three
+    cross-validated. (best, {name: (m, 3) held-out losses}, the cross-validated fits)."""
+    names = [n for n in EFFECTS if n not in {f.name for f in fits} and n not in s.not_identifiable
+             and n not in ctx.skip and {CHANNELS.index(ch) for ch in EFFECTS[n].channels} & dyn_struct]
+    log(f"diagnose: round {rnd + 1}: screening {len(names)} candidate effects")
+    cands = []
+    for n in names:  # one linearised step from every starting point, on the screening windows
+        inits = nm.starts_for(n, loc.windows)
+        f = cv_.prescreen(prob, n, ctx.screen_w, inits) if inits else None
+        if f is not None:
+            cands.append(f)
+    if not cands:
+        return None, {}, []
+    cands.sort(key=lambda f: f.cost)
+    # only the most promising continue to the full screening fit, warm-started
+    cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV) for f in cands[:PRESCREEN_KEEP]),
+                   key=lambda f: f.cost)
+    top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in cands[: nm.SCREEN_TOP]]
+    cv = {f.name: cv_.cv_losses(prob, [cv_.effect_block(f, prob.data)], ctx.eval_w, ctx.fold) for f in top}
+    return min(top, key=lambda f: cv[f.name].mean()), cv, top
 
 
 def fit(ctx: Ctx, named: Named) -> Named:
@@ -356,7 +560,7 @@ def fit(ctx: Ctx, named: Named) -> Named:
 def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleConfig, seed: int,
            log: Callable[[str], None]) -> Verified:
     """Parsimony (drop an effect the others make redundant), then the augmented model's
-    evaluation; an effect whose channels stay structured is withdrawn."""
+    evaluation; an effect whose channels stay structured is not named but kept as *partial*."""
     effects = list(named.effects)
     notes: list[str] = []
     if effects:
@@ -366,8 +570,9 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
         if len(effects) < 2:
             break
         fits = [e.fit for e in effects]
-        l_all = _heldout_losses(ctx, fits)
-        l_wo = _heldout_losses(ctx, [f for j, f in enumerate(fits) if j != i])
+        ch = _channels(fits[i].name)
+        l_all = _heldout_channels_of(ctx, fits)[:, ch].mean(axis=1)
+        l_wo = _heldout_channels_of(ctx, [f for j, f in enumerate(fits) if j != i])[:, ch].mean(axis=1)
         ok, where, t = _significant(ctx, l_wo, l_all)
         if not ok:
             drop = effects.pop(i)
@@ -378,7 +583,7 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
                          f"{', '.join(e.name for e in effects)} {'is' if len(effects) == 1 else 'are'} in the model "
                          f"(t = {t:.1f}): they trade off, reported as ambiguous, not named")
             log(f"diagnose: {notes[-1]}")
-    m1 = NominalModel(vehicle, [e.fit.effect() for e in effects])
+    m1 = core.model_for(vehicle, p.data, [e.fit.effect() for e in effects])
     ev1 = evaluate(p, m1, s.sigma, seed + 2, scale=s.scale) if effects else s.nominal
     ex0, ex1 = _excess(s.nominal), _excess(ev1)
     share_left = np.where(ex0 > 0, ex1 / np.maximum(ex0, 1e-300), 0.0)
@@ -388,15 +593,17 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
         bad = [i for i in chs if TESTED[i] in ev1.structured and share_left[i] > UNEXPLAINED_SHARE]
         if bad:
             rejected.append((e, bad))
-    if rejected:  # fall back: name nothing on channels the catalogue cannot explain
+    partial = []
+    if rejected:  # name nothing on channels the catalogue cannot explain; keep what it improves
         for e, bad in rejected:
             notes.append(f"{e.name} fits part of the error but leaves "
-                         f"{', '.join(CHANNELS[TESTED[i]] for i in bad)} structured: not named")
-        effects = [e for e in effects if e not in [r[0] for r in rejected]]
-        m1 = NominalModel(vehicle, [e.fit.effect() for e in effects])
-        ev1 = evaluate(p, m1, s.sigma, seed + 2, scale=s.scale) if effects else s.nominal
-    heldout = _heldout(ctx, [e.fit for e in effects]) if effects else None
-    return Verified(tuple(effects), ev1, heldout, tuple(notes))
+                         f"{', '.join(CHANNELS[TESTED[i]] for i in bad)} structured: not named (kept in the "
+                         f"augmented model as a partial fit: it improves held-out prediction)")
+        partial = [e for e in effects if e in [r[0] for r in rejected]]
+        effects = [e for e in effects if e not in partial]
+    fits = [e.fit for e in effects + partial]
+    heldout = _heldout(ctx, fits) if fits else None
+    return Verified(tuple(effects), ev1, heldout, tuple(notes), tuple(partial))
 
 
 # --------------------------------------------------------------------------------------------
@@ -422,25 +629,40 @@ def _diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int, seed: in
               augmented_name: str | None, log: Callable[[str], None] | None) -> Diagnosis:
     t0 = time.perf_counter()
     log = log or (lambda s: None)
-    p = prepare(runs, int(horizon))
+    p = prepare(runs, int(horizon), vehicle.wheelbase)
     data = p.data
     for env in p.envelopes:
         if env.excluded:
             log(f"diagnose: {env.note()}")
-    log(f"diagnose: {data.n} samples, {len(data.L)} recording(s), {data.laps_total} lap(s), horizon {p.H}")
+    log(f"diagnose: {data.n} samples, {len(data.L)} recording(s), {data.laps_total} lap(s), horizon {p.H}, "
+        f"inputs {data.inputs} (v_x by {data.longitudinal})")
     s = screen(p, vehicle, seed)
     log(f"diagnose: noise sigma {np.round(s.sigma, 4).tolist()}, structured: "
         f"{[CHANNELS[c] for c in sorted(s.nominal.structured)] or 'none'}")
-    loc = locate_windows(s)
     ctx = _context(p, vehicle, s)
-    named = fit(ctx, name(p, s, loc, ctx, log))
-    ver = verify(p, s, ctx, named, vehicle, seed, log)
-    report = _report(p, s, ctx, named, ver, vehicle, augmented_name)
+    untestable = input_limits(data)
+    c = calibrate(p, s, ctx, vehicle, log)
+    skip = frozenset(untestable) | frozenset(q.supersedes for q in cal.PARAMS
+                                             if q.supersedes and q.name in c.considered)
+    ctx = replace(ctx, skip=skip)
+    named, c = name(p, s, locate_windows(s), ctx, c, seed, log)
+    ctx_c = replace(ctx, prob=replace(ctx.prob, vehicle=c.vehicle), heldout_memo={})
+    c2, named = recalibrate(c, ctx_c, named, vehicle)
+    if c2 is not c:
+        ctx_c = replace(ctx_c, prob=replace(ctx_c.prob, vehicle=c2.vehicle), heldout_memo={})
+        c = c2
+    named = fit(ctx_c, named)
+    # an effect is judged against what it was named on: the calibrated model when the
+    # calibration came first, the nominal one otherwise
+    ver = verify(p, c.baseline if c.applied and c.round == 0 else s, ctx_c, named, c.vehicle, seed, log)
+    report = _report(p, s, ctx, c, named, ver, vehicle, augmented_name, untestable)
     report["residual_profile"] = residual_along_track(p, s.nominal, ver.augmented)
     report["runtime_s"] = round(time.perf_counter() - t0, 2)
     result = DiagnosisResult.model_validate(report)  # a failure here is a bug of the pipeline, not bad input
-    effects = ver.effects if result.verdict == "mismatch" else ()
-    aug_vehicle = vehicle.model_copy(update={"effects": tuple(vehicle.effects) + tuple(
+    mismatch = result.verdict == "mismatch"
+    effects = ver.modelled if mismatch else ()
+    base = c.vehicle if mismatch else vehicle
+    aug_vehicle = base.model_copy(update={"effects": tuple(vehicle.effects) + tuple(
         EffectConfig(name=e.name, params={k: float(v) for k, v in e.fit.values().items()}) for e in effects)})
     return Diagnosis(result, aug_vehicle)
 
@@ -458,38 +680,42 @@ def residual_along_track(p: Prepared, nominal: Evaluation, augmented: Evaluation
     return residual_profile(s, before, after, noise, locate.BIN_METRES)
 
 
-def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, vehicle: VehicleConfig,
-            augmented_name: str | None) -> dict[str, Any]:
+def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver: Verified,
+            vehicle: VehicleConfig, augmented_name: str | None, untestable: dict[str, str]) -> dict[str, Any]:
     nom, aug = s.nominal, ver.augmented
     structured = nom.structured
     verdict = "mismatch" if structured else "no_significant_mismatch"
     effects = ver.effects if verdict == "mismatch" else ()
-    l_nom = np.mean(ctx.prob.residuals(NominalModel(vehicle), ctx.eval_w) ** 2, axis=1).mean(axis=0)
+    l_nom = np.mean(ctx.prob.residuals(core.model_for(vehicle, p.data), ctx.eval_w) ** 2, axis=1).mean(axis=0)
+    l_cal = c.heldout.mean(axis=0) if c.applied else l_nom
+    l_aug = ver.heldout_after if ver.heldout_after is not None else l_cal
     channels_json = []
-    for st, s1, pr, c in zip(nom.stats, aug.stats, nom.pred, TESTED):
-        d = {"name": st.name, "structured": c in structured, "statistic": round(float(st.statistic), 3),
+    for st, s1, pr, ch in zip(nom.stats, aug.stats, nom.pred, TESTED):
+        d = {"name": st.name, "structured": ch in structured, "statistic": round(float(st.statistic), 3),
              "rmse_nominal": float(st.rmse), "rmse_noise_floor": float(st.rmse_twin),
              "rmse_augmented": float(s1.rmse),
              "predictability": {"t": pr.t, "heldout_share": pr.gain,
                                 "where": [{"subset": x.label, "t": x.t, "heldout_share": x.gain} for x in pr.subsets]}}
-        if c in DYNAMIC:
-            d["heldout_rmse_nominal"] = float(np.sqrt(l_nom[c]) * s.scale[c])
-            d["heldout_rmse_augmented"] = float(np.sqrt(ver.heldout_after[c]) * s.scale[c]) \
-                if ver.heldout_after is not None else d["heldout_rmse_nominal"]
-        if c in structured:
-            d["regime"] = locate.regime(p.data, p.starts, p.H, nom.Ed, nom.Et, c)
+        if c.applied:
+            d["rmse_calibrated"] = float(c.baseline.nominal.stats[TESTED.index(ch)].rmse)
+        if ch in DYNAMIC:
+            d["heldout_rmse_nominal"] = float(np.sqrt(l_nom[ch]) * s.scale[ch])
+            if c.applied:
+                d["heldout_rmse_calibrated"] = float(np.sqrt(l_cal[ch]) * s.scale[ch])
+            d["heldout_rmse_augmented"] = float(np.sqrt(l_aug[ch]) * s.scale[ch])
+        if ch in structured:
+            d["regime"] = locate.regime(p.data, p.starts, p.H, nom.Ed, nom.Et, ch)
             if pr.subsets:
                 d["regime"] += "; predictable where: " + ", ".join(x.label for x in pr.subsets)
         channels_json.append(d)
     regions_json = []
-    for c in TESTED:
-        if c not in structured:
+    for ch in TESTED:
+        if ch not in structured:
             continue
-        for g in nom.regions[c]:
+        for g in nom.regions[ch]:
             regions_json.append({"channel": g.channel, "s_start": round(g.s_start, 1), "s_end": round(g.s_end, 1),
                                  "description": f"{g.description}; seen in {g.laps_seen} of {g.laps_total} lap(s)"})
-    eff_json = []
-    for e in effects:
+    def effect_json(e: NamedEffect) -> dict[str, Any]:
         spec = EFFECTS[e.name].params
         params = {}
         for k, v in e.fit.values().items():
@@ -497,20 +723,26 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, veh
                 continue
             lo, hi = e.fit.ci.get(k, (float("nan"), float("nan")))
             params[k] = {"value": float(v), "ci95": [float(lo), float(hi)], "unit": spec[k].unit}
-        eff_json.append({"name": e.name, "parameters": params, "channels": e.channels,
-                         "heldout_rmse_before": e.heldout_before, "heldout_rmse_after": e.heldout_after,
-                         "improvement": round(e.improvement, 4), "ambiguous_with": list(e.ambiguous_with),
-                         "significant_where": e.where})
+        return {"name": e.name, "parameters": params, "channels": e.channels,
+                "heldout_rmse_before": e.heldout_before, "heldout_rmse_after": e.heldout_after,
+                "improvement": round(e.improvement, 4), "ambiguous_with": list(e.ambiguous_with),
+                "significant_where": e.where}
+
+    eff_json = [effect_json(e) for e in effects]
+    partial_json = [effect_json(e) for e in (ver.partial if verdict == "mismatch" else ())]
     ex0, ex1 = _excess(nom), _excess(aug)
     unexplained = {}
-    for st, c in zip(nom.stats, TESTED):
-        if c in structured and c in aug.structured:
-            unexplained[st.name] = float(np.sqrt(ex1[TESTED.index(c)]))
-    for c in TESTED:
-        if c in aug.structured and effects:
-            for g in aug.regions[c]:
+    for st, ch in zip(nom.stats, TESTED):
+        if ch in structured and ch in aug.structured:
+            unexplained[st.name] = float(np.sqrt(ex1[TESTED.index(ch)]))
+    modelled = effects or partial_json
+    after = "the calibration and the effects" if c.applied and modelled else (
+        "the calibration" if c.applied else "the effects")
+    for ch in TESTED:
+        if ch in aug.structured and (modelled or c.applied):
+            for g in aug.regions[ch]:
                 regions_json.append({"channel": g.channel, "s_start": round(g.s_start, 1), "s_end": round(g.s_end, 1),
-                                     "description": f"unexplained after the named effects: {g.description}"})
+                                     "description": f"unexplained after {after}: {g.description}"})
     tot0 = float(sum(ex0[i] / nom.stats[i].rmse_twin**2 for i in range(3)))
     tot1 = float(sum(ex1[i] / aug.stats[i].rmse_twin**2 for i in range(3)))
     explained = (1.0 - tot1 / tot0) if tot0 > 0 else 0.0
@@ -523,6 +755,7 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, veh
         "channels": channels_json,
         "regions": regions_json,
         "effects": eff_json,
+        "partial_effects": partial_json,
         "unexplained": unexplained,
         "augmented_vehicle": augmented_name,
         "explained_share": round(max(min(explained, 1.0), 0.0), 4) if verdict == "mismatch" else 0.0,
@@ -531,40 +764,82 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, veh
         "notes": notes,
         "noise_sigma": {CHANNELS[i]: float(s.sigma[i]) for i in range(6)},
         "samples": int(p.data.n), "horizon": p.H,
+        "inputs": _inputs_json(p.data, untestable),
+        "calibration": _calibration_json(c, vehicle, verdict),
     }
+
+
+def _inputs_json(data: core.Dataset, untestable: dict[str, str]) -> dict[str, Any]:
+    """What the recordings' inputs are, how the model uses them, what each channel can test."""
+    mode = data.longitudinal
+    vx = {"force": "the longitudinal forces (powertrain command, drag, rolling resistance, grade)",
+          "speed": "the car's speed loop and the longitudinal forces (drag, rolling resistance, grade)",
+          "kinematic": ("nothing of the longitudinal forces: v_x follows the measured a_x"
+                        + (" (only the road grade, which an accelerometer does not feel)"
+                           if data.inputs.get("a_x") == "measured" else ""))}[mode]
+    lat = "the lateral and yaw physics (tires, inertia, loads, steering and its lag"
+    lat += ")" if data.inputs.get("delta") == "commanded" else ": a measured angle may still lead the tires)"
+    return {**{k: data.inputs.get(k) for k in ("delta", "a_x", "v_cmd")}, "longitudinal": mode,
+            "tests": {"v_x": vx, "v_y": lat, "yaw_rate": lat},
+            "not_testable": [{"effect": e, "reason": why} for e, why in untestable.items()]}
+
+
+def _calibration_json(c: Calibrated, vehicle: VehicleConfig, verdict: str) -> dict[str, Any]:
+    applied = c.applied and verdict == "mismatch"
+    params = c.fit.report(vehicle) if c.fit is not None and len(c.fit.params) else []
+    return {"applied": applied, "tested": bool(c.tested), "considered": list(c.considered),
+            "heldout_gain": round(float(c.gain), 4), "t": round(float(c.t), 2),
+            "significant_where": c.where,
+            "parameters": params,
+            "not_identified": [{"name": n, "reason": why} for n, why in (c.fit.dropped.items() if c.fit else ())]}
 
 
 # --------------------------------------------------------------------------------------------
 # helpers
 
 
-def excitation(data: core.Dataset) -> dict[str, str]:
-    """Effects the recordings cannot identify, with the reason (missing excitation)."""
+def excitation(data: core.Dataset, wheelbase: float | None = None) -> dict[str, str]:
+    """Effects the recordings cannot identify, with the reason (missing excitation). Thresholds are
+    accelerations in g and relative speed changes, so they hold for a 1:10 car as for a full-size one."""
     vx, r = data.Y[:, State.V_X], data.Y[:, State.YAW_RATE]
-    ax, delta = data.U[:, Input.A_X], data.U[:, Input.DELTA]
+    ax, delta = data.A, data.U[:, Input.DELTA]
     ay = np.abs(vx * r)
+    g = 9.81
     out: dict[str, str] = {}
-    lateral = np.quantile(ay, 0.9) > 2.0
-    speed_var = np.std(vx) > 1.0
-    long_var = np.std(ax) > 0.3
-    steer_var = np.std(delta) > 2e-3
-    combined = np.mean((np.abs(ax) > 1.5) & (ay > 2.0)) > 0.02
+    lateral = np.quantile(ay, 0.9) > 0.2 * g
+    speed_var = np.std(vx) > 0.05 * max(float(np.mean(np.abs(vx))), 1e-9)
+    long_var = np.std(ax) > 0.03 * g
+    demand = vx * vx * delta / wheelbase if wheelbase else vx * delta * 10.0  # steering's lateral demand
+    steer_var = np.std(demand) > 0.02 * g if wheelbase else np.std(delta) > 2e-3
+    combined = np.mean((np.abs(ax) > 0.15 * g) & (ay > 0.2 * g)) > 0.02
     lat = ["downforce", "load_transfer", "tire_load_sensitivity", "combined_slip", "tire_friction",
            "cornering_stiffness", "friction_patch", "yaw_inertia"]
     if not lateral:
         for e in lat:
-            out[e] = "no cornering (|a_y| stays below 2 m/s^2): tire and load effects are invisible"
+            out[e] = "no cornering (|a_y| stays below 0.2 g): tire and load effects are invisible"
     if not speed_var:
         for e in ("aero_drag", "rolling_resistance", "downforce"):
             out.setdefault(e, "speed nearly constant: speed-dependent forces cannot be told from constant ones")
     if not long_var:
-        out.setdefault("drivetrain_lag", "a_x command nearly constant: a drivetrain lag has nothing to delay")
+        out.setdefault("drivetrain_lag", "a_x nearly constant: a drivetrain lag has nothing to delay")
     if not steer_var:
         out.setdefault("steering_lag", "steering nearly constant: a steering lag has nothing to delay")
         out.setdefault("yaw_inertia", "steering nearly constant: no yaw acceleration to weigh the inertia")
     if not combined:
         for e in ("load_transfer", "combined_slip"):
             out.setdefault(e, "no braking or drive while cornering: longitudinal-lateral coupling is invisible")
+    return out
+
+
+def input_limits(data: core.Dataset) -> dict[str, str]:
+    """Catalogue effects the recordings' inputs cannot test, with the reason."""
+    out: dict[str, str] = {}
+    if data.longitudinal == "kinematic":
+        why = f"a_x is {data.inputs.get('a_x')}: v_x follows it, the longitudinal forces are inside it"
+        for e in ("aero_drag", "rolling_resistance", "drivetrain_lag"):
+            out[e] = why
+        if data.inputs.get("a_x") != "measured":
+            out["road_grade"] = why + " (the grade too, unlike an accelerometer's)"
     return out
 
 
@@ -585,11 +860,17 @@ def _sub(model: NominalModel, sub: int) -> int:
     return min(s, 20)
 
 
-def _heldout_losses(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
-    """Cross-validated per-window normalised squared error (m,) of the model with ``fits``."""
+def _channels(name: str) -> list[int]:
+    """Indices of the dynamic channels a catalogue effect acts on."""
+    return [CHANNELS.index(c) for c in EFFECTS[name].channels]
+
+
+def _heldout_channels_of(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
+    """Cross-validated per-window, per-channel normalised squared error (m, 3) of the model with
+    ``fits`` (the model itself, nothing to refit, when there are none)."""
     if not fits:
-        return np.mean(ctx.prob.residuals(ctx.prob.model(), ctx.eval_w) ** 2, axis=(1, 2))
-    return _heldout_channels(ctx, fits).mean(axis=1)
+        return np.mean(ctx.prob.residuals(ctx.prob.model(), ctx.eval_w) ** 2, axis=1)
+    return _heldout_channels(ctx, fits)
 
 
 def _heldout_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
@@ -602,17 +883,8 @@ def _heldout_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
 
 
 def _cv_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
-    prob, eval_w, fold = ctx.prob, ctx.eval_w, ctx.fold
-    out = np.empty((len(eval_w), 3))
-    for fo in np.unique(fold):
-        tr = eval_w[fold != fo][:: max(1, len(eval_w) // 500)]
-        te = fold == fo
-        fs = list(fits)
-        for i, f in enumerate(fs):
-            fs[i] = nm.refit(_with_base(prob, fs, i), f, tr)
-        m = prob.model([f.effect() for f in fs])
-        out[te] = np.mean(prob.residuals(m, eval_w[te]) ** 2, axis=1)
-    return out
+    """Every effect refitted jointly without each fold (one linearised step, :mod:`crossval`)."""
+    return cv_.cv_losses(ctx.prob, [cv_.effect_block(f, ctx.prob.data) for f in fits], ctx.eval_w, ctx.fold)
 
 
 def _heldout(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:

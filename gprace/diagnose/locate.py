@@ -181,7 +181,7 @@ def _regime_text(data: Dataset, starts: np.ndarray, H: int) -> str:
     idx = (starts[:, None] + np.arange(H + 1)[None, :]).ravel()
     vx = data.Y[idx, 0]
     ay = np.abs(vx * data.Y[idx, 2])
-    ax = data.U[idx, 1]
+    ax = data.A[idx]
     brake = float(np.mean(ax < -1.0))
     kind = "braking" if brake > 0.5 else ("accelerating" if np.mean(ax > 1.0) > 0.5 else "steady speed")
     corner = "cornering" if np.median(ay) > 3.0 else "straight"
@@ -195,7 +195,7 @@ def regime(data: Dataset, starts: np.ndarray, H: int, Ed: np.ndarray, Et: np.nda
     ex = md - mt
     vx = data.Y[starts, 0]
     ay = np.abs(vx * data.Y[starts, 2])
-    ax = data.U[starts, 1]
+    ax = data.A[starts]
     parts = []
     for label, x in (("speed", vx), ("lateral acceleration", ay)):
         lo, hi = np.quantile(x, [1 / 3, 2 / 3])

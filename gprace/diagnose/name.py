@@ -53,6 +53,7 @@ START = {
     ("tire_load_sensitivity", "k"): 0.0, ("friction_patch", "factor"): 0.9,
     ("combined_slip", "k"): 0.3, ("road_bank", "angle"): 0.0, ("steering_lag", "tau"): 0.05,
     ("steering_offset", "offset"): 0.0, ("yaw_inertia", "factor"): 1.0, ("gyro_bias", "bias"): 0.0,
+    ("velocity_misalignment", "angle"): 0.0,
 }
 FIXED = {"ramp"}  # window edge width stays at its default
 SCALE = {"s_start": 10.0, "s_end": 10.0}
@@ -94,7 +95,7 @@ class Problem:
     base: list = field(default_factory=list)  # Effect objects already in the model
 
     def model(self, extra=()) -> NominalModel:
-        return NominalModel(self.vehicle, list(self.base) + list(extra))
+        return NominalModel(self.vehicle, list(self.base) + list(extra), self.data.longitudinal)
 
     def residuals(self, model: NominalModel, starts: np.ndarray) -> np.ndarray:
         """(m, H, 3) normalised multi-step errors of the dynamic channels."""

@@ -25,7 +25,8 @@ from gprace.config import Frozen
 from gprace.console import jsonable
 from gprace.io.records import NAN, Num, parse_record, read_json
 
-RESULT_VERSION = 1
+RESULT_VERSION = 2
+"""2 (issue 36): the inputs and calibration sections, calibrated RMSEs per channel, the envelope's scale."""
 SIGNIFICANT = 5
 """Significant digits of the stored profile's errors (a 10 m bin's mean error; the JSON stays small)."""
 
@@ -47,7 +48,8 @@ class Predictability(Frozen):
                                               description="subsets whose test passed the corrected threshold")
 
 
-_ABSENT_WHEN_NONE = frozenset({"predictability", "heldout_rmse_nominal", "heldout_rmse_augmented", "regime"})
+_ABSENT_WHEN_NONE = frozenset({"predictability", "heldout_rmse_nominal", "heldout_rmse_augmented", "regime",
+                               "rmse_calibrated", "heldout_rmse_calibrated"})
 
 
 class Channel(Frozen):
@@ -64,6 +66,10 @@ class Channel(Frozen):
         None, description="dynamic channels only: cross-validated RMSE of the nominal model")
     heldout_rmse_augmented: float | None = Field(
         None, description="dynamic channels only: cross-validated RMSE of the augmented model")
+    rmse_calibrated: float | None = Field(
+        None, description="multi-step RMSE of the calibrated model (only when a calibration was applied)")
+    heldout_rmse_calibrated: float | None = Field(
+        None, description="dynamic channels, calibration applied: cross-validated RMSE of the calibrated model")
     regime: str | None = Field(None, description="structured channels only: where and when the error grows")
 
     @model_serializer(mode="wrap")
@@ -106,6 +112,63 @@ class Effect(Frozen):
     significant_where: str = Field("all windows", description="where its held-out gain was significant")
 
 
+class CalibratedParameter(Frozen):
+    """A nominal parameter the diagnosis fitted (gprace.diagnose.calibrate)."""
+
+    name: str = Field(description="parameter (cornering_stiffness_front, steering_offset, speed_loop_rate, ...)")
+    field: str = Field(description="the vehicle TOML field it sets (the speed loop's two set speed_loop_tau "
+                       "and speed_loop_gain together)")
+    unit: str = Field("", description="unit of the value")
+    nominal: Num = Field(description="value in the nominal vehicle")
+    value: Num = Field(description="calibrated value")
+    ci95: list[Num] = Field(min_length=2, max_length=2, description="95 % interval (cluster sandwich)")
+    spread_ratio: Num = Field(NAN, description="posterior / prior spread (identified below 1/5)")
+    at_bound: bool = Field(False, description="pressed against a bound of its physical range")
+    relevance: Num = Field(NAN, description="growth of the noise-normalised mean square error if it were put "
+                           "back to nominal (the others refitted)")
+    changed: bool = Field(False, description="its 95 % interval excludes the nominal value and the relevance "
+                          "exceeds 0.01 (1 % of the noise floor)")
+
+
+class NotIdentified(Frozen):
+    """A nominal parameter the recordings do not identify (kept at its nominal value)."""
+
+    name: str = Field(description="parameter")
+    reason: str = Field(description="how far the data narrow its stated range")
+
+
+class Calibration(Frozen):
+    """The calibration of the nominal parameters before any effect is named (issue 36)."""
+
+    applied: bool = Field(description="the calibrated values are in the augmented vehicle (held-out gain significant)")
+    tested: bool = Field(True, description="its held-out gain was tested (False: the named effects explained "
+                         "the structured error before it was needed)")
+    considered: list[str] = Field(default_factory=list, description="parameters the inputs let it test")
+    heldout_gain: Num = Field(0.0, description="relative held-out loss reduction over the nominal model (by lap)")
+    t: Num = Field(0.0, description="paired block statistic of that gain")
+    significant_where: str = Field("", description="where the gain was significant ('' when it was not)")
+    parameters: list[CalibratedParameter] = Field(default_factory=list, description="identified parameters")
+    not_identified: list[NotIdentified] = Field(default_factory=list, description="kept at their nominal values")
+
+
+class InputTest(Frozen):
+    """An effect the recordings' inputs cannot test."""
+
+    effect: str = Field(description="catalogue name")
+    reason: str = Field(description="why")
+
+
+class Inputs(Frozen):
+    """The recordings' inputs as the model used them, and what each channel could test."""
+
+    delta: str | None = Field(None, description="steering: commanded or measured")
+    a_x: str | None = Field(None, description="a_x: commanded, measured, derived or absent")
+    v_cmd: str | None = Field(None, description="a speed command, when the log has one")
+    longitudinal: str = Field(description="how v_x is driven: force (a_x commanded), speed (speed loop) or kinematic")
+    tests: dict[str, str] = Field(default_factory=dict, description="per dynamic channel: what its error can test")
+    not_testable: list[InputTest] = Field(default_factory=list, description="effects these inputs cannot test")
+
+
 class NotIdentifiable(Frozen):
     """A catalogue effect the recordings cannot identify."""
 
@@ -134,7 +197,18 @@ class Excluded(Frozen):
     samples: int = Field(ge=0, description="samples in the recording")
     samples_excluded: int = Field(0, ge=0, description="samples cut out")
     seconds_excluded: Num = Field(0.0, description="seconds cut out (gaps not counted)")
+    samples_moving: int | None = Field(None, ge=0, description="samples driving forward faster than the "
+                                       "standstill speed (absent in results of before issue 36)")
+    moving_kept: int | None = Field(None, ge=0, description="of those, the samples kept")
+    standstill_speed: float | None = Field(None, description="speed [m/s] below which the car counted as standing "
+                                           "(scaled to the car and the recording)")
     excluded: list[Exclusion] = Field(default_factory=list, description="the stretches cut out")
+
+    @model_serializer(mode="wrap")
+    def _drop_absent(self, handler):
+        """The envelope's scale (issue 36) stays out of results that did not record it."""
+        return {k: v for k, v in handler(self).items()
+                if not (v is None and k in ("samples_moving", "moving_kept", "standstill_speed"))}
 
 
 class ResidualProfile(Frozen):
@@ -172,6 +246,9 @@ class DiagnosisResult(Frozen):
     regions: list[Region] = Field(default_factory=list, description="located regions of structured channels "
                                   "(and those left unexplained after the named effects)")
     effects: list[Effect] = Field(default_factory=list, description="named effects (empty without a mismatch)")
+    partial_effects: list[Effect] = Field(default_factory=list, description="effects that improve held-out "
+                                          "prediction but leave their channels structured: in the augmented "
+                                          "vehicle, not named (issue 36)")
     unexplained: dict[str, Num] = Field(default_factory=dict,
                                         description="per channel: structured error RMS the effects leave")
     augmented_vehicle: str | None = Field(None, description="file the augmented vehicle was written to")
@@ -186,10 +263,34 @@ class DiagnosisResult(Frozen):
     runtime_s: Num = Field(NAN, description="wall time of the diagnosis [s]")
     residual_profile: ResidualProfile | None = Field(
         None, description="the residual along the track (None: a result of before the schema)")
+    inputs: Inputs | None = Field(None, description="the inputs and what they let the diagnosis test (issue 36)")
+    calibration: Calibration | None = Field(None, description="the calibrated nominal parameters (issue 36)")
+
+    @model_serializer(mode="wrap")
+    def _drop_absent(self, handler):
+        """Sections a result of before issue 36 does not have stay out of its JSON."""
+        out = handler(self)
+        if not out.get("partial_effects") and out.get("inputs") is None:  # a result of before issue 36
+            out.pop("partial_effects", None)
+        return {k: v for k, v in out.items() if not (v is None and k in ("inputs", "calibration"))}
 
     def to_json(self) -> dict[str, Any]:
         """The JSON-ready dump (NaN as None): what ``--json`` prints."""
         return jsonable(self.model_dump())
+
+    def findings(self) -> dict[str, dict[str, float]]:
+        """Everything the diagnosis found in the catalogue's terms: the named effects and the
+        effects that the changed calibrated parameters stand for (``cornering_stiffness``,
+        ``steering_offset``, ``aero_drag`` ...; :func:`gprace.diagnose.calibrate.as_effects`),
+        with their parameter values."""
+        from gprace.diagnose.calibrate import as_effects
+
+        out: dict[str, dict[str, float]] = {}
+        if self.calibration is not None and self.calibration.applied:
+            out.update(as_effects([p.model_dump() for p in self.calibration.parameters]))
+        for e in self.effects:
+            out[e.name] = {k: float(p.value) for k, p in e.parameters.items()}
+        return out
 
 
 def residual_profile(s: np.ndarray, before: dict[str, np.ndarray], after: dict[str, np.ndarray],

@@ -97,10 +97,10 @@ def features(data: Dataset, starts: np.ndarray, H: int) -> np.ndarray:
     vx = _smooth(data, data.Y[:, State.V_X])[k]
     r = _smooth(data, data.Y[:, State.YAW_RATE])[k]
     ay = vx * r
-    d0, a0 = data.U[k, 0], data.U[k, 1]
+    d0, a0 = data.U[k, 0], data.A[k]  # a_x as recorded (a command, a measurement, or derived)
     T = H * data.dt
     dd = (data.U[k + H - 1, 0] - d0) / T
-    da = (data.U[k + H - 1, 1] - a0) / T
+    da = (data.A[k + H - 1] - a0) / T
     ap, am = np.maximum(a0, 0.0), np.minimum(a0, 0.0)
     aya = np.abs(ay)
     kv2 = data.kappa[k] * vx * vx
@@ -114,7 +114,7 @@ def regimes(data: Dataset, starts: np.ndarray, H: int) -> list[tuple[str, np.nda
     k = starts
     vx = data.Y[k, 0]
     aya = np.abs(vx * data.Y[k, 2])
-    ax = data.U[k, 1]
+    ax = data.A[k]
     idx = k[:, None] + np.arange(H)[None, :]
     dd = np.abs(np.diff(data.U[idx, 0], axis=1)).max(axis=1)
     out = [

@@ -140,6 +140,10 @@ def record(vehicle: VehicleConfig, track, effects: Sequence[EffectConfig | Effec
     n = int(laps * L / max(np.mean(drv.v_grid), 1.0) / dt * 1.3) + 10
     Y, U, lap = np.empty((n, 6)), np.empty((n, 2)), np.empty(n)
     k = 0
+    # stop rules on the car's own scale: off by three half widths, below a quarter of the
+    # profile's mean speed (2 m/s for a circuit car, ~0.5 m/s at 1:10), or sliding sideways
+    off = 3.0 * float(np.max(track.width_left(drv.s_grid) + track.width_right(drv.s_grid))) / 2.0
+    v_stall = 0.25 * float(np.mean(drv.v_grid))
     for k in range(n):
         u = drv(y)
         Y[k], U[k], lap[k] = y, u, plant.lap
@@ -148,7 +152,8 @@ def record(vehicle: VehicleConfig, track, effects: Sequence[EffectConfig | Effec
             k += 1
             break
         vx = x[State.V_X]
-        if abs(x[State.E_Y]) > 15.0 or vx < 2.0 or abs(x[State.V_Y]) > 0.25 * max(vx, 1.0):
+        if abs(x[State.E_Y]) > max(off, 15.0 * (L > 200.0)) or vx < min(2.0, v_stall) \
+                or abs(x[State.V_Y]) > 0.25 * max(vx, min(1.0, v_stall)):
             k = max(k - int(2.0 / dt), 2)  # spun or left the track: keep what came before
             break
         y = plant.step(u)

@@ -122,7 +122,7 @@ def _read_inputs(inputs, gp: str, input_names: list[str], features: str, step: s
                 raise InputError(f"{path}: dataset built with the {previous.attrs.get('step')} step, but --step {step}")
             continue
         run = read_run(path)
-        keep, env = envelope(run.data, str(path))
+        keep, env = envelope(run.data, str(path), veh.wheelbase if veh is not None else None)
         Z, Y = run_features(run, gp, veh, step, features, keep)
         if len(Z) == 0:
             raise InputError(f"{path}: no usable sample pairs (need consecutive samples at the run's period "
@@ -245,8 +245,9 @@ def evaluate_gp(model: str | Path, run: str | Path, vehicle: str | None = None) 
         raise InputError(f"{model}: GP of feature map {fm or 'unknown'!r}; evaluate gp handles tracking and planning GPs")
     rec = read_run(run)
     step = str(saved.attrs.get("step", "euler"))
-    keep, env = envelope(rec.data, str(run))
-    Z, Y = run_features(rec, fm, _load_vehicle(vehicle), step, dyn_set_of(saved.input_names), keep)
+    veh = _load_vehicle(vehicle)
+    keep, env = envelope(rec.data, str(run), veh.wheelbase if veh is not None else None)
+    Z, Y = run_features(rec, fm, veh, step, dyn_set_of(saved.input_names), keep)
     if len(Z) == 0:
         raise InputError(f"{run}: no usable sample pairs inside the model's envelope "
                          f"({env.samples_excluded} of {env.samples} samples outside)")

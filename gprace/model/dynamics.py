@@ -15,6 +15,17 @@ Formula ``F_y = mu F_z sin(C atan(B alpha))`` on static axle loads. Slip angles
 ``alpha_f = delta - atan((v_y + l_f r)/v_x)``, ``alpha_r = -atan((v_y - l_r r)/v_x)`` with ``v_x``
 floored at ``v_min``.
 
+Inputs as a recording has them (issue 36): the road-wheel angle is ``delta = k_delta u_0 +
+delta_0`` (steering gain and offset of the vehicle, 1 and 0 unless calibrated), and ``u_1`` drives
+``v_x`` in one of three ways (:data:`LONGITUDINAL`, ``Params.longitudinal``):
+
+- ``"force"``: ``u_1`` is the commanded powertrain acceleration ``a_x`` (the paper's model above);
+- ``"kinematic"``: ``u_1`` is a measured (IMU) or derived acceleration, which already holds every
+  longitudinal force: ``v_x' = a_x + r v_y - g sin(phi)`` (drag and rolling resistance are not
+  subtracted again; an accelerometer does not feel the grade, hence its term);
+- ``"speed"``: ``u_1`` is a speed command ``v_cmd`` followed by the car's first-order speed loop,
+  ``a_x = (k_v v_cmd - v_x) / tau_v``, which then drives the force model.
+
 The computation runs as a pipeline of named stages (inputs -> loads -> tire -> forces); each effect
 of :mod:`gprace.model.effects` hooks into the stages it changes. The same function builds the
 numpy evaluation and the CasADi graph (``ops``), which is the "one symbolic definition".
@@ -32,6 +43,8 @@ from gprace.config import G, VehicleConfig
 STATE = ("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s")
 INPUT = ("delta", "a_x")
 NX, NU = 6, 2
+LONGITUDINAL = ("force", "kinematic", "speed")
+"""How the second input drives v_x: commanded a_x, measured/derived a_x, or a speed command."""
 
 
 class State(IntEnum):
@@ -70,13 +83,22 @@ class Params:
     cr: float
     vmin: float
     g: float = G
+    steer_gain: float = 1.0  # road-wheel angle per unit of the steering input
+    steer_offset: float = 0.0  # [rad] added to the road-wheel angle
+    longitudinal: str = "force"  # one of LONGITUDINAL
+    speed_tau: float = 0.5  # [s] time constant of the speed loop ("speed" only)
+    speed_gain: float = 1.0  # speed the loop aims at per unit of the command ("speed" only)
 
     @classmethod
-    def from_vehicle(cls, v: VehicleConfig) -> "Params":
+    def from_vehicle(cls, v: VehicleConfig, longitudinal: str = "force") -> "Params":
+        if longitudinal not in LONGITUDINAL:
+            raise ValueError(f"longitudinal input {longitudinal!r}; expected one of {', '.join(LONGITUDINAL)}")
         return cls(
             m=v.mass, iz=v.yaw_inertia, lf=v.l_f, lr=v.l_r, h=v.cog_height, mu=v.mu,
             cxw=v.drag_coefficient, crr=v.rolling_resistance,
             bf=v.tire.b_front, cf=v.tire.c_front, br=v.tire.b_rear, cr=v.tire.c_rear, vmin=v.v_min,
+            steer_gain=v.steering_gain, steer_offset=v.steering_offset, longitudinal=longitudinal,
+            speed_tau=v.speed_loop_tau, speed_gain=v.speed_loop_gain,
         )
 
     @property
@@ -97,7 +119,11 @@ def dynamics(x: Sequence[Any], u: Sequence[Any], kappa: Any, p: Params, effects:
     c.vx, c.vy, c.r, c.epsi, c.ey, c.s = x[:NX]
     c.z = list(x[NX:])
     c.delta_cmd, c.ax_cmd = u
-    c.delta, c.ax = u
+    if not (_is(p.steer_gain, 1.0) and _is(p.steer_offset, 0.0)):  # the road-wheel angle commanded
+        c.delta_cmd = p.steer_gain * c.delta_cmd + p.steer_offset
+    if p.longitudinal == "speed":  # the car's speed loop turns the speed command into a_x
+        c.ax_cmd = (p.speed_gain * c.ax_cmd - c.vx) / p.speed_tau
+    c.delta, c.ax = c.delta_cmd, c.ax_cmd
     _run(effects, "inputs", c)
 
     c.fz_f, c.fz_r = p.fz_front, p.fz_rear
@@ -121,7 +147,10 @@ def dynamics(x: Sequence[Any], u: Sequence[Any], kappa: Any, p: Params, effects:
     _run(effects, "forces", c)
 
     cd, sd = ops.cos(c.delta), ops.sin(c.delta)
-    vx_dot = c.ax - (c.fy_f * sd + c.rx + c.fxw) / p.m - p.g * ops.sin(c.grade) + c.r * c.vy
+    if p.longitudinal == "kinematic":  # a_x measured: every longitudinal force is inside it
+        vx_dot = c.ax - p.g * ops.sin(c.grade) + c.r * c.vy
+    else:
+        vx_dot = c.ax - (c.fy_f * sd + c.rx + c.fxw) / p.m - p.g * ops.sin(c.grade) + c.r * c.vy
     vy_dot = (c.fy_f * cd + c.fy_r + c.f_lat) / p.m - c.r * c.vx
     r_dot = (p.lf * c.fy_f * cd - p.lr * c.fy_r) / c.iz
     s_dot = (c.vx * ops.cos(c.epsi) - c.vy * ops.sin(c.epsi)) / (1.0 - c.kappa * c.ey)
@@ -137,3 +166,8 @@ def dynamics(x: Sequence[Any], u: Sequence[Any], kappa: Any, p: Params, effects:
 def _run(effects: Sequence[Any], stage: str, c: SimpleNamespace) -> None:
     for e in effects:
         getattr(e, stage)(c)
+
+
+def _is(x: Any, value: float) -> bool:
+    """``x`` is the plain number ``value`` (arrays of per-window parameters are never skipped)."""
+    return isinstance(x, (int, float)) and x == value

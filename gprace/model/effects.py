@@ -367,3 +367,21 @@ class GyroBias(Effect):
 
     def measure(self, y):
         y["yaw_rate"] = y["yaw_rate"] + self.bias
+
+
+@effect
+class VelocityMisalignment(Effect):
+    name = "velocity_misalignment"
+    description = (
+        "the velocity sensor's frame (a GNSS/INS heading) turned by a small angle against the car's body: "
+        "measured v_y = v_y cos(a) + v_x sin(a), v_x = v_x cos(a) - v_y sin(a) (acts on the measurement only)"
+    )
+    channels = ("v_y",)
+    params = {"angle": ParamSpec(None, -0.05, 0.05, "rad", "angle of the velocity frame against the body (left +)")}
+
+    def measure(self, y):
+        ca, sa = np.cos(self.angle), np.sin(self.angle)
+        vx, vy = y["v_x"], y["v_y"]
+        y["v_x"] = vx * ca - vy * sa
+        y["v_y"] = vy * ca + vx * sa
+

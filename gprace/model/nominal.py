@@ -19,12 +19,15 @@ class NominalModel:
     """The vehicle model of a :class:`VehicleConfig` (its ``effects`` included).
 
     Numeric methods take ``X`` (n, nx) or (nx,), ``U`` (n, 2) or (2,), ``kappa`` (n,) or a scalar
-    and return arrays of the same leading shape. ``nx = 6 + effect states``.
+    and return arrays of the same leading shape. ``nx = 6 + effect states``. ``longitudinal`` says
+    what the second input is (:data:`~gprace.model.dynamics.LONGITUDINAL`: a commanded ``a_x``
+    by default, a measured one, or a speed command).
     """
 
-    def __init__(self, vehicle: VehicleConfig, extra_effects: Sequence[EffectConfig | Effect] = ()) -> None:
+    def __init__(self, vehicle: VehicleConfig, extra_effects: Sequence[EffectConfig | Effect] = (),
+                 longitudinal: str = "force") -> None:
         self.vehicle = vehicle
-        self.params = Params.from_vehicle(vehicle)
+        self.params = Params.from_vehicle(vehicle, longitudinal)
         effects = [make_effect(e) for e in vehicle.effects]
         effects += [e if isinstance(e, Effect) else make_effect(e) for e in extra_effects]
         self.effects: list[Effect] = effects

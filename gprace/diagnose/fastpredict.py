@@ -1,0 +1,245 @@
+"""Multi-step predictions in one compiled call: the diagnosis's hot path in C.
+
+Every fit of the diagnosis integrates a batch of windows ``H`` steps ahead with RK4, and in numpy
+each derivative is some sixty array operations: about 0.6 us per window and derivative (measured
+0.5 to 0.75 us per element for 2,000 to 32,000 windows, plus 0.15 ms per call), which made a
+diagnosis 13 to 48 s per 6,000 samples. Here the derivative is the SAME symbolic definition
+(:func:`gprace.model.dynamics.dynamics`, CasADi's face of the model) turned into C by CasADi's
+code generator, and a small hand-written driver runs RK4 with the curvature looked up at every
+stage (``numpy.interp``'s rule, the lap wrapped with numpy's floor modulo), over all windows and
+steps in one call.
+
+Every parameter of the vehicle and of the effects is an input (one row per window, or one row
+for all), so the batched fits (parameters per window) use the same function. A variant is
+compiled per longitudinal input kind, set of actuator lags and set of stateless effects present
+(only what the model has: the universal variant with every effect at its neutral values was
+1.6 times slower for the nominal model), each once per machine and cached like the other
+compiled kernels (about 0.5 s of gcc per variant; a diagnosis meets a few dozen the first time).
+Stateless effects of one stage commute (sums and products of different quantities), so their
+order in the model does not matter. A model with an effect outside the catalogue, two effects of
+one kind, lags in another order or a steering offset before a steering lag falls back to the
+numpy path, which stays the reference (tests check both give the same predictions to rounding).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from gprace.model import EFFECTS, Effect, NominalModel, Params
+from gprace.model.dynamics import LONGITUDINAL, NX, dynamics
+
+LAGS = ("steering_lag", "drivetrain_lag")
+PARAM_FIELDS = tuple(f.name for f in fields(Params) if f.name != "longitudinal")
+NEUTRAL = {
+    "aero_drag": {"c_d": 0.0}, "rolling_resistance": {"c_rr": 0.0},
+    "road_grade": {"angle": 0.0, "s_start": 0.0, "s_end": 1.0},
+    "downforce": {"c_l": 0.0}, "load_transfer": {"cog_height": 0.0}, "tire_load_sensitivity": {"k": 0.0},
+    "tire_friction": {"front": 1.0, "rear": 1.0}, "cornering_stiffness": {"front": 1.0, "rear": 1.0},
+    "friction_patch": {"factor": 1.0, "s_start": 0.0, "s_end": 1.0}, "combined_slip": {"k": 0.0},
+    "road_bank": {"angle": 0.0, "s_start": 0.0, "s_end": 1.0}, "steering_offset": {"offset": 0.0},
+    "yaw_inertia": {"factor": 1.0},
+}
+"""Values at which each effect without states changes nothing (the universal function's default)."""
+SENSOR_ONLY = ("gyro_bias", "velocity_misalignment")  # act on the measurement only (applied in numpy)
+
+_DRIVER_C = r"""
+/* numpy's floating remainder: the sign of the divisor */
+static inline double pymod(double a, double b) {
+    double r = fmod(a, b);
+    if (r != 0.0) { if ((b < 0) != (r < 0)) r += b; } else r = copysign(0.0, b);
+    return r;
+}
+
+/* numpy.interp(x, xp, fp) on a sorted table of n points */
+static double interp1(double x, const double *xp, const double *fp, long n) {
+    if (!(x > xp[0])) return x < xp[0] || x == xp[0] ? fp[0] : x;  /* NaN passes through */
+    if (x >= xp[n - 1]) return fp[n - 1];
+    long lo = 0, hi = n - 1;  /* xp[lo] <= x < xp[hi] */
+    while (hi - lo > 1) { long mid = (lo + hi) / 2; if (xp[mid] <= x) lo = mid; else hi = mid; }
+    double slope = (fp[hi] - fp[lo]) / (xp[hi] - xp[lo]);
+    return slope * (x - xp[lo]) + fp[lo];
+}
+
+static inline double kappa_at(double s, double L, double off, const double *ks, const double *kv, long nk) {
+    return interp1((isfinite(L) ? pymod(s, L) : s) + off, ks, kv, nk);
+}
+
+/* out (m, H, NXS): windows i start from X0[i] (m, NXS) and step with the inputs U[k0[i] + j]
+   (rows clamped to nu - 1), RK4 with `sub` substeps of dt / sub, curvature per stage from the
+   table (ks, kv) at s wrapped to the lap L[i] (infinite: no wrap) plus the offset off[i];
+   parameters P + i * pstride (NP values). Returns 0. */
+int gprace_predict(long m, long H, long sub, double dt, const double *X0, const long *k0, const double *U,
+                   long nu, const double *P, long pstride, const double *ks, const double *kv, long nk,
+                   const double *L, const double *off, double *out) {
+    double x[NXS], x2[NXS], k1[NXS], k2[NXS], k3[NXS], k4[NXS], kap, u[2];
+    casadi_real w[SZW > 0 ? SZW : 1];
+    casadi_int iw[SZIW > 0 ? SZIW : 1];
+    const casadi_real *arg[4];
+    casadi_real *res[1];
+    double h = dt / (double)sub;
+    for (long i = 0; i < m; i++) {
+        const double *p = P + i * pstride;
+        for (int q = 0; q < NXS; q++) x[q] = X0[i * NXS + q];
+        arg[1] = u; arg[2] = &kap; arg[3] = p;
+        for (long j = 0; j < H; j++) {
+            long r = k0[i] + j; if (r > nu - 1) r = nu - 1;
+            u[0] = U[2 * r]; u[1] = U[2 * r + 1];
+            for (long t = 0; t < sub; t++) {
+                kap = kappa_at(x[5], L[i], off[i], ks, kv, nk); arg[0] = x; res[0] = k1; DERIV(arg, res, iw, w, 0);
+                for (int q = 0; q < NXS; q++) x2[q] = x[q] + 0.5 * h * k1[q];
+                kap = kappa_at(x2[5], L[i], off[i], ks, kv, nk); arg[0] = x2; res[0] = k2; DERIV(arg, res, iw, w, 0);
+                for (int q = 0; q < NXS; q++) x2[q] = x[q] + 0.5 * h * k2[q];
+                kap = kappa_at(x2[5], L[i], off[i], ks, kv, nk); arg[0] = x2; res[0] = k3; DERIV(arg, res, iw, w, 0);
+                for (int q = 0; q < NXS; q++) x2[q] = x[q] + h * k3[q];
+                kap = kappa_at(x2[5], L[i], off[i], ks, kv, nk); arg[0] = x2; res[0] = k4; DERIV(arg, res, iw, w, 0);
+                for (int q = 0; q < NXS; q++) x[q] = x[q] + (h / 6.0) * (k1[q] + 2 * k2[q] + 2 * k3[q] + k4[q]);
+            }
+            for (int q = 0; q < NXS; q++) out[(i * H + j) * NXS + q] = x[q];
+        }
+    }
+    return 0;
+}
+"""
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where each parameter sits in the universal function's parameter row."""
+
+    longitudinal: str
+    lags: tuple[str, ...]
+    effects: tuple[str, ...]  # catalogue effects in the function, in catalogue order
+    index: dict  # ("params", field) or (effect, parameter) -> column
+    nx: int
+
+    @property
+    def np(self) -> int:
+        return len(self.index)
+
+
+def _layout(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | None = None) -> Layout:
+    names = tuple(n for n in EFFECTS if (n in NEUTRAL and (only is None or n in only)) or n in lags)
+    index = {("params", f): i for i, f in enumerate(PARAM_FIELDS)}
+    for n in names:
+        for k in EFFECTS[n].params:
+            index[(n, k)] = len(index)
+    return Layout(longitudinal, lags, names, index, NX + len(lags))
+
+
+@functools.cache
+def _kernel(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | None = None):
+    """(ctypes function, Layout) of a compiled variant, or None (no compiler, or a failed build)."""
+    import casadi as ca
+
+    from gprace.backends.compiled import compiled_source
+    from gprace.model.nominal import _casadi_ops
+
+    lay = _layout(longitudinal, lags, only)
+    x, u, k = ca.SX.sym("x", lay.nx), ca.SX.sym("u", 2), ca.SX.sym("kappa")
+    P = ca.SX.sym("p", lay.np)
+    p = Params(**{f: P[lay.index[("params", f)]] for f in PARAM_FIELDS}, longitudinal=longitudinal)
+    effects, z0 = [], 0
+    for n in lay.effects:
+        e = EFFECTS[n](**{q: P[lay.index[(n, q)]] for q in EFFECTS[n].params})
+        e.z0 = z0
+        z0 += e.n_states
+        effects.append(e)
+    xdot = dynamics([x[i] for i in range(lay.nx)], [u[0], u[1]], k, p, effects, _casadi_ops())
+    F = ca.Function("gprace_deriv", [x, u, k, P], [ca.vertcat(*xdot)])
+    gen = ca.CodeGenerator("gprace_deriv.c", {"with_header": False, "with_mem": False})
+    gen.add(F)
+    src = gen.dump() + f"\n#define NXS {lay.nx}\n#define SZW {F.sz_w()}\n#define SZIW {F.sz_iw()}\n" \
+        f"#define DERIV gprace_deriv\n" + _DRIVER_C
+    fx = "all" if only is None else ("-".join("".join(w[0] for w in n.split("_")) for n in only) or "none")
+    tag = f"diagnose_predict_{longitudinal}_{'_'.join(lags) or 'nolag'}_{fx}"
+    lib = compiled_source(tag, src, ("-O2", "-fno-math-errno"), "diagnosis prediction kernel")
+    if lib is None:
+        return None
+    fn = ctypes.CDLL(str(lib)).gprace_predict
+    dp, lp, L_ = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_long), ctypes.c_long
+    fn.argtypes = [L_, L_, L_, ctypes.c_double, dp, lp, dp, L_, dp, L_, dp, dp, L_, dp, dp, dp]
+    fn.restype = ctypes.c_int
+    return fn, lay
+
+
+def plan(model: NominalModel) -> tuple[str, tuple[str, ...], list[Effect]] | None:
+    """(longitudinal, lags, catalogue effects) when the universal function can run ``model``,
+    else None (an effect outside the catalogue or of a subclass, one kind twice, lags or a steering
+    offset in an order whose arithmetic the universal (catalogue) order would change)."""
+    names = [e.name for e in model.effects]
+    if len(set(names)) != len(names):
+        return None
+    for e in model.effects:
+        if EFFECTS.get(e.name) is not type(e) or not (e.name in NEUTRAL or e.name in LAGS or e.name in SENSOR_ONLY):
+            return None
+    cat = [n for n in EFFECTS if n in names]
+    # stateless effects of one stage add to or scale different quantities, or the same one by
+    # sums and products: any order gives the same numbers (to rounding). What order changes: the
+    # layout of the lag states, and a steering offset added before a steering lag replaces the
+    # angle (the lag's state then holds no offset).
+    if [n for n in names if n in LAGS] != [n for n in cat if n in LAGS]:
+        return None
+    if "steering_offset" in names and "steering_lag" in names \
+            and names.index("steering_offset") < names.index("steering_lag"):
+        return None
+    if model.params.longitudinal not in LONGITUDINAL:
+        return None
+    return model.params.longitudinal, tuple(n for n in cat if n in LAGS), list(model.effects)
+
+
+def parameter_rows(model: NominalModel, lay: Layout, m: int) -> np.ndarray:
+    """(1, np) or (m, np) parameter rows of ``model`` (per-window arrays of length ``m`` allowed)."""
+    cols: dict[int, object] = {}
+    p = model.params
+    for f in PARAM_FIELDS:
+        cols[lay.index[("params", f)]] = getattr(p, f)
+    present = {e.name: e for e in model.effects}
+    for n in lay.effects:
+        e = present.get(n)
+        for q, spec in EFFECTS[n].params.items():
+            if e is not None:
+                v = e.values[q]
+            else:
+                v = NEUTRAL.get(n, {}).get(q, spec.default if spec.default is not None else 0.0)
+            cols[lay.index[(n, q)]] = v
+    per_window = any(isinstance(v, np.ndarray) and v.ndim == 1 and len(v) == m and m > 1 for v in cols.values())
+    P = np.empty((m if per_window else 1, lay.np))
+    for j, v in cols.items():
+        P[:, j] = v
+    return P
+
+
+def predict_states(model: NominalModel, data, starts: np.ndarray, H: int, substeps: int, X0: np.ndarray,
+                   offset: float) -> np.ndarray | None:
+    """Model states ``(m, H, nx)`` of the windows at ``starts`` from ``X0`` (m, nx), or None when the
+    compiled path cannot run this model (the caller integrates in numpy). Inputs of rows past the
+    data's end repeat its last row; ``offset`` separates recordings in the curvature table."""
+    pl = plan(model)
+    if pl is None:
+        return None
+    kern = _kernel(pl[0], pl[1], tuple(e.name for e in pl[2] if e.name in NEUTRAL))
+    if kern is None:
+        return None
+    fn, lay = kern
+    m = len(starts)
+    P = np.ascontiguousarray(parameter_rows(model, lay, m))
+    X0 = np.ascontiguousarray(X0, dtype=float)
+    k0 = np.ascontiguousarray(starts, dtype=np.int64)
+    U = np.ascontiguousarray(data.U, dtype=float)
+    rec = data.rec[starts]
+    L = np.ascontiguousarray(data.L[rec], dtype=float)
+    off = np.ascontiguousarray(rec * offset, dtype=float)
+    out = np.empty((m, H, lay.nx))
+    dp = ctypes.POINTER(ctypes.c_double)
+
+    def ptr(a, t=dp):
+        return a.ctypes.data_as(t)
+
+    fn(m, H, int(substeps), float(data.dt), ptr(X0), ptr(k0, ctypes.POINTER(ctypes.c_long)), ptr(U),
+       len(U), ptr(P), 0 if len(P) == 1 else lay.np, ptr(data.ks), ptr(data.kv), len(data.ks), ptr(L), ptr(off),
+       ptr(out))
+    return out
