@@ -33,6 +33,8 @@ from scipy.stats import norm
 from gprace.config import EffectConfig, VehicleConfig
 from gprace.diagnose import core, locate, name as nm, screen as scr
 from gprace.diagnose.core import CHANNELS, DYNAMIC, TESTED
+from gprace.diagnose.laps import wrap_runs
+from gprace.diagnose.profiles import leading, window_or_profile
 from gprace.diagnose.result import DiagnosisResult, residual_profile
 from gprace.errors import InputError
 from gprace.io.envelope import EnvelopeReport, envelope
@@ -87,6 +89,7 @@ class Prepared:
     starts: np.ndarray
     H: int
     envelopes: tuple[EnvelopeReport, ...]
+    notes: tuple[str, ...] = ()  # laps recognised in recordings whose s runs on (gprace.diagnose.laps)
 
 
 @dataclass(frozen=True)
@@ -173,7 +176,9 @@ class Ctx:
 
 
 def prepare(runs: list[Run], H: int) -> Prepared:
-    """Cut every recording to the model's envelope, stack them, list the gap-free windows."""
+    """Wrap s per lap where it runs on (:func:`gprace.diagnose.laps.wrap_runs`), cut every
+    recording to the model's envelope, stack them, list the gap-free windows."""
+    runs, lap_notes = wrap_runs(runs)
     kept, envs = [], []
     for r in runs:
         mask, rep = envelope(r.data, r.source)
@@ -185,7 +190,7 @@ def prepare(runs: list[Run], H: int) -> Prepared:
     starts = data.windows(H)
     if len(starts) < MIN_WINDOWS:
         raise InputError(f"{data.sources[0]}: only {len(starts)} gap-free {H}-step windows; need {MIN_WINDOWS}")
-    return Prepared(data, starts, H, tuple(envs))
+    return Prepared(data, starts, H, tuple(envs), tuple(lap_notes))
 
 
 def evaluate(p: Prepared, model: NominalModel, sigma: np.ndarray, seed: int, sub: int = 2,
@@ -306,11 +311,13 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, log: Callable[[str], 
             break
         cands.sort(key=lambda f: f.cost)
         # only the most promising continue to the full screening fit, warm-started
-        cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=20) for f in cands[: nm.PRESCREEN_KEEP]),
+        # (a window and its profile share one slot: profiles.leading)
+        cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=20) for f in leading(cands, nm.PRESCREEN_KEEP)),
                        key=lambda f: f.cost)
-        top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in cands[: nm.SCREEN_TOP]]
+        top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in leading(cands, nm.SCREEN_TOP)]
         cv = {f.name: nm.cv_channel_losses(prob, f, ctx.eval_w, ctx.fold,
                                             fit_stride=max(1, len(ctx.eval_w) // 400)) for f in top}
+        top = window_or_profile(top, cv, ctx.bid)  # parsimony: the window unless the profile is better
         best = min(top, key=lambda f: cv[f.name].mean())
         l1 = cv[best.name].mean(axis=1)
         ok, where, t = _significant(ctx, l0, l1)
@@ -424,6 +431,8 @@ def _diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int, seed: in
     log = log or (lambda s: None)
     p = prepare(runs, int(horizon))
     data = p.data
+    for note in p.notes:
+        log(f"diagnose: {note}")
     for env in p.envelopes:
         if env.excluded:
             log(f"diagnose: {env.note()}")
@@ -441,7 +450,7 @@ def _diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int, seed: in
     result = DiagnosisResult.model_validate(report)  # a failure here is a bug of the pipeline, not bad input
     effects = ver.effects if result.verdict == "mismatch" else ()
     aug_vehicle = vehicle.model_copy(update={"effects": tuple(vehicle.effects) + tuple(
-        EffectConfig(name=e.name, params={k: float(v) for k, v in e.fit.values().items()}) for e in effects)})
+        EffectConfig(name=e.name, params=e.fit.config_params()) for e in effects)})
     return Diagnosis(result, aug_vehicle)
 
 
@@ -492,7 +501,7 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, veh
     for e in effects:
         spec = EFFECTS[e.name].params
         params = {}
-        for k, v in e.fit.values().items():
+        for k, v in e.fit.scalars().items():
             if k in nm.FIXED:
                 continue
             lo, hi = e.fit.ci.get(k, (float("nan"), float("nan")))
@@ -500,7 +509,7 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, veh
         eff_json.append({"name": e.name, "parameters": params, "channels": e.channels,
                          "heldout_rmse_before": e.heldout_before, "heldout_rmse_after": e.heldout_after,
                          "improvement": round(e.improvement, 4), "ambiguous_with": list(e.ambiguous_with),
-                         "significant_where": e.where})
+                         "significant_where": e.where, "profile": e.fit.profile_json()})
     ex0, ex1 = _excess(nom), _excess(aug)
     unexplained = {}
     for st, c in zip(nom.stats, TESTED):
@@ -514,7 +523,7 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, named: Named, ver: Verified, veh
     tot0 = float(sum(ex0[i] / nom.stats[i].rmse_twin**2 for i in range(3)))
     tot1 = float(sum(ex1[i] / aug.stats[i].rmse_twin**2 for i in range(3)))
     explained = (1.0 - tot1 / tot0) if tot0 > 0 else 0.0
-    notes = [env.note() for env in p.envelopes if env.excluded] + list(ver.notes)
+    notes = list(p.notes) + [env.note() for env in p.envelopes if env.excluded] + list(ver.notes)
     if s.not_identifiable:
         notes.append("not identifiable from these recordings: " + "; ".join(
             f"{e} ({why})" for e, why in s.not_identifiable.items()))
@@ -565,6 +574,9 @@ def excitation(data: core.Dataset) -> dict[str, str]:
     if not combined:
         for e in ("load_transfer", "combined_slip"):
             out.setdefault(e, "no braking or drive while cornering: longitudinal-lateral coupling is invisible")
+    for n, cls in EFFECTS.items():  # a profile is as visible as its window
+        if cls.profile and cls.window_of in out:
+            out.setdefault(n, out[cls.window_of])
     return out
 
 
