@@ -47,6 +47,9 @@ from pathlib import Path
 import numpy as np
 
 TRACKS = Path("/work/shared/data/tumftm-racetrack-database/tracks")
+FIXTURES = Path(__file__).resolve().parent.parent / "tests" / "data"
+"""TUM's banked oval (3d-road-geometry-coupling example tracks: geometry and 30-degree corner bank,
+written from its facts into tests/data): the bank-profile case on real banked geometry."""
 CIRCUITS = ["Norisring", "Oschersleben", "Zandvoort", "BrandsHatch", "Hockenheim", "Budapest", "Spielberg"]
 
 # (name, [magnitudes]) with realistic sizes; window effects get a random window per case
@@ -122,6 +125,9 @@ def build_cases(quick: bool, seed: int) -> list[dict]:
         for p in (MAGNITUDES[name][:mags] if not quick else MAGNITUDES[name][1:2]):
             cases.append({"kind": "single", "effects": [[name, dict(p)]], "track": CIRCUITS[rng.integers(len(CIRCUITS))],
                           "seed": int(rng.integers(1_000_000))})
+    if getattr(EFFECTS.get("road_bank_profile"), "profile", False) and (FIXTURES / "tum_banked_oval.toml").exists():
+        cases.append({"kind": "single", "effects": [["road_bank_profile", {"fixture": "tum_banked_oval_bank.csv"}]],
+                      "track": "tum_banked_oval", "seed": int(rng.integers(1_000_000))})
     for c in cases:
         c["source"] = "gprace"
     return cases
@@ -268,12 +274,16 @@ def run_case(case: dict, laps: float) -> dict:
         elif case["source"] == "commonroad":
             vehicle, run = _commonroad_run(case, laps)
         else:
-            track = load_track(TRACKS / f"{case['track']}.csv")
+            oval = case["track"] == "tum_banked_oval"
+            track = load_track(FIXTURES / "tum_banked_oval.toml" if oval else TRACKS / f"{case['track']}.csv")
             rng = np.random.default_rng(case["seed"])
             effects = []
             for name, p in case["effects"]:
                 p = dict(p)
-                if EFFECTS[name].window:
+                if "fixture" in p:  # a bank sampled at a few points (tests/data)
+                    sb = np.loadtxt(FIXTURES / p["fixture"], delimiter=",")
+                    p = {"knots": sb[:, 0].tolist(), "values": sb[:, 1].tolist(), "lap_length": float(track.length)}
+                elif EFFECTS[name].window:
                     p.update(_window(rng, track.length))
                 elif getattr(EFFECTS[name], "profile", False):
                     p = _profile(rng, track.length, name, p["amplitude"])
@@ -282,7 +292,7 @@ def run_case(case: dict, laps: float) -> dict:
                                for e in effects]
             case["lap_length"] = track.length
             vehicle = load_vehicle("audi_tt_cup")
-            run = record(vehicle, track, effects, laps=laps, seed=case["seed"], substeps=10)
+            run = record(vehicle, track, effects, laps=max(laps, 4.0) if oval else laps, seed=case["seed"], substeps=10)
             if case.get("variant") == "continuous":
                 run = _runs_on(run)
     except Exception as exc:
@@ -308,7 +318,7 @@ def run_case(case: dict, laps: float) -> dict:
            "exact_or_ambiguous": len(named) == len(truth) and all(
                n in truth or any(t in amb[n] for t in truth) for n in named) and truth <= (
                set(named) | {a for v in amb.values() for a in v})}
-    errs, ious, prof = [], [], []
+    errs, ious, prof, iou_by = [], [], [], {}
     for name, p in case["effects"]:
         fit = next((e for e in rep["effects"] if e["name"] == name), None)
         if fit is None:
@@ -327,9 +337,11 @@ def run_case(case: dict, laps: float) -> dict:
             a, b = fit["parameters"]["s_start"]["value"], fit["parameters"]["s_end"]["value"]
             inter = max(0.0, min(b, p["s_end"]) - max(a, p["s_start"]))
             ious.append(inter / (max(b, p["s_end"]) - min(a, p["s_start"])))
+            iou_by[name] = round(ious[-1], 3)
     row["param_errors"] = [round(e, 4) for e in errs]
     row["iou"] = [round(x, 3) for x in ious]
     row["profiles"] = prof
+    row["iou_by_effect"] = {n: iou_by.get(n, 0.0) for n, p in case["effects"] if "s_start" in p}  # 0: not named
     row["notes"] = rep["notes"]
     return row
 
@@ -378,9 +390,9 @@ def _agreement(rows: list[dict]) -> dict:
         if not same:
             d["differ"].append({"seed": r["seed"], "truth": [n for n, _ in r["effects"]], "wrapped": w["named"],
                                 "continuous": r["named"]})
-        for (n, _), a, b in zip([e for e in r["effects"] if "s_start" in e[1]], r["iou"], w["iou"]):
+        for n, a in r.get("iou_by_effect", {}).items():
             if n in ("road_bank", "road_grade"):
-                d["iou_bank_grade"].append({"effect": n, "continuous": a, "wrapped": b})
+                d["iou_bank_grade"].append({"effect": n, "continuous": a, "wrapped": w.get("iou_by_effect", {}).get(n)})
     return out
 
 
