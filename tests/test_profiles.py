@@ -132,7 +132,7 @@ def test_batched_profile_is_the_catalogue_profile_and_colour_jacobian_is_exact(v
     from gprace.diagnose import profiles as pr
 
     prob, starts = _problem(vehicle, oval_run, every=9)
-    basis = pr.make_basis(prob.data, starts, prob.H)
+    basis = pr.make_basis(prob.data, prob.H)
     assert basis.K % basis.G == 0 and basis.G < basis.K
     rng = np.random.default_rng(1)
     V = rng.normal(0.0, 0.05, (2, basis.K))

@@ -378,6 +378,9 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
         ok, where, t = _significant(ctx, l_wo, l_all)
         if not ok:
             drop = effects.pop(i)
+            # the others were fitted beside it: refit them without it (a profile named next to
+            # its window lacks what the window explained)
+            effects = _refit_each(ctx, effects)
             shared = set(drop.channels)
             effects = [replace(e, ambiguous_with=tuple(dict.fromkeys(e.ambiguous_with + (drop.name,))))
                        if shared & set(e.channels) else e for e in effects]
@@ -577,6 +580,18 @@ def excitation(data: core.Dataset) -> dict[str, str]:
     for n, cls in EFFECTS.items():  # a profile is as visible as its window
         if cls.profile and cls.window_of in out:
             out.setdefault(n, out[cls.window_of])
+    return out
+
+
+def _refit_each(ctx: Ctx, effects: list[NamedEffect]) -> list[NamedEffect]:
+    """Each effect refitted with the others fixed, its intervals again (after one was dropped)."""
+    rest = [e.fit for e in effects]
+    out = []
+    for j, e in enumerate(effects):
+        prob = _with_base(ctx.prob, rest, j)
+        g = nm.refit(prob, e.fit, ctx.fit_w, max_nfev=30)
+        g.ci = nm.interval95(prob, g, ctx.fit_w)
+        out.append(replace(e, fit=g))
     return out
 
 

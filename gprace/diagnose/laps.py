@@ -4,7 +4,7 @@ A recording without a lap column whose ``s`` keeps growing over several laps (an
 a track, a logger that never resets ``s``) would be one long lap to the diagnosis: a bank met
 every lap would be a different place each time and never repeat. :func:`wrap_runs` finds the lap
 length (the recording's ``track_length`` when it states one, else the period of the curvature
-along ``s``: :func:`gprace.tracks.laps.wrap_frenet`, checked against the driver's line and speed),
+along ``s``: :func:`gprace.tracks.laps.wrap_frenet`),
 wraps ``s`` into the lap and says so in a note. The lap index follows the running maximum of
 ``s``, so sensor noise near the start line does not count a lap twice.
 """
@@ -41,7 +41,10 @@ def wrap_run(run: Run) -> tuple[Run, str | None]:
     if not (L > 0 and span > L * 1.02):
         if L > 0:  # within one lap of a known track: nothing to wrap
             return run, None
-        found = wrap_frenet(s, run["kappa"], e_y=run["e_y"], v=run["v_x"])
+        # kappa alone: with e_y and v given, wrap_frenet doubles the period when they correlate
+        # better at two laps, which a driver's weave of its own wavelength or a spin does by chance
+        # (2 of 6 independent-source recordings wrapped at twice the lap; docs/decisions.md)
+        found = wrap_frenet(s, run["kappa"])
         if found is None:
             return run, None
         L, how = float(found[2]), "the period of the curvature along s"

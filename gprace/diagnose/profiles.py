@@ -111,14 +111,15 @@ def lap_length(data: Dataset) -> float | None:
     return float(np.median(L))
 
 
-def make_basis(data: Dataset, starts: np.ndarray, H: int) -> Basis | None:
+def make_basis(data: Dataset, H: int) -> Basis | None:
     """Knot spacing from the windows' path length (about a quarter of it, at most
     :data:`KNOTS_MAX` knots a lap); colour groups so that no window's path touches two knots of
-    one group; ``K`` a multiple of ``G`` so the groups also hold across the start line."""
+    one group; ``K`` a multiple of ``G`` so the groups also hold across the start line. From all
+    windows of the recordings, so every fit on a subset of them shares the knots."""
     L = lap_length(data)
     if L is None:
         return None
-    P = _path_length(data, starts, H)
+    P = _path_length(data, data.windows(H), H)
     h0 = max(L / KNOTS_MAX, min(P / 4.0, L / 24.0))
     K = max(int(round(L / h0)), 8)
     for _ in range(4):
@@ -288,14 +289,18 @@ def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None =
     is chosen by cross-validation (:func:`_cv_lambda`) at the first iteration."""
     from gprace.diagnose import name as nm
 
-    basis = basis or make_basis(prob.data, starts, prob.H)
+    basis = basis or make_basis(prob.data, prob.H)
     if basis is None or len(starts) < 20:
         return None
     K = basis.K
     spec = EFFECTS[name].params["values"]
     base = neutral(name)
     Z = _constraint(name, K)
-    c = np.zeros(K) if v_init is None else np.asarray(v_init, float) - base
+    c = np.zeros(K)
+    if v_init is not None:  # on these knots (a profile given on others is interpolated)
+        v_init = np.asarray(v_init, float)
+        k0 = np.arange(len(v_init)) * (basis.L / len(v_init))
+        c = np.interp(basis.knots, k0, v_init, period=basis.L) - base
     c = _out(Z, _in(Z, c)) if Z is not None else c
     P = basis.penalty()
     lo, hi = spec.lower - base, spec.upper - base
@@ -389,8 +394,9 @@ def leading(fits: list, k: int) -> list:
 
 def window_or_profile(top: list, cv: dict[str, np.ndarray], bid: np.ndarray) -> list:
     """Parsimony between a window and its profile, both cross-validated: the profile stays only
-    when its held-out loss is significantly lower (paired block t above the naming threshold) by
-    more than a tenth of the window's remaining excess; otherwise the window stays."""
+    when its held-out gain over the window passes the naming stage's test (paired block t or
+    signed-rank z above 3, or above 2 when it removes at least half of the window's remaining
+    excess) and is more than a tenth of that excess; otherwise the window stays."""
     from gprace.diagnose import name as nm
 
     names = {f.name for f in top}
@@ -400,9 +406,10 @@ def window_or_profile(top: list, cv: dict[str, np.ndarray], bid: np.ndarray) -> 
         if not is_profile(f.name) or w not in names:
             continue
         lw, lp = cv[w].mean(axis=1), cv[f.name].mean(axis=1)
-        _, t = nm.gain_test(lw, lp, bid)
-        better = float(lw.mean() - lp.mean()) > nm.MIN_EXCESS_SHARE * max(lw.mean() - 1.0, 1e-12)
-        drop.add(w if (t > nm.T_GAIN and better) else f.name)
+        t = max(nm.gain_test(lw, lp, bid)[1], nm.rank_test(lw, lp, bid))
+        gain, excess = float(lw.mean() - lp.mean()), max(float(lw.mean()) - 1.0, 1e-12)
+        sig = t > nm.T_GAIN or (t > nm.T_GAIN_STRONG and gain > 0.5 * excess)
+        drop.add(w if (sig and gain > nm.MIN_EXCESS_SHARE * excess) else f.name)
     return [f for f in top if f.name not in drop]
 
 
