@@ -270,3 +270,16 @@ def test_effects_drawn_along_the_lap():
     with pytest.raises(ValueError, match="profile.value has"):
         DiagnosisResult.model_validate({**rep, "effects": [{"name": "x", "parameters": {},
                                                             "profile": {**prof, "value": [0.0]}}]})
+
+
+def test_fitted_profile_at_its_bound_is_a_valid_effect():
+    """Knot values clipped at the catalogue's bound stay inside it after adding the neutral value
+    (0.1 - 1 + 1 is 0.0999... in floating point: a friction profile at its floor was refused)."""
+    from gprace.diagnose import name as nm
+    from gprace.diagnose.profiles import Basis, ProfileFit
+
+    f = nm.Fit("friction_profile", ["v0", "v1", "v2"], np.array([0.1 - 1.0, 0.0, 0.5]), {})
+    f.profile = ProfileFit(Basis(300.0, 3, 3), 1.0)
+    e = f.effect()
+    assert min(e.values["values"]) >= 0.1 and max(e.values["values"]) <= 1.5
+    assert EffectConfig(name="friction_profile", params=f.config_params()).params["values"][0] >= 0.1

@@ -80,7 +80,9 @@ class Fit:
         """The effect's parameters (a profile: its knots, values and lap length as lists)."""
         if self.profile is not None:
             pf = self.profile
-            return {"knots": pf.basis.knots.tolist(), "values": (pf.neutral + self.x).tolist(),
+            spec = EFFECTS[self.name].params["values"]
+            return {"knots": pf.basis.knots.tolist(),
+                    "values": np.clip(pf.neutral + self.x, spec.lower, spec.upper).tolist(),
                     "lap_length": float(pf.basis.L)}
         v = dict(self.fixed)
         v.update({k: float(x) for k, x in zip(self.free, self.x)})

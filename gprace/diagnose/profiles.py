@@ -304,6 +304,7 @@ def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None =
     c = _out(Z, _in(Z, c)) if Z is not None else c
     P = basis.penalty()
     lo, hi = spec.lower - base, spec.upper - base
+    lo, hi = lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo)  # base + c stays inside despite rounding
     n = prob.H * 3
     best = None  # (penalised objective, c) of the best point evaluated
     for _ in range(max(1, iterations)):
