@@ -16,11 +16,19 @@ Sources (``--sources``, default all three):
 
 Each recording is diagnosed blind; the script prints one JSON object with, per source: single
 effects named exactly, pairs named exactly, false alarms on nulls, window IoU of bank/grade (and
-friction patch), time per recording, the confusion between effects, plus the per-case rows and the
-runtime of a 6,000-sample recording per source.
+friction patch), profile recovery (bank, grade, friction varying along the lap: error relative to
+the profile's size, share of knots whose truth lies in the 95 % band), time per recording, the
+confusion between effects, plus the per-case rows and the runtime of a 6,000-sample recording per
+source.
+
+Variants (``--variants``): ``wrapped`` (s wrapped per lap, as the sources write it) and
+``continuous`` (the same case with ``s`` running on over the laps, no lap column and no lap
+length: the diagnosis must find the laps itself). ``continuous_agreement`` compares each
+continuous case with its wrapped twin (same names; window IoU of both).
 
     python benchmarks/diagnose_recovery.py [--quick | --quick-gprace] [--workers 2] [--seed 0]
         [--sources gprace,independent,commonroad] [--only steering_lag,null] [--kinds single,null,pair]
+        [--variants wrapped,continuous]
 
 Parameter error: ``|fitted - true| / |true - neutral|`` for each parameter that the truth moves
 away from its neutral value (0, or 1 for factors), i.e. relative to the size of the effect.
@@ -39,6 +47,9 @@ from pathlib import Path
 import numpy as np
 
 TRACKS = Path("/work/shared/data/tumftm-racetrack-database/tracks")
+FIXTURES = Path(__file__).resolve().parent.parent / "tests" / "data"
+"""TUM's banked oval (3d-road-geometry-coupling example tracks: geometry and 30-degree corner bank,
+written from its facts into tests/data): the bank-profile case on real banked geometry."""
 CIRCUITS = ["Norisring", "Oschersleben", "Zandvoort", "BrandsHatch", "Hockenheim", "Budapest", "Spielberg"]
 
 # (name, [magnitudes]) with realistic sizes; window effects get a random window per case
@@ -60,6 +71,11 @@ MAGNITUDES = {
     "yaw_inertia": [{"factor": 1.3}, {"factor": 0.7}],
     "gyro_bias": [{"bias": 0.01}, {"bias": 0.03}],
     "velocity_misalignment": [{"angle": 0.005}, {"angle": 0.012}],
+
+    # profiles: the largest |value - neutral| along the lap; the shape is drawn per case (_profile)
+    "road_bank_profile": [{"amplitude": 0.05}, {"amplitude": 0.09}],
+    "road_grade_profile": [{"amplitude": 0.03}, {"amplitude": 0.05}],
+    "friction_profile": [{"amplitude": 0.2}, {"amplitude": 0.3}],
 }
 PAIRS = [("aero_drag", "steering_lag"), ("downforce", "gyro_bias"), ("road_grade", "steering_offset"),
          ("rolling_resistance", "yaw_inertia")]
@@ -71,6 +87,24 @@ def _window(rng, L):
     return {"s_start": a, "s_end": a + float(rng.uniform(150.0, 350.0))}
 
 
+def _profile(rng, L: float, name: str, amplitude: float) -> dict:
+    """A smooth profile along the lap (knots every 5 m): two or three bumps of 60-180 m (1 sigma) at
+    random places; bank with both signs, grade with zero mean (a closed lap), friction as dips."""
+    s = np.arange(0.0, L, 5.0)
+    v = np.zeros_like(s)
+    for i in range(int(rng.integers(2, 4))):
+        c, w = rng.uniform(0.0, L), rng.uniform(60.0, 180.0)
+        d = (s - c + 0.5 * L) % L - 0.5 * L
+        sign = 1.0 if name == "friction_profile" else (1.0 if i % 2 == 0 else -1.0)
+        v += sign * rng.uniform(0.6, 1.0) * np.exp(-0.5 * (d / w) ** 2)
+    if name == "road_grade_profile":
+        v -= v.mean()
+    v *= amplitude / max(np.max(np.abs(v)), 1e-12)
+    if name == "friction_profile":
+        v = 1.0 - v
+    return {"knots": s.tolist(), "values": v.tolist(), "lap_length": float(L)}
+
+
 def build_cases(quick: bool, seed: int) -> list[dict]:
     """Cases of the ``gprace`` source (frenet plant), as before issue 14."""
     from gprace.model import EFFECTS
@@ -78,7 +112,7 @@ def build_cases(quick: bool, seed: int) -> list[dict]:
     rng = np.random.default_rng(seed)
     cases = []
     mags = 1 if quick else 2
-    for name in EFFECTS:
+    for name in (n for n in EFFECTS if not getattr(EFFECTS[n], "profile", False)):
         for i, p in enumerate(MAGNITUDES[name][:mags] if not quick else MAGNITUDES[name][1:2]):
             cases.append({"kind": "single", "effects": [[name, dict(p)]], "track": CIRCUITS[rng.integers(len(CIRCUITS))],
                           "seed": int(rng.integers(1_000_000))})
@@ -88,6 +122,14 @@ def build_cases(quick: bool, seed: int) -> list[dict]:
     for a, b in PAIRS[: 2 if quick else 4]:
         cases.append({"kind": "pair", "effects": [[a, dict(MAGNITUDES[a][1])], [b, dict(MAGNITUDES[b][1])]],
                       "track": CIRCUITS[rng.integers(len(CIRCUITS))], "seed": int(rng.integers(1_000_000))})
+    rng = np.random.default_rng(seed + 36)  # profiles (issue 36): drawn apart, the cases above unchanged
+    for name in (n for n in EFFECTS if getattr(EFFECTS[n], "profile", False)):
+        for p in (MAGNITUDES[name][:mags] if not quick else MAGNITUDES[name][1:2]):
+            cases.append({"kind": "single", "effects": [[name, dict(p)]], "track": CIRCUITS[rng.integers(len(CIRCUITS))],
+                          "seed": int(rng.integers(1_000_000))})
+    if getattr(EFFECTS.get("road_bank_profile"), "profile", False) and (FIXTURES / "tum_banked_oval.toml").exists():
+        cases.append({"kind": "single", "effects": [["road_bank_profile", {"fixture": "tum_banked_oval_bank.csv"}]],
+                      "track": "tum_banked_oval", "seed": int(rng.integers(1_000_000))})
     for c in cases:
         c["source"] = "gprace"
     return cases
@@ -103,6 +145,9 @@ INDEP_SINGLES = [
     ("steering_lag", {"tau": 0.12}), ("steering_offset", {"offset": 0.004}), ("yaw_inertia", {"factor": 1.3}),
     ("gyro_bias", {"bias": 0.02}),
 ]
+# along the whole lap, coded by the source as cosine harmonics (drawn per case in _indep_run)
+INDEP_PROFILES = [("road_bank_profile", {"amplitude": 0.08}), ("road_grade_profile", {"amplitude": 0.04}),
+                  ("friction_profile", {"amplitude": 0.25})]
 INDEP_PAIRS = [(("downforce", {"c_l": 2.0}), ("steering_lag", {"tau": 0.1})),
                (("aero_drag", {"c_d": 0.3}), ("gyro_bias", {"bias": 0.02}))]
 INDEP_WINDOW_M = 200.0  # bank, grade: a tenth of the 2 km lap; friction patch 250 m
@@ -121,6 +166,10 @@ def build_indep_cases(quick: bool, seed: int) -> list[dict]:
     for i in range(2 if quick else 4):
         cases.append({"source": "independent", "kind": "null", "effects": [], "seed": int(rng.integers(1_000_000)),
                       "spin": i % 2 == 1})
+    rng = np.random.default_rng(seed + 36)  # profiles (issue 36): drawn apart, the cases above unchanged
+    for n, p in INDEP_PROFILES:
+        cases.append({"source": "independent", "kind": "single", "effects": [[n, dict(p)]],
+                      "seed": int(rng.integers(1_000_000)), "spin": False})
     return cases
 
 
@@ -138,7 +187,8 @@ def build_commonroad_cases(quick: bool, seed: int) -> list[dict]:
 
 
 def _indep_run(case: dict, duration_s: float):
-    """Recording of the independent source (window effects placed at random on the lap)."""
+    """Recording of the independent source (window effects placed at random on the lap, profiles
+    as random cosine harmonics of the lap position)."""
     import indep_source as ind
     from gprace.io.runs import Run
 
@@ -150,10 +200,41 @@ def _indep_run(case: dict, duration_s: float):
             L = ind.Loop(case["seed"]).length
             a = float(rng.uniform(0.05, 0.8) * L)
             p.update({"s_start": a, "s_end": a + (250.0 if name == "friction_patch" else INDEP_WINDOW_M)})
+        elif name.endswith("_profile"):
+            amp = p.pop("amplitude")
+            a = rng.uniform(0.3, 1.0, 4) / np.arange(1, 5)
+            p = {"amplitudes": (amp * a / a.sum()).tolist(), "phases": rng.uniform(0, 2 * np.pi, 4).tolist()}
+            if name == "friction_profile":
+                p["amplitudes"] = [-x for x in p["amplitudes"]]
         hidden[name] = p
     case["effects"] = [[n, dict(p)] for n, p in hidden.items()]
-    data, meta = ind.record(hidden, case["seed"], duration_s, spin=case.get("spin", False))
+    data, meta = ind.record(hidden, case["seed"], duration_s, spin=case.get("spin", False),
+                            s_runs_on=case.get("variant") == "continuous")
+    case["lap_length"] = ind.Loop(case["seed"]).length
     return ind.vehicle_config(), Run(data, meta, f"independent(seed {case['seed']})")
+
+
+def _runs_on(run):
+    """The recording with ``s`` running on over the laps: no lap column, no lap length."""
+    from gprace.io.runs import Run
+
+    L = float(run.meta["track_length"])
+    data = {k: v for k, v in run.data.items() if k != "lap"}
+    s = run["s"]
+    lap = np.concatenate([[0], np.cumsum(np.diff(s) < -0.5 * L)])
+    data["s"] = s + lap * L
+    meta = {k: v for k, v in run.meta.items() if k != "track_length"}
+    return Run(data, meta, run.source)
+
+
+def _true_profile(name: str, p: dict, s: np.ndarray, L: float) -> np.ndarray:
+    """The concealed profile at positions ``s``: catalogue knots/values (gprace source) or the
+    independent source's harmonics."""
+    if "knots" in p:
+        return np.interp(np.mod(s, p["lap_length"]), p["knots"], p["values"], period=p["lap_length"])
+    x = 2 * np.pi * np.asarray(s) / L
+    v = sum(a * np.cos((k + 1) * x + ph) for k, (a, ph) in enumerate(zip(p["amplitudes"], p["phases"])))
+    return (1.0 + v) if name == "friction_profile" else v + p.get("mean", 0.0)
 
 
 def _commonroad_run(case: dict, laps: float):
@@ -164,15 +245,17 @@ def _commonroad_run(case: dict, laps: float):
     from gprace.tracks.loaders import load_track
 
     vehicle = load_vehicle("bmw_320i")
-    run = record(vehicle, load_track(TRACKS / f"{case['track']}.csv"), laps=laps, seed=case["seed"],
-                 plant="commonroad-std")
+    track = load_track(TRACKS / f"{case['track']}.csv")
+    run = record(vehicle, track, laps=laps, seed=case["seed"], plant="commonroad-std")
+    case["lap_length"] = track.length
     data = {k: v.copy() for k, v in run.data.items()}
     for name, p in case["effects"]:
         if name == "gyro_bias":  # the logger's yaw rate carries the offset
             data["yaw_rate"] = data["yaw_rate"] + p["bias"]
         elif name == "steering_offset":  # the car steers command + offset; the log holds the command
             data["delta"] = data["delta"] - p["offset"]
-    return vehicle, Run(data, dict(run.meta), run.source)
+    run = Run(data, dict(run.meta), run.source)
+    return vehicle, (_runs_on(run) if case.get("variant") == "continuous" else run)
 
 
 def run_case(case: dict, laps: float) -> dict:
@@ -193,16 +276,27 @@ def run_case(case: dict, laps: float) -> dict:
         elif case["source"] == "commonroad":
             vehicle, run = _commonroad_run(case, laps)
         else:
-            track = load_track(TRACKS / f"{case['track']}.csv")
+            oval = case["track"] == "tum_banked_oval"
+            track = load_track(FIXTURES / "tum_banked_oval.toml" if oval else TRACKS / f"{case['track']}.csv")
             rng = np.random.default_rng(case["seed"])
             effects = []
             for name, p in case["effects"]:
-                if EFFECTS[name].window:
+                p = dict(p)
+                if "fixture" in p:  # a bank sampled at a few points (tests/data)
+                    sb = np.loadtxt(FIXTURES / p["fixture"], delimiter=",")
+                    p = {"knots": sb[:, 0].tolist(), "values": sb[:, 1].tolist(), "lap_length": float(track.length)}
+                elif EFFECTS[name].window:
                     p.update(_window(rng, track.length))
+                elif getattr(EFFECTS[name], "profile", False):
+                    p = _profile(rng, track.length, name, p["amplitude"])
                 effects.append(EffectConfig(name=name, params=p))
-            case["effects"] = [[e.name, dict(e.params)] for e in effects]
+            case["effects"] = [[e.name, {k: list(v) if isinstance(v, tuple) else v for k, v in e.params.items()}]
+                               for e in effects]
+            case["lap_length"] = track.length
             vehicle = load_vehicle("audi_tt_cup")
-            run = record(vehicle, track, effects, laps=laps, seed=case["seed"], substeps=10)
+            run = record(vehicle, track, effects, laps=max(laps, 4.0) if oval else laps, seed=case["seed"], substeps=10)
+            if case.get("variant") == "continuous":
+                run = _runs_on(run)
     except Exception as exc:
         return {**case, "error": f"recording: {type(exc).__name__}: {exc}"}
     t_rec = time.perf_counter() - t0
@@ -235,10 +329,14 @@ def run_case(case: dict, laps: float) -> dict:
            "exact_or_ambiguous": len(named) == len(truth) and all(
                n in truth or any(t in amb[n] for t in truth) for n in named) and truth <= (
                set(named) | {a for v in amb.values() for a in v})}
-    errs, ious = [], []
+    errs, ious, prof, iou_by = [], [], [], {}
     for name, p in case["effects"]:
         fit = found.get(name)
         if fit is None:
+            continue
+        profile = next((e.get("profile") for e in rep["effects"] if e["name"] == name), None)
+        if profile:
+            prof.append(_profile_score(name, p, profile, case["lap_length"]))
             continue
         for k, v in p.items():
             if k in ("s_start", "s_end", "ramp"):
@@ -251,15 +349,63 @@ def run_case(case: dict, laps: float) -> dict:
             a, b = fit["s_start"], fit["s_end"]
             inter = max(0.0, min(b, p["s_end"]) - max(a, p["s_start"]))
             ious.append(inter / (max(b, p["s_end"]) - min(a, p["s_start"])))
+            iou_by[name] = round(ious[-1], 3)
     row["param_errors"] = [round(e, 4) for e in errs]
     row["iou"] = [round(x, 3) for x in ious]
+    row["profiles"] = prof
+    row["iou_by_effect"] = {n: iou_by.get(n, 0.0) for n, p in case["effects"] if "s_start" in p}  # 0: not named
+    row["notes"] = rep["notes"]
     return row
 
 
+def _profile_score(name: str, truth: dict, fitted: dict, L: float) -> dict:
+    """A recovered profile against the truth at its knots: RMS error relative to the profile's
+    size (largest |truth - neutral|), and the share of knots whose truth lies in the 95 % band."""
+    s = np.asarray(fitted["s"], float)
+    v = np.asarray(fitted["value"], float)
+    lo, hi = np.asarray(fitted["ci95_low"], float), np.asarray(fitted["ci95_high"], float)
+    tv = _true_profile(name, truth, s, L)
+    size = float(np.max(np.abs(tv - (1.0 if name == "friction_profile" else 0.0))))
+    return {"name": name, "relative_rms_error": round(float(np.sqrt(np.mean((v - tv) ** 2)) / max(size, 1e-12)), 4),
+            "rms_error": round(float(np.sqrt(np.mean((v - tv) ** 2))), 5),
+            "coverage_95": round(float(np.mean((tv >= lo) & (tv <= hi))), 3),
+            "median_halfwidth": round(float(np.median(hi - lo) / 2), 5), "knots": len(s), "edf": fitted.get("edf")}
+
+
 def summarise(rows: list[dict]) -> dict:
-    """Per source: the issue-14 table plus precision/recall, parameter errors and the confusion."""
-    return {src: _summary([r for r in rows if r["source"] == src])
-            for src in dict.fromkeys(r["source"] for r in rows)}
+    """Per source (and variant): the issue-14 table plus precision/recall, parameter errors, profile
+    recovery and the confusion; with both variants, how the continuous cases agree with the wrapped."""
+    out = {}
+    for src in dict.fromkeys(r["source"] for r in rows):
+        for var in dict.fromkeys(r.get("variant", "wrapped") for r in rows if r["source"] == src):
+            key = src if var == "wrapped" else f"{src} ({var} s)"
+            out[key] = _summary([r for r in rows if r["source"] == src and r.get("variant", "wrapped") == var])
+    pairs = _agreement(rows)
+    if pairs:
+        out["continuous_agreement"] = pairs
+    return out
+
+
+def _agreement(rows: list[dict]) -> dict:
+    """Per source: continuous cases named as their wrapped twin, and both variants' bank/grade IoU."""
+    key = lambda r: (r["source"], r["kind"], r["seed"], json.dumps(r["effects"], sort_keys=True, default=str))
+    wrapped = {key(r): r for r in rows if r.get("variant", "wrapped") == "wrapped" and "error" not in r}
+    out: dict = {}
+    for r in rows:
+        if r.get("variant") != "continuous" or "error" in r or key(r) not in wrapped:
+            continue
+        w = wrapped[key(r)]
+        d = out.setdefault(r["source"], {"same_names": 0, "cases": 0, "differ": [], "iou_bank_grade": []})
+        d["cases"] += 1
+        same = sorted(r["named"]) == sorted(w["named"])
+        d["same_names"] += same
+        if not same:
+            d["differ"].append({"seed": r["seed"], "truth": [n for n, _ in r["effects"]], "wrapped": w["named"],
+                                "continuous": r["named"]})
+        for n, a in r.get("iou_by_effect", {}).items():
+            if n in ("road_bank", "road_grade"):
+                d["iou_bank_grade"].append({"effect": n, "continuous": a, "wrapped": w.get("iou_by_effect", {}).get(n)})
+    return out
 
 
 def _summary(rows: list[dict]) -> dict:
@@ -275,6 +421,7 @@ def _summary(rows: list[dict]) -> dict:
     ious = [x for r in synth for x in r["iou"]]
     local_ious = [x for r in synth for x, (n, _) in zip(r["iou"], [e for e in r["effects"] if "s_start" in e[1]])
                   if n in ("road_grade", "road_bank")]
+    prof = [p for r in synth for p in r.get("profiles", [])]
     confusion: dict[str, dict[str, int]] = {}
     for r in single:
         t = r["effects"][0][0]
@@ -294,6 +441,7 @@ def _summary(rows: list[dict]) -> dict:
         "window_iou_bank_grade": [round(x, 3) for x in local_ious],
         "mean_window_iou": round(float(np.mean(ious)), 3) if ious else None,
         "min_window_iou": round(float(np.min(ious)), 3) if ious else None,
+        "profiles": [{k: p[k] for k in ("name", "relative_rms_error", "coverage_95", "edf")} for p in prof],
         "confusion": confusion,
         "misses": [{"truth": [n for n, _ in r["effects"]], "named": r["named"], "ambiguous": r["ambiguous"],
                 "calibrated": r.get("calibrated", []),
@@ -333,6 +481,7 @@ def main() -> int:
     ap.add_argument("--quick-gprace", action="store_true", help="--quick for the gprace source only")
     ap.add_argument("--only", default="", help="comma-separated effect names (subset of the cases)")
     ap.add_argument("--kinds", default="single,null,pair", help="comma-separated case kinds to run")
+    ap.add_argument("--variants", default="wrapped", help="wrapped,continuous: s wrapped per lap and/or running on")
     ap.add_argument("--no-timing", action="store_true")
     args = ap.parse_args()
     sources = args.sources.split(",")
@@ -347,6 +496,7 @@ def main() -> int:
         keep = set(args.only.split(","))
         cases = [c for c in cases if {n for n, _ in c["effects"]} & keep or ("null" in keep and not c["effects"])]
     cases = [c for c in cases if c["kind"] in set(args.kinds.split(","))]
+    cases = [{**c, "variant": v} for c in cases for v in args.variants.split(",")]
     load0 = os.getloadavg()
     t0 = time.perf_counter()
     rows = []

@@ -9,13 +9,15 @@ Written apart from gprace's plant, driver and track code (nothing below imports
   integrator (RK4, 10 ms steps, scalar code) with its own Pacejka-like lateral tire fit per axle
   ``F_y = mu F_z sin(C atan(B alpha))``; the concealed effects are coded here from their physical
   description (a rear-axle *traction* friction ellipse, a cosine-tapered bank/grade window,
-  a steering actuator lag ...), not through the catalogue classes;
+  bank, grade and friction varying along the whole lap as a sum of cosine harmonics of the lap
+  position, a steering actuator lag ...), not through the catalogue classes;
 - **driver**: harder than gprace's: a speed profile at 90-97 % of the friction limit, full drive
   on corner exits, braking at 0.8 g, lateral weaving with a random wavelength, coloured command
   noise, and (on request) a provoked spin: a steering jab mid-corner; after the spin the car
   brakes, the logger drops out for 2.5 s and the car rejoins on the centre line;
 - **sensors**: white plus coloured (AR(1), 0.3 s) noise on every channel, time stamps with
-  1.5 ms jitter.
+  1.5 ms jitter; ``s`` wrapped per lap or, on request, running on over the laps (a logger that
+  never resets it), with no lap length in the meta then.
 
 The nominal vehicle (gprace TOML schema, :func:`vehicle_config`) describes this car exactly, except
 the concealed effect.
@@ -96,6 +98,12 @@ def _taper(s: float, a: float, b: float, L: float, edge: float = 3.0) -> float:
     return 1.0
 
 
+def harmonics(amplitudes, phases, s: float, L: float) -> float:
+    """A smooth periodic profile over the lap: ``sum_k a_k cos(2 pi k s / L + phi_k)``, k = 1, 2, ..."""
+    x = 2.0 * math.pi * s / L
+    return sum(a * math.cos((k + 1) * x + p) for k, (a, p) in enumerate(zip(amplitudes, phases)))
+
+
 class Car:
     """Frenet single track. State [vx, vy, r, epsi, ey, s, delta_actual, ax_actual]."""
 
@@ -145,6 +153,10 @@ class Car:
             p = H["friction_patch"]
             w = 1 + (p["factor"] - 1) * _taper(s, p["s_start"], p["s_end"], self.tr.length)
             muf, mur = muf * w, mur * w
+        if "friction_profile" in H:  # grip varying along the lap around 1
+            p = H["friction_profile"]
+            w = 1 + harmonics(p["amplitudes"], p["phases"], s, self.tr.length)
+            muf, mur = muf * w, mur * w
         u = max(vx, self.vmin)
         af = delta - math.atan((vy + self.lf * r) / u)
         ar = -math.atan((vy - self.lr * r) / u)
@@ -160,6 +172,12 @@ class Car:
         if "road_bank" in H:
             p = H["road_bank"]
             bank = p["angle"] * _taper(s, p["s_start"], p["s_end"], self.tr.length)
+        if "road_grade_profile" in H:  # a closed lap: the harmonics climb as much as they fall
+            p = H["road_grade_profile"]
+            grade = harmonics(p["amplitudes"], p["phases"], s, self.tr.length)
+        if "road_bank_profile" in H:
+            p = H["road_bank_profile"]
+            bank = p.get("mean", 0.0) + harmonics(p["amplitudes"], p["phases"], s, self.tr.length)
         k = float(self.tr.kappa(s))
         cd, sd = math.cos(delta), math.sin(delta)
         dvx = ax - (fyf * sd + self.crr * m * G0 + self.cxw * vx * vx) / m - G0 * math.sin(grade) + r * vy
@@ -252,8 +270,9 @@ CORR_S = 0.3
 
 
 def record(hidden: dict[str, dict], seed: int, duration_s: float = 180.0, spin: bool = False,
-           dt: float = 0.05, track_length: float = 2000.0):
-    """One recording as a dict of columns plus meta (lap length)."""
+           dt: float = 0.05, track_length: float = 2000.0, s_runs_on: bool = False):
+    """One recording as a dict of columns plus meta (lap length); with ``s_runs_on`` the logged
+    ``s`` is not wrapped per lap and the meta does not give the lap length."""
     rng = np.random.default_rng(seed)
     tr = Loop(seed, track_length)
     car = Car(hidden, tr)
@@ -310,7 +329,9 @@ def record(hidden: dict[str, dict], seed: int, duration_s: float = 180.0, spin: 
     col = lfilter([math.sqrt(1 - a * a)], [1, -a], rng.standard_normal((m, 6)), axis=0)
     Y = Y + NOISE_WHITE * rng.standard_normal((m, 6)) + NOISE_COLOURED * col
     T = T + rng.normal(0.0, 0.0015, m)
-    s = np.mod(Y[:, 5], tr.length)
+    s = Y[:, 5] if s_runs_on else np.mod(Y[:, 5], tr.length)
     data = {"t": T, "s": s, "e_y": Y[:, 4], "e_psi": Y[:, 3], "v_x": Y[:, 0], "v_y": Y[:, 1], "yaw_rate": Y[:, 2],
             "delta": U[:, 0], "a_x": U[:, 1], "kappa": tr.kappa(s)}
+    if s_runs_on:
+        return data, {"dt": dt, "track": tr.name}
     return data, {"dt": dt, "track_length": tr.length, "track": tr.name}

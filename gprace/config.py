@@ -160,7 +160,8 @@ class EffectConfig(Frozen):
     """
 
     name: str = Field(description="catalogue name, e.g. 'downforce'")
-    params: dict[str, float] = Field(default_factory=dict, description="physical parameters (SI)")
+    params: dict[str, float | tuple[float, ...]] = Field(
+        default_factory=dict, description="physical parameters (SI); lists for a profile's knots and values")
 
     @model_validator(mode="after")
     def _in_catalogue(self) -> "EffectConfig":

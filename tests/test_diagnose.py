@@ -49,7 +49,8 @@ def rec(vehicle, track, effects=(), seed=11, laps=1.6, **kw) -> Run:
 
 
 class LongitudinalRamp(Effect):
-    """Outside the catalogue: a longitudinal force growing linearly along the lap."""
+    """A longitudinal force growing linearly along the lap: position-dependent, so the same as a
+    road grade profile ``asin(a0 (s/L - 1/2) / g)`` (a sawtooth with its jump at the start line)."""
 
     name = "test_longitudinal_ramp"
     description = "F_x = m a0 (s/L - 1/2)"
@@ -60,16 +61,33 @@ class LongitudinalRamp(Effect):
         c.rx = c.rx + c.p.m * self.a0 * (c.s / self.L - 0.5)
 
 
-class LateralRamp(Effect):
-    """Outside the catalogue: a lateral force proportional to s."""
+class Drift(Effect):
+    """Outside the catalogue: a longitudinal force drifting over the run (tyre wear, fuel burn),
+    ``F_x = m a0 (t/T - 1/2)``. It differs from lap to lap at the same place, so no profile along
+    the lap explains held-out laps, and its mean over the run is zero."""
 
-    name = "test_lateral_ramp"
-    description = "F_y = m a0 (s/L - 1/2)"
-    channels = ("v_y",)
-    params = {"a0": ParamSpec(None, -5.0, 5.0, "m/s^2", "slope"), "L": ParamSpec(None, 1.0, 1e5, "m", "lap")}
+    name = "test_drift"
+    description = "F_x = m a0 (t/T - 1/2)"
+    channels = ("v_x",)
+    params = {"a0": ParamSpec(None, -5.0, 5.0, "m/s^2", "drift over the run"), "T": ParamSpec(None, 1.0, 1e5, "s", "run")}
+    n_states = 1  # the time since the start
+
+    def derivative(self, c):
+        return [1.0 + 0.0 * c.vx]
 
     def forces(self, c):
-        c.f_lat = c.f_lat + c.p.m * self.a0 * (c.s / self.L - 0.5)
+        c.rx = c.rx + c.p.m * self.a0 * (c.z[self.z0] / self.T - 0.5)
+
+
+class LateralDrift(Drift):
+    """Outside the catalogue: the same drift as a lateral force."""
+
+    name = "test_lateral_drift"
+    description = "F_y = m a0 (t/T - 1/2)"
+    channels = ("v_y",)
+
+    def forces(self, c):
+        c.f_lat = c.f_lat + c.p.m * self.a0 * (c.z[self.z0] / self.T - 0.5)
 
 
 # ------------------------------------------------------------------------------------------
@@ -250,13 +268,29 @@ def test_concealed_downforce_named_with_interval_and_channels(vehicle, track):
 
 
 def test_effect_outside_catalogue_is_unexplained_and_located(vehicle, track):
-    eff = LongitudinalRamp(a0=1.0, L=track.length)
+    eff = Drift(a0=1.0, T=130.0)
     rep = diagnose([rec(vehicle, track, [eff], seed=3)], vehicle).report
     assert rep["verdict"] == "mismatch"
-    assert rep["effects"] == []  # never forced onto a wrong name (road_grade fits it partly)
+    assert rep["effects"] == []  # never forced onto a wrong name (a grade window or profile fits it partly)
     assert "v_x" in rep["unexplained"] and rep["unexplained"]["v_x"] > 0.03
     assert any(r["channel"] == "v_x" for r in rep["regions"])
-    assert any("not named" in n for n in rep["notes"])
+
+
+@pytest.mark.slow
+def test_position_dependent_force_is_a_grade_profile(vehicle, track):
+    """A longitudinal force that depends on the lap position alone is what a grade is: named as
+    a grade profile, which follows the ramp's equivalent grade away from its jump at the start line
+    (the profile is smooth there)."""
+    eff = LongitudinalRamp(a0=1.0, L=track.length)
+    rep = diagnose([rec(vehicle, track, [eff], seed=3)], vehicle).report
+    assert [e["name"] for e in rep["effects"]] == ["road_grade_profile"], rep["effects"]
+    p = rep["effects"][0]["profile"]
+    s, v = np.array(p["s"]), np.array(p["value"])
+    truth = np.arcsin((s / track.length - 0.5) / 9.81)
+    away = (s > 0.15 * track.length) & (s < 0.85 * track.length)
+    assert np.sqrt(np.mean((v - truth)[away] ** 2)) < 0.15 * 0.051
+    inside = (truth >= np.array(p["ci95_low"])) & (truth <= np.array(p["ci95_high"]))
+    assert np.mean(inside[away]) > 0.7
 
 
 # ------------------------------------------------------------------------------------------
@@ -358,7 +392,7 @@ def test_concealed_effect_recovered(vehicle, track, name, params, key):
 
 @pytest.mark.slow
 def test_lateral_effect_outside_catalogue_is_unexplained(vehicle, track):
-    eff = LateralRamp(a0=1.0, L=track.length)
+    eff = LateralDrift(a0=1.0, T=160.0)
     rep = diagnose([rec(vehicle, track, [eff], seed=4, laps=2.0)], vehicle).report
     assert rep["effects"] == [] and "v_y" in rep["unexplained"]
     assert any(r["channel"] == "v_y" for r in rep["regions"])

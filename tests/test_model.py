@@ -134,6 +134,8 @@ CHANNELS = {
     "steering_lag": ("v_y", "yaw_rate"), "steering_offset": ("v_y", "yaw_rate"),
     "drivetrain_lag": ("v_x",), "yaw_inertia": ("yaw_rate",), "friction_patch": ("v_y", "yaw_rate"),
     "gyro_bias": ("yaw_rate",), "velocity_misalignment": ("v_y",),
+    # issue 36: the same physics as the windows, varying along the lap
+    "road_bank_profile": ("v_y",), "road_grade_profile": ("v_x",), "friction_profile": ("v_y", "yaw_rate"),
 }  # DESIGN.md section 3
 
 PARAMS = {
@@ -145,6 +147,9 @@ PARAMS = {
     "steering_offset": {"offset": 0.01}, "drivetrain_lag": {"tau": 0.2}, "yaw_inertia": {"factor": 1.5},
     "friction_patch": {"factor": 0.7, "s_start": 100.0, "s_end": 140.0}, "gyro_bias": {"bias": 0.02},
     "velocity_misalignment": {"angle": 0.01},
+    "road_bank_profile": {"knots": [0.0, 100.0, 150.0], "values": [0.0, 0.05, 0.02], "lap_length": 200.0},
+    "road_grade_profile": {"knots": [0.0, 100.0, 150.0], "values": [0.0, 0.05, -0.05], "lap_length": 200.0},
+    "friction_profile": {"knots": [0.0, 100.0, 150.0], "values": [1.0, 0.7, 0.9], "lap_length": 200.0},
 }
 
 # near-zero steering so that lateral forces leak into v_x only through F_yf sin(delta) ~ 1 %

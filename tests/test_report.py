@@ -283,7 +283,8 @@ def test_report_diagnosis_only_without_residuals(tmp_path):
     html = out.read_text()
     assert "residual-along-track plot not drawn" in html
     assert 'data-section="timetrial"' not in html
-    assert len(_data_uri_images(html)) == 2
+    # channels, parameters, and the road grade window along the lap (drawn from the effects alone)
+    assert len(_data_uri_images(html)) == 3
 
 
 def test_h2h_only_report(tmp_path):

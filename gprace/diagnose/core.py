@@ -300,6 +300,9 @@ def _subset(model: NominalModel, idx: np.ndarray, m: int) -> NominalModel:
     for e in model.effects:
         e2 = copy.copy(e)
         e2.values = {k: cut(v) for k, v in e.values.items()}
+        for k, v in vars(e).items():  # per-window state of a fitting device (a batched profile's sets)
+            if k != "values":
+                setattr(e2, k, cut(v))
         effects.append(e2)
     out.effects = effects
     return out

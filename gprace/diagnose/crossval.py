@@ -48,8 +48,12 @@ class Block:
 
 
 def effect_block(fit, data) -> Block:
-    """The block of a fitted effect (:class:`gprace.diagnose.name.Fit`)."""
+    """The block of a fitted effect (:class:`gprace.diagnose.name.Fit`); a profile as a block with
+    nothing free (held at its own fit: its smoothing is chosen inside its fit)."""
     from gprace.diagnose import name as nm
+
+    if fit.profile is not None:
+        return Block(fit.name, (), fit.values(), np.zeros(0), np.zeros(0), np.zeros(0), 1e-3)
 
     lo, hi = nm._bounds(fit.name, fit.free, data)
     step = 1e-3 if any(k.startswith("s_") for k in fit.free) else float(np.sqrt(np.finfo(float).eps))

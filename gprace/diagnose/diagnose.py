@@ -37,6 +37,8 @@ from scipy.stats import norm
 from gprace.config import EffectConfig, VehicleConfig
 from gprace.diagnose import calibrate as cal, core, crossval as cv_, locate, name as nm, screen as scr
 from gprace.diagnose.core import CHANNELS, DYNAMIC, TESTED
+from gprace.diagnose.laps import wrap_runs
+from gprace.diagnose.profiles import leading, window_or_profile
 from gprace.diagnose.result import DiagnosisResult, residual_profile
 from gprace.errors import InputError
 from gprace.io.envelope import EnvelopeReport, envelope
@@ -93,6 +95,7 @@ class Prepared:
     starts: np.ndarray
     H: int
     envelopes: tuple[EnvelopeReport, ...]
+    notes: tuple[str, ...] = ()  # laps recognised in recordings whose s runs on (gprace.diagnose.laps)
 
 
 @dataclass(frozen=True)
@@ -207,8 +210,10 @@ class Calibrated:
 
 
 def prepare(runs: list[Run], H: int, wheelbase: float | None = None) -> Prepared:
-    """Cut every recording to the model's envelope (judged on the scale of the car: its
-    ``wheelbase``), stack them, list the gap-free windows."""
+    """Wrap s per lap where it runs on (:func:`gprace.diagnose.laps.wrap_runs`), cut every
+    recording to the model's envelope (judged on the scale of the car: its ``wheelbase``), stack
+    them, list the gap-free windows."""
+    runs, lap_notes = wrap_runs(runs)
     kept, envs = [], []
     for r in runs:
         mask, rep = envelope(r.data, r.source, wheelbase)
@@ -223,7 +228,7 @@ def prepare(runs: list[Run], H: int, wheelbase: float | None = None) -> Prepared
     starts = data.windows(H)
     if len(starts) < MIN_WINDOWS:
         raise InputError(f"{data.sources[0]}: only {len(starts)} gap-free {H}-step windows; need {MIN_WINDOWS}")
-    return Prepared(data, starts, H, tuple(envs))
+    return Prepared(data, starts, H, tuple(envs), tuple(lap_notes))
 
 
 def evaluate(p: Prepared, model: NominalModel, sigma: np.ndarray, seed: int, sub: int = 2,
@@ -324,7 +329,8 @@ def recalibrate(c: Calibrated, ctx: Ctx, named: Named, nominal: VehicleConfig) -
     blocks = [cv_.calibration_block(c.fit.params, c.fit.x, lo, hi)]
     blocks += [cv_.effect_block(e.fit, prob.data) for e in named.effects]
     blocks = cv_.joint_fit(prob, blocks, ctx.fit_w, max_nfev=JOINT_NFEV)
-    effects = tuple(replace(e, fit=replace(e.fit, x=b.x)) for e, b in zip(named.effects, blocks[1:]))
+    effects = tuple(e if e.fit.profile is not None else replace(e, fit=replace(e.fit, x=b.x))
+                    for e, b in zip(named.effects, blocks[1:]))  # a profile is held at its own fit
     prob = replace(prob, base=[e.fit.effect() for e in effects])
     f = cal.covariance(prob, cal.fit(prob, c.fit.params, blocks[0].x, lo, hi, ctx.fit_w, max_nfev=5), lo, hi)
     f.dropped = c.fit.dropped
@@ -499,6 +505,8 @@ def _joint_with_calibration(prob: nm.Problem, c: Calibrated, top: list, cv: dict
     lo, hi = cal.bounds(prob.vehicle, c.fit.params, cal.v_top(prob.data))
     joint = {}
     for f in sorted(top, key=lambda g: cv[g.name].mean())[:JOINT_TOP]:
+        if f.profile is not None:  # a profile keeps its own fit (its smoothing is chosen inside it)
+            continue
         blocks = [cv_.calibration_block(c.fit.params, c.fit.x, lo, hi), cv_.effect_block(f, prob.data)]
         blocks = cv_.joint_fit(prob, blocks, ctx.fit_w, max_nfev=JOINT_ROUND_NFEV)
         lj = cv_.cv_losses(prob, blocks, ctx.eval_w, ctx.fold)
@@ -530,19 +538,24 @@ def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_stru
              and n not in ctx.skip and {CHANNELS.index(ch) for ch in EFFECTS[n].channels} & dyn_struct]
     log(f"diagnose: round {rnd + 1}: screening {len(names)} candidate effects")
     cands = []
-    for n in names:  # one linearised step from every starting point, on the screening windows
-        inits = nm.starts_for(n, loc.windows)
-        f = cv_.prescreen(prob, n, ctx.screen_w, inits) if inits else None
+    for n in names:  # one linearised step from every starting point (a profile: a few penalised
+        inits = nm.starts_for(n, loc.windows)  # Gauss-Newton iterations), on the screening windows
+        if not inits:
+            continue
+        f = (nm.fit_effect(prob, n, ctx.screen_w, inits, max_nfev=nm.PRESCREEN_NFEV) if EFFECTS[n].profile
+             else cv_.prescreen(prob, n, ctx.screen_w, inits))
         if f is not None:
             cands.append(f)
     if not cands:
         return None, {}, []
     cands.sort(key=lambda f: f.cost)
     # only the most promising continue to the full screening fit, warm-started
-    cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV) for f in cands[:PRESCREEN_KEEP]),
+    # (a window and its profile share one slot: profiles.leading)
+    cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV) for f in leading(cands, PRESCREEN_KEEP)),
                    key=lambda f: f.cost)
-    top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in cands[: nm.SCREEN_TOP]]
-    cv = {f.name: cv_.cv_losses(prob, [cv_.effect_block(f, prob.data)], ctx.eval_w, ctx.fold) for f in top}
+    top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in leading(cands, nm.SCREEN_TOP)]
+    cv = {f.name: _cv_channels(replace(ctx, prob=prob), [f]) for f in top}
+    top = window_or_profile(top, cv, ctx.bid)  # parsimony: the window unless the profile is better
     return min(top, key=lambda f: cv[f.name].mean()), cv, top
 
 
@@ -576,6 +589,9 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
         ok, where, t = _significant(ctx, l_wo, l_all)
         if not ok:
             drop = effects.pop(i)
+            # the others were fitted beside it: refit them without it (a profile named next to
+            # its window lacks what the window explained)
+            effects = _refit_each(ctx, effects)
             shared = set(drop.channels)
             effects = [replace(e, ambiguous_with=tuple(dict.fromkeys(e.ambiguous_with + (drop.name,))))
                        if shared & set(e.channels) else e for e in effects]
@@ -631,6 +647,8 @@ def _diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int, seed: in
     log = log or (lambda s: None)
     p = prepare(runs, int(horizon), vehicle.wheelbase)
     data = p.data
+    for note in p.notes:
+        log(f"diagnose: {note}")
     for env in p.envelopes:
         if env.excluded:
             log(f"diagnose: {env.note()}")
@@ -663,7 +681,7 @@ def _diagnose(runs: list[Run], vehicle: VehicleConfig, *, horizon: int, seed: in
     effects = ver.modelled if mismatch else ()
     base = c.vehicle if mismatch else vehicle
     aug_vehicle = base.model_copy(update={"effects": tuple(vehicle.effects) + tuple(
-        EffectConfig(name=e.name, params={k: float(v) for k, v in e.fit.values().items()}) for e in effects)})
+        EffectConfig(name=e.name, params=e.fit.config_params()) for e in effects)})
     return Diagnosis(result, aug_vehicle)
 
 
@@ -718,7 +736,7 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
     def effect_json(e: NamedEffect) -> dict[str, Any]:
         spec = EFFECTS[e.name].params
         params = {}
-        for k, v in e.fit.values().items():
+        for k, v in e.fit.scalars().items():
             if k in nm.FIXED:
                 continue
             lo, hi = e.fit.ci.get(k, (float("nan"), float("nan")))
@@ -726,7 +744,7 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
         return {"name": e.name, "parameters": params, "channels": e.channels,
                 "heldout_rmse_before": e.heldout_before, "heldout_rmse_after": e.heldout_after,
                 "improvement": round(e.improvement, 4), "ambiguous_with": list(e.ambiguous_with),
-                "significant_where": e.where}
+                "significant_where": e.where, "profile": e.fit.profile_json()}
 
     eff_json = [effect_json(e) for e in effects]
     partial_json = [effect_json(e) for e in (ver.partial if verdict == "mismatch" else ())]
@@ -746,7 +764,7 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
     tot0 = float(sum(ex0[i] / nom.stats[i].rmse_twin**2 for i in range(3)))
     tot1 = float(sum(ex1[i] / aug.stats[i].rmse_twin**2 for i in range(3)))
     explained = (1.0 - tot1 / tot0) if tot0 > 0 else 0.0
-    notes = [env.note() for env in p.envelopes if env.excluded] + list(ver.notes)
+    notes = list(p.notes) + [env.note() for env in p.envelopes if env.excluded] + list(ver.notes)
     if s.not_identifiable:
         notes.append("not identifiable from these recordings: " + "; ".join(
             f"{e} ({why})" for e, why in s.not_identifiable.items()))
@@ -828,6 +846,21 @@ def excitation(data: core.Dataset, wheelbase: float | None = None) -> dict[str, 
     if not combined:
         for e in ("load_transfer", "combined_slip"):
             out.setdefault(e, "no braking or drive while cornering: longitudinal-lateral coupling is invisible")
+    for n, cls in EFFECTS.items():  # a profile is as visible as its window
+        if cls.profile and cls.window_of in out:
+            out.setdefault(n, out[cls.window_of])
+    return out
+
+
+def _refit_each(ctx: Ctx, effects: list[NamedEffect]) -> list[NamedEffect]:
+    """Each effect refitted with the others fixed, its intervals again (after one was dropped)."""
+    rest = [e.fit for e in effects]
+    out = []
+    for j, e in enumerate(effects):
+        prob = _with_base(ctx.prob, rest, j)
+        g = nm.refit(prob, e.fit, ctx.fit_w, max_nfev=30)
+        g.ci = nm.interval95(prob, g, ctx.fit_w)
+        out.append(replace(e, fit=g))
     return out
 
 
@@ -883,8 +916,21 @@ def _heldout_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
 
 
 def _cv_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
-    """Every effect refitted jointly without each fold (one linearised step, :mod:`crossval`)."""
-    return cv_.cv_losses(ctx.prob, [cv_.effect_block(f, ctx.prob.data) for f in fits], ctx.eval_w, ctx.fold)
+    """Every effect refitted jointly without each fold (one linearised step, :mod:`crossval`);
+    with a profile among them, each refitted in turn by its own fit (a profile's smoothing is
+    chosen inside its fit, not a block of the linearised step)."""
+    prob, eval_w, fold = ctx.prob, ctx.eval_w, ctx.fold
+    if not any(f.profile is not None for f in fits):
+        return cv_.cv_losses(prob, [cv_.effect_block(f, prob.data) for f in fits], eval_w, fold)
+    out = np.empty((len(eval_w), 3))
+    for fo in np.unique(fold):
+        tr = eval_w[fold != fo][:: max(1, len(eval_w) // 400)]
+        te = fold == fo
+        fs = list(fits)
+        for i, f in enumerate(fs):
+            fs[i] = nm.refit(_with_base(prob, fs, i), f, tr, max_nfev=10)
+        out[te] = np.mean(prob.residuals(prob.model([f.effect() for f in fs]), eval_w[te]) ** 2, axis=1)
+    return out
 
 
 def _heldout(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:

@@ -21,9 +21,11 @@ overlapping windows make the residuals correlated.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
+from gprace.diagnose import profiles
 from gprace.diagnose.core import DYNAMIC, Dataset, errors, lag_states, predict
 from gprace.diagnose.locate import blocks
 from gprace.model import EFFECTS, NominalModel, State
@@ -73,11 +75,33 @@ class Fit:
     res: np.ndarray | None = None
     ci: dict = field(default_factory=dict)
     win: np.ndarray | None = None  # windows the Jacobian and residuals belong to
+    profile: Any = None  # a profile effect's basis, smoothing and band (profiles.ProfileFit)
 
-    def values(self) -> dict[str, float]:
+    def values(self) -> dict[str, Any]:
+        """The effect's parameters (a profile: its knots, values and lap length as lists)."""
+        if self.profile is not None:
+            pf = self.profile
+            spec = EFFECTS[self.name].params["values"]
+            return {"knots": pf.basis.knots.tolist(),
+                    "values": np.clip(pf.neutral + self.x, spec.lower, spec.upper).tolist(),
+                    "lap_length": float(pf.basis.L)}
         v = dict(self.fixed)
         v.update({k: float(x) for k, x in zip(self.free, self.x)})
         return v
+
+    def scalars(self) -> dict[str, float]:
+        """The scalar parameters (reported with intervals); none for a profile."""
+        return {} if self.profile is not None else self.values()
+
+    def config_params(self) -> dict[str, Any]:
+        """The parameters as an effect's ``params`` in a vehicle TOML."""
+        return {k: tuple(float(x) for x in v) if isinstance(v, list) else float(v) for k, v in self.values().items()}
+
+    def profile_json(self) -> dict[str, Any] | None:
+        """A profile's knots, values and pointwise 95 % interval for the JSON; None for other effects."""
+        if self.profile is None:
+            return None
+        return profiles.to_json(self, EFFECTS[self.name].params["values"].unit)
 
     def effect(self):
         return EFFECTS[self.name](**self.values())
@@ -135,14 +159,23 @@ def free_params(name: str) -> list[str]:
     return [k for k in EFFECTS[name].params if k not in FIXED]
 
 
+def lap_bounds(data: Dataset) -> tuple[float, float]:
+    """Where a window may lie: inside the lap ``[0, L]`` when the recordings have laps (a window
+    never reaches beyond the lap length), else within the recorded stretch of ``s``."""
+    if np.all(np.isfinite(data.L)):
+        return 0.0, float(np.max(data.L))
+    s = data.Y[:, State.S]
+    return float(np.nanmin(s)) - 5.0, float(np.nanmax(s)) + 5.0
+
+
 def _bounds(name: str, free: list[str], data: Dataset):
     cls = EFFECTS[name]
     lo, hi = [], []
-    smax = float(np.nanmax(data.Y[:, State.S])) + 1.0
+    s_lo, s_hi = lap_bounds(data)
     for k in free:
         spec = cls.params[k]
         if k in ("s_start", "s_end"):
-            lo.append(-5.0), hi.append(smax + 5.0)
+            lo.append(s_lo), hi.append(s_hi)
         elif k == "tau":  # lags far below the sample period are not identifiable (and stiff)
             lo.append(max(spec.lower, 0.01)), hi.append(spec.upper)
         else:
@@ -154,9 +187,11 @@ def starts_for(name: str, regions: dict[int, list[tuple[float, float]]]) -> list
     cls = EFFECTS[name]
     base = {}
     for k, spec in cls.params.items():
-        if k in FIXED:
+        if k in FIXED or cls.profile:
             continue
         base[k] = START.get((name, k), spec.default if spec.default is not None else 0.0)
+    if cls.profile:  # one start: no effect anywhere on the lap
+        return [{}]
     if not cls.window:
         return [base]
     out = []
@@ -180,9 +215,14 @@ def starts_for(name: str, regions: dict[int, list[tuple[float, float]]]) -> list
 
 def fit_effect(prob: Problem, name: str, starts: np.ndarray, inits: list[dict[str, float]],
                max_nfev: int = 40) -> Fit | None:
-    """Bounded least squares of one effect's parameters (best over the starting points)."""
+    """Bounded least squares of one effect's parameters (best over the starting points); a
+    profile effect by penalised Gauss-Newton (:func:`gprace.diagnose.profiles.fit_profile`, one
+    iteration per 10 evaluations allowed, smoothing chosen by cross-validation)."""
     from scipy.optimize import least_squares
 
+    if EFFECTS[name].profile:
+        v0 = next((i["values"] for i in inits if "values" in i), None)
+        return profiles.fit_profile(prob, name, starts, v0, iterations=_iterations(max_nfev))
     free = free_params(name)
     fixed = {k: EFFECTS[name].params[k].default for k in EFFECTS[name].params if k in FIXED}
     lo, hi = _bounds(name, free, prob.data)
@@ -238,8 +278,10 @@ def fit_effect(prob: Problem, name: str, starts: np.ndarray, inits: list[dict[st
                 continue
             # edges stay where the selected windows can see them
             i0, i1 = free.index("s_start"), free.index("s_end")
-            lo[i0], hi[i0] = a - NEAR_MARGIN, max(a + 1.0, 0.5 * (a + b))
-            lo[i1], hi[i1] = min(b - 1.0, 0.5 * (a + b) + 1.0), b + NEAR_MARGIN
+            lo[i0], hi[i0] = max(a - NEAR_MARGIN, lo_all[i0]), min(max(a + 1.0, 0.5 * (a + b)), hi_all[i0])
+            lo[i1], hi[i1] = max(min(b - 1.0, 0.5 * (a + b) + 1.0), lo_all[i1]), min(b + NEAR_MARGIN, hi_all[i1])
+            if lo[i0] >= hi[i0] or lo[i1] >= hi[i1]:  # the region lies outside the lap
+                continue
         x0 = np.clip(np.array([init[k] for k in free], dtype=float), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         try:
             sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=xs, method="trf", max_nfev=max_nfev)
@@ -269,11 +311,24 @@ def _near(prob: Problem, starts: np.ndarray, a: float, b: float, margin: float =
 
 
 def refit(prob: Problem, fit: Fit, starts: np.ndarray, max_nfev: int = 20) -> Fit:
+    """The fit again on ``starts``, warm-started; a profile keeps its smoothing in a
+    cross-validation fold (``max_nfev <= 10``) and chooses it again otherwise."""
+    if fit.profile is not None:
+        return profiles.refit(prob, fit, starts, iterations=_iterations(max_nfev), keep_smoothing=max_nfev <= 10)
     return fit_effect(prob, fit.name, starts, [fit.values()], max_nfev=max_nfev) or fit
 
 
+def _iterations(max_nfev: int) -> int:
+    """Gauss-Newton iterations of a profile fit for an evaluation budget meant for a few scalars."""
+    return int(np.clip(max_nfev // 10, 1, 3))
+
+
 def interval95(prob: Problem, fit: Fit, starts: np.ndarray) -> dict[str, tuple[float, float]]:
-    """95% intervals from the fit's Jacobian, cluster-robust over ~2 s blocks of windows."""
+    """95% intervals from the fit's Jacobian, cluster-robust over ~2 s blocks of windows (a
+    profile: its pointwise band, stored on ``fit.profile``; no scalar intervals)."""
+    if fit.profile is not None:
+        profiles.interval(prob, fit, starts)
+        return {}
     J, r = fit.jac, fit.res
     if J is None or r is None:
         return {}

@@ -124,6 +124,10 @@ def _effect_lines(e: Effect) -> list[str]:
     for k, p in e.parameters.items():
         lo, hi = p.ci95
         out.append(f"      {k} = {p.value:.4g} {p.unit}  (95% [{lo:.4g}, {hi:.4g}])")
+    if e.profile is not None:
+        from gprace.report.sections.diagnosis import profile_text
+
+        out.append(f"      {profile_text(e)}")
     return out
 
 
@@ -142,7 +146,7 @@ def plot_residuals(res, path: str | Path) -> Path:
     effects = ", ".join(e.name for e in r.effects) or "none"
     fig = fig_residual_track(prof.s, prof.before, prof.after, [g.model_dump() for g in r.regions],
                              f"multi-step ({r.horizon} steps) prediction error along the track; effects: {effects}",
-                             noise=prof.noise)
+                             noise=prof.noise, effects=[e.model_dump() for e in r.effects])
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)  # like -o: check_output vetted the folder at the start
     return write_png(fig, path, dpi=110)

@@ -97,6 +97,28 @@ class Parameter(Frozen):
     unit: str = Field("", description="unit of the value")
 
 
+class EffectProfile(Frozen):
+    """A profile effect's values along the lap (road_bank_profile, road_grade_profile,
+    friction_profile): linear between knots, periodic over the lap."""
+
+    s: list[Num] = Field(description="knot positions along the lap [m]")
+    value: list[Num] = Field(description="value at each knot (unit below)")
+    ci95_low: list[Num] = Field(description="pointwise 95 % interval, lower end")
+    ci95_high: list[Num] = Field(description="pointwise 95 % interval, upper end")
+    unit: str = Field("", description="unit of the values")
+    lap_length: Num = Field(description="period of the profile [m]")
+    smoothing: Num = Field(NAN, description="roughness penalty chosen by cross-validation (relative to the data)")
+    edf: Num | None = Field(None, description="effective degrees of freedom of the fitted profile")
+
+    @model_validator(mode="after")
+    def _one_value_per_knot(self) -> "EffectProfile":
+        n = len(self.s)
+        for key in ("value", "ci95_low", "ci95_high"):
+            if len(getattr(self, key)) != n:
+                raise ValueError(f"profile.{key} has {len(getattr(self, key))} values for {n} knots")
+        return self
+
+
 class Effect(Frozen):
     """A catalogue effect the diagnosis named, fitted and verified."""
 
@@ -110,6 +132,15 @@ class Effect(Frozen):
     improvement: Num = Field(NAN, description="relative held-out RMSE reduction when it was added")
     ambiguous_with: list[str] = Field(default_factory=list, description="effects that fit about as well")
     significant_where: str = Field("all windows", description="where its held-out gain was significant")
+    profile: EffectProfile | None = Field(None, description="profile effects only: the values along the lap")
+
+    @model_serializer(mode="wrap")
+    def _drop_absent(self, handler):
+        """Effects without a profile keep the JSON they had before profiles existed."""
+        out = handler(self)
+        if out.get("profile") is None:
+            out.pop("profile", None)
+        return out
 
 
 class CalibratedParameter(Frozen):

@@ -10,6 +10,14 @@ Parameter conventions: every parameter has a default that means "no effect" wher
 bounds used by fitting, a unit and a description. Window effects (``road_grade``, ``road_bank``,
 ``friction_patch``) act over ``s_start <= s <= s_end`` with smooth logistic edges of width
 ``ramp`` (so they are differentiable for fitting); windows do not wrap over the start line.
+
+Profile effects (``road_bank_profile``, ``road_grade_profile``, ``friction_profile``) are the same
+physics as the windows, varying along the whole lap: the quantity is given at ``knots`` (track
+position [m]) by ``values`` and interpolated linearly between them, periodically over
+``lap_length`` (``lap_length = 0``: an open track, the end values held beyond the ends). Knots and
+values are lists in TOML (``knots = [0.0, 12.5, ...]``), so the profile that ``gprace diagnose``
+fitted is evaluated again exactly by the ``frenet`` plant and by :class:`~gprace.model.NominalModel`
+(numpy and CasADi).
 """
 
 from __future__ import annotations
@@ -44,6 +52,7 @@ class Effect:
     params: ClassVar[dict[str, ParamSpec]]
     n_states: ClassVar[int] = 0
     window: ClassVar[bool] = False
+    profile: ClassVar[bool] = False
 
     def __init__(self, **values: Any) -> None:
         unknown = set(values) - set(self.params)
@@ -61,12 +70,16 @@ class Effect:
             else:
                 self.values[k] = spec.default
         for k, v in self.values.items():
-            if isinstance(v, (int, float)):
-                spec = self.params[k]
-                if not (spec.lower <= v <= spec.upper):
-                    raise ConfigError(
-                        f"effect {self.name!r}: {k} = {v} outside [{spec.lower}, {spec.upper}] {spec.unit}"
-                    )
+            spec = self.params[k]
+            if isinstance(v, (list, tuple)):  # a list parameter (a profile's knots and values)
+                bad = [x for x in v if not (spec.lower <= x <= spec.upper)]
+                if bad:
+                    raise ConfigError(f"effect {self.name!r}: {k} has {bad[0]} outside "
+                                      f"[{spec.lower}, {spec.upper}] {spec.unit}")
+            elif isinstance(v, (int, float)) and not (spec.lower <= v <= spec.upper):
+                raise ConfigError(
+                    f"effect {self.name!r}: {k} = {v} outside [{spec.lower}, {spec.upper}] {spec.unit}"
+                )
         self.z0 = 0  # index of this effect's first state inside the effect-state block
 
     def __getattr__(self, item: str) -> Any:
@@ -81,7 +94,9 @@ class Effect:
     def config(self) -> "EffectConfig":
         from gprace.config import EffectConfig
 
-        return EffectConfig(name=self.name, params={k: float(v) for k, v in self.values.items()})
+        return EffectConfig(name=self.name, params={
+            k: tuple(float(x) for x in v) if isinstance(v, (list, tuple, np.ndarray)) else float(v)
+            for k, v in self.values.items()})
 
     # stage hooks (no-ops by default) ---------------------------------------------------------
     def inputs(self, c: SimpleNamespace) -> None: ...
@@ -385,3 +400,96 @@ class VelocityMisalignment(Effect):
         y["v_x"] = vx * ca - vy * sa
         y["v_y"] = vy * ca + vx * sa
 
+# --------------------------------------------------------------------------------------------
+# effects that vary along the lap (profiles)
+
+
+_PROFILE = {
+    "knots": ParamSpec(None, 0.0, 1e6, "m", "track positions of the profile's knots (strictly increasing)"),
+    "lap_length": ParamSpec(0.0, 0.0, 1e6, "m", "period of the profile (the lap length); 0: an open track, "
+                            "the end values held beyond the end knots"),
+}
+
+
+class ProfileEffect(Effect):
+    """Base of the profile effects: a quantity given at ``knots`` by ``values``, linear in between
+    and periodic over ``lap_length``. Subclasses set ``params["values"]`` (unit and bounds of the
+    quantity), ``window_of`` (the window effect with the same physics) and apply :meth:`value`."""
+
+    profile = True
+    window_of: ClassVar[str]
+
+    def __init__(self, **values: Any) -> None:
+        super().__init__(**values)
+        k = np.asarray(self.values["knots"], dtype=float)
+        v = np.asarray(self.values["values"], dtype=float)
+        L = float(self.values["lap_length"])
+        if k.ndim != 1 or k.shape != v.shape or len(k) < 2:
+            raise ConfigError(f"effect {self.name!r}: knots and values must be lists of the same length "
+                              f"(at least 2); got {k.size} knots and {v.size} values")
+        if np.any(np.diff(k) <= 0):
+            raise ConfigError(f"effect {self.name!r}: knots must be strictly increasing")
+        if L > 0 and k[-1] >= L:
+            raise ConfigError(f"effect {self.name!r}: knot at s = {k[-1]:g} m is not inside the lap "
+                              f"(lap_length {L:g} m)")
+        self._knots, self._vals, self._period = k, v, L
+        self._lookup = None  # CasADi interpolant, built on first symbolic use
+
+    def value(self, c: SimpleNamespace) -> Any:
+        """The profile at the car's position ``c.s`` (numpy arrays or a CasADi expression)."""
+        k, v, L = self._knots, self._vals, self._period
+        if c.ops.name == "numpy":
+            if L > 0:
+                return np.interp(np.mod(c.s, L), k, v, period=L)
+            return np.interp(c.s, k, v)
+        import casadi as ca
+
+        if self._lookup is None:
+            if L > 0:  # one knot more on each side: the interpolation wraps like np.interp's period
+                grid = np.concatenate([[k[-1] - L], k, [k[0] + L]])
+                vals = np.concatenate([[v[-1]], v, [v[0]]])
+            else:
+                grid, vals = k, v
+            self._lookup = ca.interpolant(f"{self.name}_lookup", "linear", [grid.tolist()], vals.tolist())
+        if L > 0:
+            return self._lookup(ca.fmod(ca.fmod(c.s, L) + L, L))
+        return self._lookup(ca.fmin(ca.fmax(c.s, float(k[0])), float(k[-1])))
+
+
+@effect
+class RoadBankProfile(ProfileEffect):
+    name = "road_bank_profile"
+    description = "bank angle varying along the lap (positive: left edge higher, pushes the car right)"
+    channels = ("v_y",)
+    params = {"values": ParamSpec(None, -0.6, 0.6, "rad", "bank angle at each knot (positive: left side higher)"),
+              **_PROFILE}
+    window_of = "road_bank"
+
+    def forces(self, c):
+        c.f_lat = c.f_lat - c.p.m * c.p.g * c.ops.sin(self.value(c))
+
+
+@effect
+class RoadGradeProfile(ProfileEffect):
+    name = "road_grade_profile"
+    description = "road slope varying along the lap (positive uphill)"
+    channels = ("v_x",)
+    params = {"values": ParamSpec(None, -0.3, 0.3, "rad", "slope angle at each knot (positive uphill)"), **_PROFILE}
+    window_of = "road_grade"
+
+    def forces(self, c):
+        c.grade = c.grade + self.value(c)
+
+
+@effect
+class FrictionProfile(ProfileEffect):
+    name = "friction_profile"
+    description = "friction factor on mu of both axles varying along the lap"
+    channels = ("v_y", "yaw_rate")
+    params = {"values": ParamSpec(None, 0.1, 1.5, "-", "friction factor at each knot"), **_PROFILE}
+    window_of = "friction_patch"
+
+    def tire(self, c):
+        f = self.value(c)
+        c.mu_f = c.mu_f * f
+        c.mu_r = c.mu_r * f

@@ -419,11 +419,17 @@ def fig_race(track, ego: np.ndarray, opp: np.ndarray, border_ego: np.ndarray | N
 # diagnosis
 def fig_residual_track(s: np.ndarray, before: Mapping[str, np.ndarray], after: Mapping[str, np.ndarray] | None = None,
                        regions: Sequence[Mapping[str, Any]] = (), title: str = "residual along the track",
-                       noise: Mapping[str, float] | None = None):
+                       noise: Mapping[str, float] | None = None, effects: Sequence[Mapping[str, Any]] = ()):
     """Residual (measured - model) per channel against arc length, nominal model and augmented
-    model, with the located windows shaded and, with ``noise``, the noise twin's +-1 sigma band."""
+    model, with the located windows shaded and, with ``noise``, the noise twin's +-1 sigma band.
+    Named effects that act along the lap (``effects`` as in the diagnosis JSON: windows and
+    profiles) are drawn below on the same axis (:func:`draw_along_lap`)."""
     chans = list(before)
-    fig, axes = _figure(len(chans), 1, size=(9.0, 2.3 * len(chans) + 0.6), sharex=True)
+    along = [e for e in effects if along_lap(e)]
+    n = len(chans) + len(along)
+    fig, axes = _figure(n, 1, size=(9.0, 2.3 * n + 0.6), sharex=True)
+    for ax, e in zip(axes[len(chans):, 0], along):
+        draw_along_lap(ax, e)
     s = np.asarray(s, float)
     o = np.argsort(s, kind="stable")
     # binned profiles (a few hundred points) as lines, raw residuals as dots
@@ -443,6 +449,66 @@ def fig_residual_track(s: np.ndarray, before: Mapping[str, np.ndarray], after: M
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel(label("s"))
     axes[0, 0].legend(fontsize="small", markerscale=4)
+    fig.suptitle(title)
+    return fig
+
+
+def along_lap(e: Mapping[str, Any]) -> bool:
+    """Does the named effect (diagnosis JSON) act along the lap: a profile, or a window?"""
+    p = e.get("parameters") or {}
+    return bool(e.get("profile")) or ("s_start" in p and "s_end" in p)
+
+
+_NEUTRAL_ONE = ("factor",)
+
+
+def draw_along_lap(ax, e: Mapping[str, Any]) -> None:
+    """One named effect against the lap position: a profile's values at its knots with the
+    pointwise 95 % band, or a window's amplitude over [s_start, s_end] (its interval shaded)."""
+    name = str(e.get("name"))
+    prof = e.get("profile")
+    if prof:
+        s = np.asarray(prof["s"], float)
+        L = float(prof.get("lap_length") or (s[-1] + (s[1] - s[0]) if len(s) > 1 else 1.0))
+        close = lambda a: np.append(np.asarray(a, float), np.asarray(a, float)[:1])  # noqa: E731 (periodic)
+        x = np.append(s, L)
+        lo, hi = close(prof["ci95_low"]), close(prof["ci95_high"])
+        if np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)):
+            ax.fill_between(x, lo, hi, color=PALETTE[0], alpha=0.25, lw=0, label="95 % interval (pointwise)")
+        ax.plot(x, close(prof["value"]), color=PALETTE[0], lw=1.5, label=name)
+        unit = prof.get("unit", "")
+        neutral = 1.0 if unit == "-" else 0.0
+    else:
+        p = e["parameters"]
+        key = next((k for k in p if k not in ("s_start", "s_end", "ramp")), None)
+        a, b = float(p["s_start"]["value"]), float(p["s_end"]["value"])
+        amp = p[key] if key else {"value": 1.0, "ci95": [np.nan, np.nan], "unit": ""}
+        neutral = 1.0 if key in _NEUTRAL_ONE else 0.0
+        v = float(amp["value"])
+        ax.step([a - 1e-9, a, b, b + 1e-9], [neutral, v, v, neutral], where="post", color=PALETTE[0], lw=1.5,
+                label=f"{name} (window)")
+        ax.plot([min(0.0, a), a], [neutral, neutral], color=PALETTE[0], lw=1.5)
+        ci = np.asarray(amp.get("ci95", [np.nan, np.nan]), float)
+        if np.all(np.isfinite(ci)):
+            ax.fill_between([a, b], [ci[0]] * 2, [ci[1]] * 2, color=PALETTE[0], alpha=0.25, lw=0,
+                            label="95 % interval")
+        unit = amp.get("unit", "")
+    ax.axhline(neutral, color="0.5", lw=0.8)
+    ax.set_ylabel(f"{name}" + (f" [{unit}]" if unit else ""))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small")
+
+
+def fig_effects_along_lap(effects: Sequence[Mapping[str, Any]], title: str = "named effects along the lap"):
+    """The named effects that act along the lap (profiles and windows), one row each, with their
+    95 % intervals; an empty figure says there are none."""
+    along = [e for e in effects if along_lap(e)]
+    fig, axes = _figure(max(len(along), 1), 1, size=(9.0, 2.2 * max(len(along), 1) + 0.6), sharex=True)
+    for ax, e in zip(axes[:, 0], along):
+        draw_along_lap(ax, e)
+    if not along:
+        axes[0, 0].text(0.5, 0.5, "no effect along the lap", ha="center", va="center", transform=axes[0, 0].transAxes)
+    axes[-1, 0].set_xlabel(label("s"))
     fig.suptitle(title)
     return fig
 

@@ -35,11 +35,16 @@ def _add_result(sec: Section, rp: Path, data: Any) -> None:
     prof = r.residual_profile
     if prof is not None:
         sec.add_figure(f"residual_{rp.stem}", "Residual along the track, nominal model and augmented model "
-                       "(located windows shaded, noise twin's +-1 sigma band grey)",
-                       lambda: F.fig_residual_track(prof.s, prof.before, prof.after, d["regions"], noise=prof.noise))
+                       "(located windows shaded, noise twin's +-1 sigma band grey); below, the named effects "
+                       "that act along the lap with their 95 % intervals",
+                       lambda: F.fig_residual_track(prof.s, prof.before, prof.after, d["regions"], noise=prof.noise,
+                                                    effects=d["effects"]))
     else:
         sec.missing.append(f"{rp.name}: residual-along-track plot not drawn (the result predates the stored "
                            "residual profile; rerun `gprace diagnose ... --json`)")
+        if any(F.along_lap(e) for e in d["effects"]):  # the effects along the lap need only the effects
+            sec.add_figure(f"along_lap_{rp.stem}", "Named effects along the lap with their 95 % intervals",
+                           lambda: F.fig_effects_along_lap(d["effects"]))
     sec.add_figure(f"channels_{rp.stem}", "Channels with structured error and the windows where it sits",
                    lambda: F.fig_channels(d["channels"], d["regions"]))
     if d["effects"]:
@@ -78,4 +83,20 @@ def _or_dash(v: float | None) -> Any:
 
 
 def _parameters_text(e: Effect) -> str:
-    return "; ".join(f"{k} = {p.value:.4g} [{p.ci95[0]:.4g}, {p.ci95[1]:.4g}] {p.unit}" for k, p in e.parameters.items())
+    text = "; ".join(f"{k} = {p.value:.4g} [{p.ci95[0]:.4g}, {p.ci95[1]:.4g}] {p.unit}" for k, p in e.parameters.items())
+    if e.profile is not None:
+        text = (text + "; " if text else "") + profile_text(e)
+    return text
+
+
+def profile_text(e: Effect) -> str:
+    """A profile in words: its extreme value, where, with the interval there."""
+    import numpy as np
+
+    p = e.profile
+    v = np.asarray(p.value, float)
+    neutral = 1.0 if p.unit == "-" else 0.0
+    i = int(np.nanargmax(np.abs(v - neutral)))
+    return (f"profile along the lap ({len(v)} knots, {p.edf if p.edf is not None else float('nan'):.1f} "
+            f"effective parameters): extreme {v[i]:.4g} {p.unit} at s = {p.s[i]:.0f} m "
+            f"[{p.ci95_low[i]:.4g}, {p.ci95_high[i]:.4g}]")

@@ -1,0 +1,430 @@
+"""Profiles along the lap: bank, grade and friction as penalised splines in lap position.
+
+A profile effect (``road_bank_profile``, ``road_grade_profile``, ``friction_profile`` in
+:mod:`gprace.model.effects`) is linear between knots spaced ``h`` apart around the lap, i.e. a
+degree-1 B-spline whose coefficients are its values at the knots (what the catalogue class
+stores, so the fitted profile and the evaluated one are the same function). It is fitted to the
+same normalised multi-step errors as every other candidate, with a roughness penalty on the
+periodic second differences of the coefficients (a P-spline):
+
+    min_c  |r(c)|^2 + lambda |D c|^2        (road_grade_profile: mean grade 0, a closed lap)
+
+by Gauss-Newton. The Jacobian costs ``G + 1`` model evaluations, not one per knot: knots ``j``
+and ``j + G`` are further apart than any window's path, so the knots of one colour group
+``j mod G`` are perturbed together and each window's response is credited to the one knot of the
+group its path touches. The smoothing ``lambda`` is chosen by cross-validation over the folds of
+the naming stage (by lap with three or more laps), on the linearised problem. Pointwise 95 %
+intervals come from a cluster-robust (2-s blocks) sandwich plus the penalty's bias term (the
+Bayesian covariance of a penalised spline, scaled by the same design effect).
+
+The naming stage treats a profile as one more candidate; :func:`leading` counts a profile and
+its window (``road_bank`` for ``road_bank_profile``) as one slot, and :func:`window_or_profile`
+keeps the window unless the profile predicts held-out windows significantly better (parsimony).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+from typing import Any
+
+import numpy as np
+
+from gprace.diagnose.core import DYNAMIC, Dataset, errors, lag_states, predict
+from gprace.diagnose.locate import blocks
+from gprace.model import EFFECTS
+from gprace.model.dynamics import State
+
+EPS = 1e-3
+"""Finite-difference step on a knot value (rad or friction factor): the effects are close to linear
+in it, and a 1 mrad bank moves a 15-step v_y prediction far above rounding."""
+LAMBDA_GRID = 10.0 ** np.linspace(-4.0, 4.0, 17)
+"""Smoothing candidates relative to the data term's scale (mean diagonal of J'J over that of D'D)."""
+KNOTS_MAX = 200
+"""At most this many knots per lap (a 5 km lap: 25 m apart)."""
+MIN_LAP_COVER = 1.2
+"""Recorded distance needed, in laps: a profile fitted to one passage explains nothing held out."""
+
+
+@dataclass(frozen=True)
+class Basis:
+    """Knots ``j h`` (``j = 0..K-1``) around a lap of length ``L``; ``G`` colour groups."""
+
+    L: float
+    K: int
+    G: int
+
+    @property
+    def h(self) -> float:
+        return self.L / self.K
+
+    @property
+    def knots(self) -> np.ndarray:
+        return np.arange(self.K) * self.h
+
+    def locate(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Left knot index and the weight of the right one at positions ``s`` (wrapped)."""
+        u = np.mod(s, self.L) / self.h
+        i = np.floor(u)
+        return i.astype(int) % self.K, u - i
+
+    def penalty(self) -> np.ndarray:
+        """``D'D`` of the periodic second differences (K, K)."""
+        K = self.K
+        D = np.zeros((K, K))
+        j = np.arange(K)
+        D[j, (j - 1) % K] += 1.0
+        D[j, j] -= 2.0
+        D[j, (j + 1) % K] += 1.0
+        return D.T @ D
+
+
+@dataclass
+class ProfileFit:
+    """What a profile fit carries besides its knot values (stored on :class:`~gprace.diagnose.name.Fit`)."""
+
+    basis: Basis
+    neutral: float  # the value meaning "no effect" (0 rad, friction factor 1)
+    lam: float = np.nan  # smoothing actually used (absolute)
+    edf: float = np.nan  # effective degrees of freedom
+    lower: np.ndarray | None = None  # pointwise 95 % interval of the values at the knots
+    upper: np.ndarray | None = None
+
+
+def is_profile(name: str) -> bool:
+    return bool(getattr(EFFECTS[name], "profile", False))
+
+
+def neutral(name: str) -> float:
+    return 1.0 if EFFECTS[name].params["values"].unit == "-" else 0.0
+
+
+def lap_length(data: Dataset) -> float | None:
+    """The common lap length of the recordings, or None (no laps, or laps of different length)."""
+    L = data.L
+    if not np.all(np.isfinite(L)) or np.ptp(L) > 0.01 * np.min(L):
+        return None
+    covered = np.ptp(data.s_unwrapped()) if len(L) == 1 else sum(
+        np.ptp(data.s_unwrapped()[data.rec == r]) for r in range(len(L)))
+    if covered < MIN_LAP_COVER * float(np.median(L)):
+        return None
+    return float(np.median(L))
+
+
+def make_basis(data: Dataset, H: int) -> Basis | None:
+    """Knot spacing from the windows' path length (about a quarter of it, at most
+    :data:`KNOTS_MAX` knots a lap); colour groups so that no window's path touches two knots of
+    one group; ``K`` a multiple of ``G`` so the groups also hold across the start line. From all
+    windows of the recordings, so every fit on a subset of them shares the knots."""
+    L = lap_length(data)
+    if L is None:
+        return None
+    P = _path_length(data, data.windows(H), H)
+    h0 = max(L / KNOTS_MAX, min(P / 4.0, L / 24.0))
+    K = max(int(round(L / h0)), 8)
+    for _ in range(4):
+        h = L / K
+        G = int(np.ceil((P + 2.0 * h) / h)) + 2
+        K_new = G * max(int(round(L / (h0 * G))), 2)
+        if K_new == K:
+            break
+        K = K_new
+    G = int(np.ceil((P + 2.0 * L / K) / (L / K))) + 2
+    K = G * max(K // G, 2)
+    return Basis(L, K, min(G, K))
+
+
+def _path_length(data: Dataset, starts: np.ndarray, H: int) -> float:
+    su = data.s_unwrapped()
+    d = np.abs(su[starts + H] - su[starts])
+    return float(np.quantile(d, 0.999)) + 1.0
+
+
+# --------------------------------------------------------------------------------------------
+# the model with a batch of profiles (one per window set)
+
+
+@cache
+def _batched_class(name: str):
+    """The catalogue class with its knot values given per window set: ``values`` (k, K) and the set
+    of each column of the batch. Same hooks, same interpolation (:meth:`ProfileEffect.value`)."""
+    base = EFFECTS[name]
+
+    class Batched(base):  # not registered in the catalogue: a fitting device
+        def value(self, c):
+            i, w = self._basis.locate(c.s)
+            V, sid = self._V, self._sid
+            return V[sid, i] * (1.0 - w) + V[sid, (i + 1) % self._basis.K] * w
+
+    Batched.__name__ = f"Batched{base.__name__}"
+    return Batched
+
+
+def batched_effect(name: str, basis: Basis, V: np.ndarray, set_index: np.ndarray):
+    cls = _batched_class(name)
+    e = cls(knots=basis.knots.tolist(), values=[neutral(name)] * basis.K, lap_length=basis.L)
+    e._basis, e._V, e._sid = basis, np.atleast_2d(V), set_index
+    return e
+
+
+def residual_batch(prob, name: str, basis: Basis, V: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """(k, m, H, 3) normalised errors with the profile of knot values ``V[i]`` (k, K), one batch."""
+    V = np.atleast_2d(V)
+    k, m = len(V), len(starts)
+    eff = batched_effect(name, basis, V, np.repeat(np.arange(k), m))
+    model = prob.model([eff])
+    S = np.tile(starts, k)
+    Z0 = np.tile(lag_states(model, prob.data)[starts], (k, 1)) if model.nx > 6 else None
+    E = errors(prob.data, S, predict(model, prob.data, S, prob.H, prob._substeps(model), Z0=Z0))
+    R = (E[..., list(DYNAMIC)] / prob.scale).reshape(k, m, prob.H, 3)
+    return np.where(np.isfinite(R), R, 0.0)
+
+
+# --------------------------------------------------------------------------------------------
+# Jacobian by colour groups
+
+
+def _touched(data: Dataset, starts: np.ndarray, H: int, basis: Basis) -> tuple[np.ndarray, np.ndarray]:
+    """For every window and colour group: the knot (mod K) of that group its path can touch, and
+    whether it touches one at all. ``(m, G)`` arrays."""
+    su = data.s_unwrapped()
+    a = np.minimum(su[starts], su[starts + H])
+    b = np.maximum(su[starts], su[starts + H])
+    h = basis.h
+    margin = 0.5 * h
+    jlo = np.floor((a - margin) / h).astype(int)
+    jhi = np.ceil((b + margin) / h).astype(int)
+    o = np.arange(basis.G)[None, :]
+    # knot of group g at or above jlo: jlo + ((g - jlo) mod G)
+    j = jlo[:, None] + np.mod(o - jlo[:, None], basis.G)
+    ok = j <= jhi[:, None]
+    return np.mod(j, basis.K), ok
+
+
+def jacobian(prob, name: str, basis: Basis, v0: np.ndarray, starts: np.ndarray):
+    """Residuals at ``v0`` (m*H*3,) and their sparse Jacobian in the knot values (m*H*3, K)."""
+    from scipy import sparse
+
+    G, K = basis.G, basis.K
+    groups = np.arange(K) % G
+    V = np.vstack([v0] + [v0 + EPS * (groups == g) for g in range(G)])
+    R = residual_batch(prob, name, basis, V, starts)  # (G+1, m, H, 3)
+    m, n = len(starts), prob.H * 3
+    r0 = R[0].reshape(m, n)
+    dR = (R[1:].reshape(G, m, n) - r0[None]) / EPS  # (G, m, n)
+    col, ok = _touched(prob.data, starts, prob.H, basis)  # (m, G)
+    rows = (np.arange(m)[:, None, None] * n + np.arange(n)[None, None, :])  # (m, 1, n)
+    rows = np.broadcast_to(rows, (m, G, n))
+    cols = np.broadcast_to(col[:, :, None], (m, G, n))
+    vals = np.transpose(dR, (1, 0, 2))  # (m, G, n)
+    keep = np.broadcast_to(ok[:, :, None], (m, G, n))
+    J = sparse.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(m * n, K))
+    return r0.ravel(), J
+
+
+# --------------------------------------------------------------------------------------------
+# penalised Gauss-Newton, smoothing by cross-validation
+
+
+def _constraint(name: str, K: int) -> np.ndarray | None:
+    """Basis (K, K-1) of the allowed coefficient space, or None when every profile is allowed:
+    a closed lap climbs as much as it falls (mean grade 0); bank and friction are free."""
+    if name != "road_grade_profile":
+        return None
+    q, _ = np.linalg.qr(np.column_stack([np.ones(K), np.eye(K)[:, : K - 1]]))
+    return q[:, 1:]
+
+
+def _in(Z, M):
+    """``Z' M Z`` (a matrix) or ``Z' M`` (a vector) in the allowed space; M itself without a constraint."""
+    if Z is None:
+        return M
+    return Z.T @ M @ Z if M.ndim == 2 else Z.T @ M
+
+
+def _out(Z, a):
+    return a if Z is None else Z @ a
+
+
+def _dense(M) -> np.ndarray:
+    return M.toarray() if hasattr(M, "toarray") else np.asarray(M)
+
+
+def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    from scipy.linalg import LinAlgError, cho_factor, cho_solve
+
+    try:
+        return cho_solve(cho_factor(A), b)
+    except (LinAlgError, ValueError):
+        return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def _cv_lambda(J, r, fold: np.ndarray, n: int, Z, P: np.ndarray, c0: np.ndarray, scale: float) -> float:
+    """Smoothing (absolute) with the lowest held-out loss of the problem linearised at ``c0``:
+    per fold, the penalised step fitted on the other folds' rows predicts the held-out rows."""
+    rows_fold = np.repeat(fold, n)
+    parts = []
+    for f in np.unique(fold):
+        te = rows_fold == f
+        Jtr, rtr = J[~te], r[~te]
+        A = _dense(Jtr.T @ Jtr)
+        parts.append((_in(Z, A), _in(Z, A @ c0 - Jtr.T @ rtr), J[te], r[te]))
+    Pz = _in(Z, P)
+    best, best_loss = float(LAMBDA_GRID[len(LAMBDA_GRID) // 2] * scale), np.inf
+    for lam in LAMBDA_GRID * scale:
+        loss = 0.0
+        for Az, bz, Jte, rte in parts:
+            d = _out(Z, _solve(Az + lam * Pz, bz)) - c0
+            e = rte + Jte @ d
+            loss += float(e @ e)
+        if loss < best_loss:
+            best, best_loss = float(lam), loss
+    return best
+
+
+def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None = None,
+                iterations: int = 2, lam: float | None = None, basis: Basis | None = None):
+    """Penalised Gauss-Newton fit of a profile effect; returns a :class:`~gprace.diagnose.name.Fit`
+    (or None when the recordings have no laps to fit a profile over). ``lam`` None: the smoothing
+    is chosen by cross-validation (:func:`_cv_lambda`) at the first iteration."""
+    from gprace.diagnose import name as nm
+
+    basis = basis or make_basis(prob.data, prob.H)
+    if basis is None or len(starts) < 20:
+        return None
+    K = basis.K
+    spec = EFFECTS[name].params["values"]
+    base = neutral(name)
+    Z = _constraint(name, K)
+    c = np.zeros(K)
+    if v_init is not None:  # on these knots (a profile given on others is interpolated)
+        v_init = np.asarray(v_init, float)
+        k0 = np.arange(len(v_init)) * (basis.L / len(v_init))
+        c = np.interp(basis.knots, k0, v_init, period=basis.L) - base
+    c = _out(Z, _in(Z, c)) if Z is not None else c
+    P = basis.penalty()
+    lo, hi = spec.lower - base, spec.upper - base
+    lo, hi = lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo)  # base + c stays inside despite rounding
+    n = prob.H * 3
+    best = None  # (penalised objective, c) of the best point evaluated
+    for _ in range(max(1, iterations)):
+        r, J = jacobian(prob, name, basis, base + c, starts)
+        if lam is None:
+            JtJ0 = _dense(J.T @ J)
+            scale = max(float(np.mean(np.diag(JtJ0))), 1e-12) / max(float(np.mean(np.diag(P))), 1e-12)
+            lam = _cv_lambda(J, r, nm.folds(prob.data, starts), n, Z, P, c, scale)
+        obj = float(r @ r) + lam * float(c @ P @ c)
+        if best is not None and obj > best[0]:  # the step overshot: halve it from the best point
+            c = 0.5 * (c + best[1])
+            continue
+        best = (obj, c)
+        JtJ = _dense(J.T @ J)
+        a = _solve(_in(Z, JtJ) + lam * _in(Z, P), _in(Z, JtJ @ c - J.T @ r))
+        c = np.clip(_out(Z, a), lo, hi)
+    R = residual_batch(prob, name, basis, base + c, starts)[0]
+    if best is not None and float(np.sum(R**2)) + lam * float(c @ P @ c) > best[0]:  # the last step made it worse
+        c = best[1]
+        R = residual_batch(prob, name, basis, base + c, starts)[0]
+    cost = float(np.mean(R**2))
+    fit = nm.Fit(name, [f"v{j}" for j in range(K)], c.copy(), {}, cost)
+    fit.profile = ProfileFit(basis, base, lam=float(lam))
+    fit.win = starts
+    return fit
+
+
+def refit(prob, fit, starts: np.ndarray, iterations: int = 1, keep_smoothing: bool = True):
+    """The fit again on other windows (a training fold: smoothing kept), warm-started."""
+    pf = fit.profile
+    return fit_profile(prob, fit.name, starts, pf.neutral + fit.x, iterations=iterations,
+                       lam=pf.lam if keep_smoothing else None, basis=pf.basis) or fit
+
+
+def interval(prob, fit, starts: np.ndarray) -> None:
+    """Pointwise 95 % interval of the values at the knots and the effective degrees of freedom
+    (stored on ``fit.profile``): cluster-robust sandwich over 2-s blocks of windows plus the
+    penalty's bias term (the Bayesian covariance's ``sigma^2 A^-1 lambda P A^-1``), scaled by the
+    same design effect, both at the fit's smoothing."""
+    from scipy import sparse
+
+    pf = fit.profile
+    basis, K = pf.basis, pf.basis.K
+    r, J = jacobian(prob, fit.name, basis, pf.neutral + fit.x, starts)
+    Z = _constraint(fit.name, K)
+    Jz = J if Z is None else J @ Z
+    A_data = _dense(Jz.T @ Jz)
+    Pz = _in(Z, basis.penalty())
+    Ai = np.linalg.pinv(A_data + pf.lam * Pz)
+    n = prob.H * 3
+    _, blk = np.unique(np.repeat(blocks(prob.data, starts), n), return_inverse=True)
+    B = sparse.csr_matrix((np.ones(len(blk)), (blk, np.arange(len(blk)))), shape=(blk.max() + 1, len(blk)))
+    scores = _dense(B @ (Jz.multiply(r[:, None]) if sparse.issparse(Jz) else Jz * r[:, None]))
+    V_data = Ai @ (scores.T @ scores) @ Ai
+    edf = float(np.trace(Ai @ A_data))
+    sigma2 = float(r @ r) / max(len(r) - edf, 1.0)
+    iid = sigma2 * (Ai @ A_data @ Ai)
+    deff = max(float(np.trace(V_data)) / max(float(np.trace(iid)), 1e-300), 1.0)
+    V = V_data + deff * sigma2 * pf.lam * (Ai @ Pz @ Ai)
+    if Z is not None:
+        V = Z @ V @ Z.T
+    sd = np.sqrt(np.maximum(np.diag(V), 0.0))
+    v = pf.neutral + fit.x
+    pf.lower, pf.upper, pf.edf = v - 1.96 * sd, v + 1.96 * sd, edf
+
+
+# --------------------------------------------------------------------------------------------
+# selection helpers for the naming stage
+
+
+def family(name: str) -> str:
+    """The window effect a profile belongs with (the name itself for every other effect)."""
+    return getattr(EFFECTS[name], "window_of", None) or name
+
+
+def leading(fits: list, k: int) -> list:
+    """The first fits (sorted by cost) filling ``k`` slots, a window and its profile in one slot."""
+    out, seen = [], []
+    for f in fits:
+        fam = family(f.name)
+        if fam not in seen:
+            if len(seen) >= k:
+                continue
+            seen.append(fam)
+        out.append(f)
+    return out
+
+
+def window_or_profile(top: list, cv: dict[str, np.ndarray], bid: np.ndarray) -> list:
+    """Parsimony between a window and its profile, both cross-validated: the profile stays only
+    when its held-out gain over the window passes the naming stage's test (paired block t or
+    signed-rank z above 3, or above 2 when it removes at least half of the window's remaining
+    excess) and is more than a tenth of that excess; otherwise the window stays."""
+    from gprace.diagnose import name as nm
+
+    names = {f.name for f in top}
+    drop = set()
+    for f in top:
+        w = getattr(EFFECTS[f.name], "window_of", None)
+        if not is_profile(f.name) or w not in names:
+            continue
+        lw, lp = cv[w].mean(axis=1), cv[f.name].mean(axis=1)
+        t = max(nm.gain_test(lw, lp, bid)[1], nm.rank_test(lw, lp, bid))
+        gain, excess = float(lw.mean() - lp.mean()), max(float(lw.mean()) - 1.0, 1e-12)
+        sig = t > nm.T_GAIN or (t > nm.T_GAIN_STRONG and gain > 0.5 * excess)
+        drop.add(w if (sig and gain > nm.MIN_EXCESS_SHARE * excess) else f.name)
+    return [f for f in top if f.name not in drop]
+
+
+def to_json(fit, unit: str) -> dict[str, Any]:
+    """The profile of a named effect for the ``--json`` output."""
+    pf = fit.profile
+    v = pf.neutral + fit.x
+
+    def r(a):
+        return [float(f"{x:.5g}") for x in a]
+
+    nan = np.full(len(v), np.nan)
+    return {"s": [round(float(x), 2) for x in pf.basis.knots], "value": r(v),
+            "ci95_low": r(pf.lower if pf.lower is not None else nan),
+            "ci95_high": r(pf.upper if pf.upper is not None else nan),
+            "unit": unit, "lap_length": round(pf.basis.L, 3), "smoothing": float(f"{pf.lam:.4g}"),
+            "edf": round(float(pf.edf), 2) if np.isfinite(pf.edf) else None}
