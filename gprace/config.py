@@ -148,6 +148,11 @@ class VehicleConfig(Frozen):
     tire: TireConfig
     limits: LimitsConfig
     effects: tuple[EffectConfig, ...] = Field(default=(), description="extra physics on the nominal model")
+    actuator_delay: float | None = Field(None, ge=0, description="known dead time of the steering actuator [s] (a "
+                                         "first-order lag: its time constant); the tracking MPC predicts over it. "
+                                         "None: unknown (gprace iterate estimates it in the shakedown)")
+    measurement_delay: float | None = Field(None, ge=0, description="known age of the measurements when the "
+                                            "controller gets them [s]; the tracking MPC predicts over it")
 
     @field_validator("l_f", "l_r", "width", "length", "cog_height")
     @classmethod
@@ -157,6 +162,13 @@ class VehicleConfig(Frozen):
     @property
     def wheelbase(self) -> float:
         return self.l_f + self.l_r
+
+    @property
+    def known_delay(self) -> float | None:
+        """Total delay the controller predicts over [s], or None when neither delay is given."""
+        if self.actuator_delay is None and self.measurement_delay is None:
+            return None
+        return (self.actuator_delay or 0.0) + (self.measurement_delay or 0.0)
 
 
 class NoiseConfig(Frozen):

@@ -19,7 +19,7 @@ import numpy as np
 from gprace.config import PlantConfig, SimulateConfig, config_hash
 from gprace.console import console
 from gprace.errors import RunFailedError
-from gprace.io.runs import Run
+from gprace.io.runs import OWN_RUN, Run
 from gprace.plants import make_plant
 from gprace.sim.controller import ReferenceController
 from gprace.sim.record import border_hits, lap_times_of, run_columns
@@ -80,6 +80,7 @@ def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Ru
         "weave_amplitude": sim_config.weave_amplitude,
         "weave_wavelength": sim_config.weave_wavelength,
         "completed": not reason,
+        OWN_RUN: True,  # a recording of gprace's own loop: no user-file unit check (gprace.io.runs)
     }
     return Run(data, meta, source=f"simulate({plant_config.kind}, {track.name})")
 

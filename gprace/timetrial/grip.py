@@ -27,20 +27,24 @@ QUANTILE = 0.99  # robust peak of a measured acceleration (one lap has about 1,1
 
 
 def envelope(run, in_control) -> np.ndarray:
-    """Measured ``(a_lat, a_drive, a_brake)`` [m/s^2] of a run's in-control samples.
+    """Measured ``(a_lat, a_drive, a_brake)`` [m/s^2] of a run's in-control samples."""
+    X = run.states()
+    return envelope_of(X, run.inputs(), run["t"], in_control(X))
+
+
+def envelope_of(X: np.ndarray, U: np.ndarray, t: np.ndarray, ok: np.ndarray, quantile: float = QUANTILE) -> np.ndarray:
+    """``(a_lat, a_drive, a_brake)`` [m/s^2]: robust peaks of the samples ``ok`` of states ``X`` and inputs ``U``.
 
     The lateral acceleration is ``v_x r + dv_y/dt`` (central differences): ``v_x r`` alone counts
     a yaw oscillation in a fast chicane (r = 1 rad/s at 55 m/s) as 55 m/s^2 of grip.
     """
-    X, U = run.states(), run.inputs()
-    ok = in_control(X)
     if ok.sum() < 10:
         return np.full(3, np.nan)
-    vy_dot = np.gradient(X[:, 1], run["t"])
+    vy_dot = np.gradient(X[:, 1], t)
     a_lat = np.abs(X[ok, 0] * X[ok, 2] + vy_dot[ok])
     ax = U[ok, 1]
-    return np.array([np.quantile(a_lat, QUANTILE), np.quantile(np.maximum(ax, 0.0), QUANTILE),
-                     np.quantile(np.maximum(-ax, 0.0), QUANTILE)])
+    return np.array([np.quantile(a_lat, quantile), np.quantile(np.maximum(ax, 0.0), quantile),
+                     np.quantile(np.maximum(-ax, 0.0), quantile)])
 
 
 def utilisation(run, model, in_control) -> float:

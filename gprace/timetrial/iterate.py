@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -86,6 +86,18 @@ class IterateSettings(CommandSettings):
     heldout_weave: float = Field(0.7, ge=0, description="weave of the held-out run [m]")
     calib_weave: float = Field(0.4, ge=0, description="weave of the calibration run [m]; 0: leave-one-out "
                                "calibration only")
+    shakedown: bool = Field(True, description="iteration 0 is a shakedown that widens its limits from what the car "
+                            "shows (False: the curvature plan at first_speed_scale)")
+    shakedown_start: float = Field(0.5, gt=0, le=1, description="share of the nominal model's limits the shakedown "
+                                   "starts at")
+    delay: float | None = Field(None, ge=0, description="total steering and measurement delay the MPC predicts over "
+                                "[s]; None: the vehicle's known delays, else estimated in the shakedown")
+    envelope: bool = Field(True, description="run-time stability envelope (eases the reference when the car leaves "
+                           "the band of its own laps)")
+    never_worse: bool = Field(True, description="drive a GP plan only if predicted safe; after a lost or slower lap go "
+                              "back to the last good plan and limits")
+    slower_tolerance: float = Field(0.005, ge=0, description="an alpha-0 lap slower than the best by more than this "
+                                    "share counts as slower")
 
     @model_validator(mode="after")
     def _check(self) -> IterateSettings:
@@ -103,6 +115,16 @@ class IterateSettings(CommandSettings):
         dyn_feature_set(self.features)
         solvers.get(self.solver)  # an unknown name lists the registered ones, before any planning
         quantile_factor(self.beta)
+        if self.delay is not None:
+            from gprace.errors import ConfigError
+            from gprace.mpc.delay import check
+            from gprace.mpc.tracking import MPCSettings
+
+            mpc = MPCSettings()
+            try:
+                check(self.delay, mpc.N, mpc.dt, "--delay")
+            except ConfigError as exc:
+                raise ValueError(str(exc)) from None
         return self
 
     def alpha(self, i: int) -> float:
@@ -222,9 +244,16 @@ def _check_start(settings: IterateSettings) -> None:
 
     track = load_track(settings.track)
     load_plant(settings.plant)
-    model = NominalModel(load_vehicle(settings.vehicle))
+    vehicle = load_vehicle(settings.vehicle)
+    model = NominalModel(vehicle)
     if not track.closed:
         raise InputError(f"--track {settings.track}: an open track; the time trial needs a closed lap")
+    if settings.delay is None and vehicle.known_delay is not None:
+        from gprace.mpc.delay import check
+        from gprace.mpc.tracking import MPCSettings
+
+        mpc = MPCSettings()
+        check(vehicle.known_delay, mpc.N, mpc.dt, f"--vehicle {settings.vehicle}: actuator_delay + measurement_delay")
     start_state(curvature_plan(track, model, ds=settings.plan_ds, speed_scale=settings.first_speed_scale), track, model.vehicle)
 
 
@@ -281,7 +310,11 @@ def oracle_lap(settings: IterateSettings, out: Path | None = None) -> dict:
     effects = [e for e in plant.effects if make_effect(e).n_states == 0]
     truth = NominalModel(vehicle, effects)
     track = load_track(settings.track)
-    dset = DriveSettings(laps=settings.laps, mpc=MPCSettings(solver=settings.solver, beta=settings.beta, grip=settings.grip))
+    from gprace.mpc.stability import EnvelopeSettings
+
+    # the oracle is the tracking MPC of the true model as issue 13 defined it: no stability envelope
+    dset = DriveSettings(laps=settings.laps, mpc=MPCSettings(solver=settings.solver, beta=settings.beta, grip=settings.grip),
+                         envelope=EnvelopeSettings(enabled=False))
     res: dict = {"known": True, "planned": float("nan"), "driven": float("nan"), "completed": False,
                  "effects": [e.name for e in effects], "tried": []}
     warm = None
@@ -340,7 +373,7 @@ def _oracle_task(task: dict) -> list[dict]:
 @dataclass
 class _Chain:
     """What every step of one trial's chain of iterations reads: settings, folders, the track, the
-    nominal model, the plant, the held-out and calibration features."""
+    nominal model, the plant, the reference runs (held-out and calibration)."""
 
     st: IterateSettings
     out: Path
@@ -350,11 +383,10 @@ class _Chain:
     model: Any
     plant: Any
     mpc: Any
-    drive: Any  # DriveSettings
     seed: int
-    heldout: dict  # kind -> held-out (Z, Y)
-    calib: dict  # kind -> calibration (Z, Y) or None
+    runs: dict  # "heldout" / "calib" -> Run or None
     cap: np.ndarray
+    _features: dict = field(default_factory=dict)
 
     @property
     def folder(self) -> Path:
@@ -369,6 +401,48 @@ class _Chain:
     def record(self, i: int) -> dict:
         return read_record(self.dir(i) / "record.json")
 
+    @property
+    def delay(self) -> float:
+        """The total delay the GP iterations predict over [s]: the experiment's, the vehicle's known
+        delays, else the shakedown's estimate (0 before iteration 0 is recorded)."""
+        d = self.delay_known
+        if d is not None:
+            return d
+        if (self.dir(0) / "record.json").exists():
+            est = self.record(0).get("delay", float("nan"))
+            return float(est) if np.isfinite(est) else 0.0
+        return 0.0
+
+    @property
+    def delay_known(self) -> float | None:
+        return self.st.delay if self.st.delay is not None else self.model.vehicle.known_delay
+
+    def drive_settings(self, delay: float):
+        from gprace.mpc.stability import EnvelopeSettings
+        from gprace.timetrial.drive import DriveSettings
+
+        return DriveSettings(laps=self.st.laps, mpc=self.mpc.model_copy(update={"delay": delay}),
+                             envelope=EnvelopeSettings(enabled=self.st.envelope))
+
+    def data(self, name: str, kind: str):
+        """GP features ``(Z, Y)`` of a reference run (None without it), with the chain's delay."""
+        from gprace.timetrial import learning as L
+
+        key = (name, kind, self.delay)
+        if key not in self._features:
+            run = self.runs[name]
+            self._features[key] = (None if run is None else
+                                   L.features(run, self.model, self.track, kind, self.st.features, delay=self.delay))
+        return self._features[key]
+
+    @property
+    def heldout(self) -> dict:
+        return {k: self.data("heldout", k) for k in ("tracking", "planning")}
+
+    @property
+    def calib(self) -> dict:
+        return {k: self.data("calib", k) for k in ("tracking", "planning")}
+
 
 def _chain(task: dict) -> _Chain:
     from gprace.config import load_plant, load_vehicle
@@ -376,48 +450,64 @@ def _chain(task: dict) -> _Chain:
     from gprace.model import NominalModel
     from gprace.mpc.tracking import MPCSettings
     from gprace.timetrial import grip as G
-    from gprace.timetrial import learning as L
-    from gprace.timetrial.drive import DriveSettings
     from gprace.tracks import load_track
 
     st = _task_settings(task)
     out, j = Path(task["out"]), int(task["trial"])
     track, model = load_track(st.track), NominalModel(load_vehicle(st.vehicle))
     mpc = MPCSettings(solver=st.solver, beta=st.beta, grip=st.grip)
-    heldout = read_run(out / "heldout.h5")
-    calib = read_run(out / "calib.h5") if st.calib_weave > 0 else None
-    kinds = ("tracking", "planning")
-    return _Chain(
-        st=st, out=out, trial=j, steps=Steps(out), track=track, model=model, plant=load_plant(st.plant), mpc=mpc,
-        drive=DriveSettings(laps=st.laps, mpc=mpc), seed=st.seed * 1000 + j + 1,
-        heldout={k: L.features(heldout, model, track, k, st.features) for k in kinds},
-        calib={k: L.features(calib, model, track, k, st.features) if calib is not None else None for k in kinds},
-        cap=G.nominal_cap(model, st.plan_grip),
-    )
+    runs = {"heldout": read_run(out / "heldout.h5"), "calib": read_run(out / "calib.h5") if st.calib_weave > 0 else None}
+    return _Chain(st=st, out=out, trial=j, steps=Steps(out), track=track, model=model, plant=load_plant(st.plant),
+                  mpc=mpc, seed=st.seed * 1000 + j + 1, runs=runs, cap=G.nominal_cap(model, st.plan_grip))
 
 
 def _iteration_zero(c: _Chain) -> None:
-    """The nominal model's curvature plan, driven."""
+    """The shakedown (or the nominal model's curvature plan at a fixed share), driven."""
     from gprace.io.runs import write_run
-    from gprace.plan import curvature_plan, read_plan
+    from gprace.plan import curvature_plan, racing_line, read_plan
     from gprace.timetrial import grip as G
     from gprace.timetrial.drive import drive
+    from gprace.timetrial.shakedown import Shakedown, ShakedownSettings
 
     st, d0 = c.st, c.dir(0)
+    what = "shakedown" if st.shakedown else "curvature plan"
     if not c.steps.done(c.tag(0, "drive")):
-        console.info(f"iterate: {c.out.name} trial {c.trial} iteration 0 (nominal model): curvature plan, drive")
+        console.info(f"iterate: {c.out.name} trial {c.trial} iteration 0 (nominal model): {what}, drive")
+    nominal = G.nominal_cap(c.model, 1.0)
+    shake = None
+    if st.shakedown:
+        shake = Shakedown(racing_line(c.track, c.model, st.plan_ds), c.model, nominal,
+                          ShakedownSettings(start=st.shakedown_start), c.mpc.dt, delay_known=c.delay_known is not None)
     if not c.steps.done(c.tag(0, "plan")):
-        p0 = curvature_plan(c.track, c.model, ds=st.plan_ds, speed_scale=st.first_speed_scale)
-        # what the curvature plan used: its lateral and braking limits scaled, the drive limit full
-        p0.meta["limits"] = (G.nominal_cap(c.model, 1.0) * [st.first_speed_scale, 1.0, st.first_speed_scale]).tolist()
-        p0.write(d0 / "plan.h5")
+        if shake is not None:
+            p0 = shake.plan()
+        else:
+            p0 = curvature_plan(c.track, c.model, ds=st.plan_ds, speed_scale=st.first_speed_scale)
+            # what the curvature plan used: its lateral and braking limits scaled, the drive limit full
+            p0.meta["limits"] = (nominal * [st.first_speed_scale, 1.0, st.first_speed_scale]).tolist()
+        p0.write(d0 / "plan_start.h5")
         c.steps.mark(c.tag(0, "plan"))
     if not c.steps.done(c.tag(0, "drive")):
-        plan = read_plan(d0 / "plan.h5", c.track)
-        run = drive(plan, c.plant, c.track, c.model, c.drive, seed=c.seed * 100)
+        plan = read_plan(d0 / "plan_start.h5", c.track)
+        run = drive(plan, c.plant, c.track, c.model, c.drive_settings(c.delay_known or 0.0), seed=c.seed * 100,
+                    supervisor=shake)
+        extra = {"delay": float("nan"), "delay_source": "known" if c.delay_known is not None else "estimated"}
+        if shake is not None:
+            plan = shake.plan()  # the limits the car was shown to take
+            plan.meta["shakedown"] = shake.log
+        if c.delay_known is not None:
+            extra["delay"] = float(c.delay_known)
+        else:
+            from gprace.mpc.delay import estimate
+            from gprace.timetrial.learning import in_control
+
+            X = run.states()
+            dead, lag = estimate(X, run.inputs(), run.dt, in_control(X))
+            extra["delay"] = float(min(dead + lag, c.mpc.N * c.mpc.dt)) if np.isfinite(dead) else float("nan")
+        plan.write(d0 / "plan.h5")
         write_run(run, d0 / "run.h5")
-        write_record(d0 / "record.json", _record(0, 0.0, c.trial, plan, run, None, None, c.heldout,
-                                                _lap_extra(run, c.model)))
+        write_record(d0 / "record.json", _record(0, 0.0, c, plan, run, None, None,
+                                                {**_lap_extra(run, c.model), **extra, "plan_source": what}))
         c.steps.mark(c.tag(0, "drive"))
 
 
@@ -431,13 +521,19 @@ def _select(c: _Chain, i: int) -> None:
     st, di, dp, tdir = c.st, c.dir(i), c.dir(i - 1), c.folder
     prev_run = read_run(dp / "run.h5")
     for kind in ("tracking", "planning"):
-        Znew, Ynew = L.features(prev_run, c.model, c.track, kind, st.features)
+        Znew, Ynew = L.features(prev_run, c.model, c.track, kind, st.features, delay=c.delay)
         hyper_path = tdir / f"hyper_{kind}.h5"
         if not hyper_path.exists():
-            if len(Znew) < 20:
-                raise RunFailedError(f"trial {c.trial}: iteration {i - 1} recorded only {len(Znew)} usable samples; "
-                                     "cannot train the GPs")
-            gp0 = L.fit_hyper(Znew, Ynew, seed=c.seed, max_fit_points=st.max_fit_points)
+            Zh, Yh = Znew, Ynew
+            if len(Zh) < MIN_FIT_SAMPLES:
+                # a first lap lost at once: the hyperparameters come from the reference runs (the
+                # loop goes on and learns from what it has)
+                ref = [c.data(name, kind) for name in ("heldout", "calib") if c.runs[name] is not None]
+                Zh, Yh = np.vstack([Zh] + [z for z, _ in ref]), np.vstack([Yh] + [y for _, y in ref])
+            if len(Zh) < MIN_FIT_SAMPLES:
+                raise RunFailedError(f"trial {c.trial}: only {len(Zh)} usable samples in iteration {i - 1} and the "
+                                     "reference runs; cannot train the GPs")
+            gp0 = L.fit_hyper(Zh, Yh, seed=c.seed, max_fit_points=st.max_fit_points)
             L.save_predictor(hyper_path, gp0, kind, feature_set=st.features)
         hyper = L.load_predictor(hyper_path, kind).gp
         old = None
@@ -448,6 +544,9 @@ def _select(c: _Chain, i: int) -> None:
         write_artifact(di / f"data_{kind}.h5", Artifact("dataset", {"Z": d.Z, "Y": d.Y},
                                                          {"n_seen": int(d.n_seen), "gp": kind, "selection": st.selection,
                                                           "stats": stats}))
+
+
+MIN_FIT_SAMPLES = 20  # samples a hyperparameter fit needs
 
 
 def _retrain(c: _Chain, i: int) -> None:
@@ -468,23 +567,44 @@ def _retrain(c: _Chain, i: int) -> None:
 
 
 def _replan(c: _Chain, i: int) -> None:
-    """(3) The minimum-time plan with the planning GP inside the widened friction envelope."""
+    """(3) The minimum-time plan with the planning GP inside the widened friction envelope, driven
+    only if predicted safe (:mod:`gprace.timetrial.guard`); after a lost or slower lap it starts
+    again from the last good plan and limits."""
     from gprace.plan import PlanSettings, curvature_plan, plan_min_time, read_plan
     from gprace.timetrial import grip as G
+    from gprace.timetrial import guard
     from gprace.timetrial import learning as L
 
     st, track, model = c.st, c.track, c.model
-    last = read_plan(c.dir(i - 1) / "plan.h5", track)
-    rec = c.record(i - 1)
-    failed = [c.record(k)["limits"] for k in range(i) if not c.record(k)["completed"]]
-    limits = G.next_limits(last.meta.get("limits", c.cap), rec["envelope"], rec["completed"], rec["utilisation"],
-                           c.cap, st.widen, failed=failed, border_hits=rec["border_hits"])
-    good = [k for k in range(i - 1, -1, -1) if c.record(k)["completed"]]
-    warm = read_plan(c.dir(good[0]) / "plan.h5", track) if good else None
+    records = [c.record(k) for k in range(i)]
+    rec = records[-1]
+    back = st.never_worse and rec.get("status", "good") != "good"
+    ref = guard.last_good(records) if st.never_worse else None
+    failed = [r["limits"] for r in records if not r["completed"]]
+    if back and ref is not None:
+        # a lost or slower lap: the last good plan's limits again (no widening); the data stay
+        limits = np.asarray(records[ref]["limits"] or c.cap, float)
+        source = f"back to iteration {ref}"
+    else:
+        last = read_plan(c.dir(i - 1) / "plan.h5", track)
+        limits = G.next_limits(last.meta.get("limits", c.cap), rec["envelope"], rec["completed"], rec["utilisation"],
+                               c.cap, st.widen, failed=failed, border_hits=rec["border_hits"])
+        source = "replan"
+    good = [k for k in range(i - 1, -1, -1) if records[k]["completed"]]
+    start = ref if ref is not None else (good[0] if good else None)
+    warm = read_plan(c.dir(start) / "plan.h5", track) if start is not None else None
     gp_plan = L.load_predictor(c.dir(i) / "gp_planning.h5", "planning")
+    safety: dict = {}
     try:
         plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, limits=tuple(limits)),
-                             warm=warm or last, mu_plan=lambda X, U: gp_plan.at(X, U)[0])
+                             warm=warm or read_plan(c.dir(i - 1) / "plan.h5", track),
+                             mu_plan=lambda X, U: gp_plan.at(X, U)[0])
+        if st.never_worse:
+            safety = guard.plan_safety(plan, model, gp_plan, c.mpc.grip_share)
+            if not safety["safe"] and warm is not None:
+                plan, limits = warm, warm.meta.get("limits", limits)
+                plan.meta = {**plan.meta, "unsafe": safety["why"]}
+                source = f"last good plan (iteration {start}): the new plan was not predicted safe"
     except SolverError as exc:
         # a failed re-plan must not end the experiment: drive the last plan that completed a
         # lap again (never a plan that failed), or a slower curvature plan if none did
@@ -495,8 +615,27 @@ def _replan(c: _Chain, i: int) -> None:
         # re-plan, then a spin at s = 2266 m)
         limits = plan.meta.get("limits", G.nominal_cap(model, 1.0) * [scale, 1.0, scale])
         plan.meta = {**plan.meta, "replan_failed": str(exc)}
+        source = "replan failed: the last plan that completed a lap"
     plan.meta["limits"] = [float(v) for v in limits]
+    plan.meta["source"] = source
+    plan.meta["safety"] = {k: v for k, v in safety.items() if k != "safe"}
     plan.write(c.dir(i) / "plan.h5")
+
+
+def _band(c: _Chain, i: int) -> tuple[float, float] | None:
+    """The stability envelope's band for iteration ``i``: from the last completed lap's clean samples."""
+    from gprace.io.runs import read_run
+    from gprace.mpc.stability import EnvelopeSettings, bands
+    from gprace.timetrial.learning import in_control
+
+    for k in range(i - 1, -1, -1):
+        if c.record(k)["completed"]:
+            run = read_run(c.dir(k) / "run.h5", )
+            if "e_r" not in run.data:
+                return None
+            ok = in_control(run.states()) & (run["envelope"] <= 1.0)
+            return bands(run["e_r"][ok], run["e_beta"][ok], EnvelopeSettings())
+    return None
 
 
 def _drive_iteration(c: _Chain, i: int, alpha: float) -> None:
@@ -513,11 +652,16 @@ def _drive_iteration(c: _Chain, i: int, alpha: float) -> None:
     gp_track = L.load_predictor(di / "gp_tracking.h5", "tracking")
     a = read_artifact(di / "candidates.h5", "candidates")
     grid = CandidateGrid(a.arrays["Z"], a.arrays["v"], a.arrays["scale"])
-    run = drive(plan, c.plant, c.track, c.model, c.drive, gp=gp_track, grid=grid, alpha=alpha, seed=c.seed * 100 + i)
+    delay = c.delay
+    run = drive(plan, c.plant, c.track, c.model, c.drive_settings(delay), gp=gp_track, grid=grid, alpha=alpha,
+                seed=c.seed * 100 + i, band=_band(c, i))
     write_run(run, di / "run.h5")
     gps = {k: L.load_predictor(di / f"gp_{k}.h5", k) for k in ("tracking", "planning")}
     sizes = {k: int(read_artifact(di / f"data_{k}.h5", "dataset").arrays["Z"].shape[0]) for k in gps}
-    write_record(di / "record.json", _record(i, alpha, c.trial, plan, run, gps, sizes, c.heldout, _lap_extra(run, c.model)))
+    extra = {**_lap_extra(run, c.model), "delay": delay,
+             "delay_source": "known" if c.delay_known is not None else "estimated",
+             "plan_source": plan.meta.get("source", "replan"), "safety": plan.meta.get("safety") or {}}
+    write_record(di / "record.json", _record(i, alpha, c, plan, run, gps, sizes, extra))
 
 
 def _run_chain(task: dict) -> list[dict]:
@@ -582,8 +726,10 @@ def _coverage(pred, data) -> float:
     return float(np.min(coverage(pred, Z, Y)))
 
 
-def _record(i, alpha, trial, plan, run, gps, sizes, H, extra) -> IterationRecord:
-    m = run.meta
+def _record(i, alpha, c: _Chain, plan, run, gps, sizes, extra) -> IterationRecord:
+    from gprace.timetrial.guard import lap_status
+
+    m, H, trial = run.meta, c.heldout, c.trial
     rec = {
         "iteration": i, "trial": trial, "alpha": alpha, "planned": float(plan.lap_time),
         "driven": float(m["lap_time"]), "completed": bool(m["completed"]), "reason": m.get("reason", ""),
@@ -596,6 +742,10 @@ def _record(i, alpha, trial, plan, run, gps, sizes, H, extra) -> IterationRecord
         rec[f"dict_{k}"] = int(sizes[k]) if sizes else 0
         rec[f"cov_{k}"] = _coverage(gps[k] if gps else None, H[k])
     rec["limits"] = [float(v) for v in plan.meta.get("limits", [])]
+    rec["interventions"] = int(m.get("interventions", 0))
+    rec["eased_steps"] = int(m.get("eased_steps", 0))
+    rec["band"] = [float(v) for v in m.get("band", [])]
+    rec["status"] = lap_status({**rec}, [c.record(k) for k in range(i)], c.st.slower_tolerance)
     return IterationRecord(**rec, **extra)
 
 
@@ -634,6 +784,7 @@ def build_summary(out: str | Path) -> dict:
             **{f"cov_{k}": _finite(np.min, [r[f"cov_{k}"] for r in g]) for k in ("tracking", "planning")},
             "gap_closed_min": _finite(np.min, [r["gap_closed"] for r in g]),
             "completed": int(sum(r["completed"] for r in rs)),
+            "interventions": int(sum(r.get("interventions", 0) for r in rs)),
             "failed": [{"trial": r["trial"], "reason": r.get("reason") or "lap not completed"}
                        for r in rs if not r["completed"]],
         })
