@@ -16,7 +16,8 @@ learned from its oscillations alone would never trigger. When the larger of ``|e
 band_beta`` exceeds 1 in two periods in a row (or 2 in one) the envelope **intervenes**: the reference speed factor ``rho`` of the MPC
 falls by ``ease`` per period (down to ``rho_min``) and the longitudinal command is held inside a
 gentle range (neither hard braking nor full drive: a sliding rear needs its grip for cornering, and
-in the braking instability of a car with load transfer it is the braking that takes it away). Once
+in the braking instability of a car with load transfer it is the braking that takes it away), but
+never below the braking the plan itself asks for there (an eased car must still make the corner). Once
 the signals have been back inside the band for ``hold`` seconds, ``rho`` recovers by ``recover``
 per period. The envelope never changes the model: it catches what the model has not learned yet.
 
@@ -48,7 +49,8 @@ class EnvelopeSettings(Frozen):
     rho_min: float = Field(0.75, gt=0, le=1, description="lowest speed factor")
     recover: float = Field(0.01, gt=0, description="rise of the speed factor per period once back inside")
     hold: float = Field(0.5, ge=0, description="seconds inside the band before the speed factor recovers [s]")
-    gentle_brake: float = Field(1.0, gt=0, le=1, description="share of the braking limit allowed while outside the band")
+    gentle_brake: float = Field(0.4, gt=0, le=1, description="share of the braking limit allowed while outside the band "
+                                "(more where the plan itself brakes harder)")
     gentle_drive: float = Field(0.3, gt=0, le=1, description="share of the drive limit allowed while outside the band")
     warmup: int = Field(60, ge=0, description="samples before a band learned inside the lap replaces the floors")
 
@@ -132,11 +134,18 @@ class Envelope:
             if b is not None:
                 self.band = np.array(b)
 
-    def input_bounds(self, u_lo: np.ndarray, u_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The MPC's input bounds for the next period: the longitudinal range narrowed while active."""
+    def input_bounds(self, u_lo: np.ndarray, u_hi: np.ndarray, plan_brake: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """The MPC's input bounds for the next period: the longitudinal range narrowed while active.
+
+        ``plan_brake`` is the hardest braking the plan itself asks for over the horizon (before
+        any easing): that much braking stays allowed, so a car eased at a corner's entry still
+        makes the corner. Measured: with braking held to half the limit the oracle lap of
+        audi_hidden ran off at the hairpin (s = 450 m); with no limit a worn-rear BMW sliding out
+        of a corner braked at full force for the eased speed and spun (s = 1562 m).
+        """
         if not self.active:
             return u_lo, u_hi
         lo, hi = u_lo.copy(), u_hi.copy()
-        lo[Input.A_X] = self.settings.gentle_brake * u_lo[Input.A_X]
+        lo[Input.A_X] = max(u_lo[Input.A_X], min(self.settings.gentle_brake * u_lo[Input.A_X], plan_brake))
         hi[Input.A_X] = self.settings.gentle_drive * u_hi[Input.A_X]
         return lo, hi

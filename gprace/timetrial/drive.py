@@ -82,13 +82,15 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
                                               "envelope", "speed_factor")}
     env = Envelope(settings.envelope, dt, band)
     before = None  # the state the last solution predicted for this period
+    plan_brake = 0.0  # the hardest braking the plan asks for over the horizon (before easing)
     k = 0
     reason = ""
     wall = time.perf_counter()
     while True:
         mpc.speed_factor = env.rho
-        mpc.bounds = env.input_bounds(mpc.u_lo, mpc.u_hi)
+        mpc.bounds = env.input_bounds(mpc.u_lo, mpc.u_hi, plan_brake)
         u, info = mpc.step(y)
+        plan_brake = float(info["uref"][:, Input.A_X].min()) / mpc.speed_factor**2
         x = plant.state
         Y[k], X[k], U[k] = y, x, u
         e_r, e_beta = signals(mpc.predicted, before)

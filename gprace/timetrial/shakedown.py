@@ -135,6 +135,7 @@ class Shakedown:
         self.log: list[dict] = []  # one entry per change of the limits
         self.pending = None  # a plan waiting for a quiet stretch of track
         self.swapped = 0  # period the current plan was taken
+        self.next_estimate = 200  # period of the next delay estimate
         self.seen_onsets = 0
 
     def plan(self):
@@ -162,7 +163,8 @@ class Shakedown:
                 self._change(k, self.limits * (1.0 - st.back * self._blame(U[new])), "envelope intervention", mpc)
             self.frozen = True
             return
-        if st.estimate_delay and not self.delay_known and k >= 200:
+        if st.estimate_delay and not self.delay_known and k >= self.next_estimate:
+            self.next_estimate *= 2  # at 200, 400, 800 ... periods: each estimate takes ~0.1 s
             from gprace.mpc.delay import estimate
 
             dead, lag = estimate(Y, U, self.dt, ok)
