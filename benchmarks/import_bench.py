@@ -7,7 +7,13 @@ from those. It is written as a global-frame CSV, an MDF4 file (three time bases)
 while). Each is imported end to end (read, resample at 0.05 s, unit checks, projection, HDF5
 written), timed with ``time.perf_counter``. Prints a JSON table.
 
-Usage: python benchmarks/import_bench.py [--minutes 30] [--rate 100] [--mcap] [--track PATH]
+With ``--real`` it also imports the shared real logs (INI F1TENTH, IAC Putnam Park) as they
+come, with the maps in tests/data/real_maps and the shipped track files (a headerless centre
+line; two boundary files), and without a track (laps from the path): one row each with laps, s
+range, max |e_y|, samples kept against the moving samples of the log, seconds; and the time to
+load a 25 m and a 5 km track with the same call.
+
+Usage: python benchmarks/import_bench.py [--minutes 30] [--rate 100] [--mcap] [--track PATH] [--real]
 """
 
 from __future__ import annotations
@@ -20,7 +26,15 @@ from pathlib import Path
 
 import numpy as np
 
-TRACK = Path(__file__).resolve().parents[2] / "shared" / "data" / "tumftm-racetrack-database" / "tracks" / "Norisring.csv"
+def _shared() -> Path:
+    """``shared/data`` above the checkout (or a worktree of it)."""
+    for parent in Path(__file__).resolve().parents:
+        if (parent / "shared" / "data").is_dir():
+            return parent / "shared" / "data"
+    return Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+TRACK = _shared() / "tumftm-racetrack-database" / "tracks" / "Norisring.csv"
 
 
 def _arg(name: str, default: str) -> str:
@@ -119,6 +133,51 @@ def timed_import(path: Path, track, out: Path, label: str, samples: int) -> dict
             "rows_out": run.n, "laps": int(run["lap"].max()), "seconds": round(sec, 2), "within_10s": sec <= 10.0}
 
 
+REAL = _shared() / "real"
+MAPS = Path(__file__).resolve().parents[1] / "tests" / "data" / "real_maps"
+
+
+def real_rows() -> list[dict]:
+    """Import rows of the shared real logs (module docstring)."""
+    from gprace.ingest.importer import import_recording
+    from gprace.ingest.mapping import load_map
+    from gprace.ingest.table import numbers, sniff
+    from gprace.tracks import load_track
+
+    ini, iac = REAL / "ini_f1tenth_ipz20", REAL / "iac_putnam_park"
+    cases = []
+    for run in sorted(ini.glob("*_physical.csv")):
+        for track in (str(ini / "centerline.csv"), None):
+            cases.append((run, "ini_f1tenth.map.toml", track, ("linear_vel_x", "linear_vel_y")))
+    rec = iac / "Putnam_park2023_run4_2.csv"
+    for track in (f"{iac / 'putnam_inner_bound.csv'},{iac / 'putnam_outer_bound.csv'}", None):
+        cases.append((rec, "iac_putnam.map.toml", track, ("vx(m/s)", "vy(m/s)")))
+    rows = []
+    for rec, mp, track, vcols in cases:
+        v = numbers(sniff(rec), list(vcols))
+        moving_log = int(np.sum(np.hypot(v[:, 0], v[:, 1]) > 0.1))
+        t0 = time.perf_counter()
+        run, trk = import_recording(rec, track=track, rmap=load_map(MAPS / mp), dt=0.04)
+        sec = time.perf_counter() - t0
+        d = run.data
+        moving = int(np.sum(np.hypot(d["v_x"], d["v_y"]) > 0.1))
+        rows.append({"log": rec.name, "track": "path" if track is None else trk.name, "reversed": run.meta["track_reversed"],
+                     "lap_length_m": round(trk.length, 2), "laps": int(d["lap"].max()),
+                     "s_m": [round(float(d["s"].min()), 2), round(float(d["s"].max()), 2)],
+                     "e_y_abs_max_m": round(float(np.abs(d["e_y"]).max()), 2), "samples": run.n,
+                     "moving_kept": moving, "moving_in_log": moving_log, "kept_share": round(moving / moving_log, 3),
+                     "gaps": run.meta["gaps"], "inputs": run.meta["inputs"], "seconds": round(sec, 2)})
+    for path in (ini / "centerline.csv", _shared() / "tumftm-racetrack-database" / "tracks" / "Spa.csv"):
+        from gprace.tracks.loaders import _load_cached
+
+        _load_cached.cache_clear()
+        t0 = time.perf_counter()
+        trk = load_track(path)
+        rows.append({"track_file": path.name, "length_m": round(trk.length, 2), "min_radius_m": round(trk.min_radius, 2),
+                     "smoothing_m": round(trk.smoothing, 3), "seconds": round(time.perf_counter() - t0, 2)})
+    return rows
+
+
 def main() -> None:
     from gprace.tracks import load_track
 
@@ -136,8 +195,10 @@ def main() -> None:
             rows.append(timed_import(write_mcap(log, d / "bag"), track, d / "c.h5", "mcap", n))
         # without a track: the reference line from the path
         rows.append({**timed_import(d / "log.csv", None, d / "d.h5", "csv (path reference)", n)})
-    print(json.dumps({"benchmark": "import", "minutes": minutes, "rate_hz": rate, "track": track.name,
-                      "dt_out": 0.05, "rows": rows}, indent=2))
+    out = {"benchmark": "import", "minutes": minutes, "rate_hz": rate, "track": track.name, "dt_out": 0.05, "rows": rows}
+    if "--real" in sys.argv:
+        out["real_logs"] = real_rows()
+    print(json.dumps(out, indent=1))
 
 
 if __name__ == "__main__":

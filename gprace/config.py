@@ -15,7 +15,7 @@ import tomllib
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from gprace.errors import ConfigError, InputError
 
@@ -185,8 +185,10 @@ class NoiseConfig(Frozen):
 class PlantConfig(Frozen):
     """"The real car": a registered plant, the vehicle it starts from, and what it hides.
 
-    For ``frenet`` the hidden ``effects`` are added to the vehicle's own; ``commonroad-std`` uses
-    its own BMW 320i parameters and rejects ``effects``.
+    For ``frenet`` the hidden ``effects`` are added to the vehicle's own; ``commonroad-std`` and
+    ``commonroad-mb`` use their own BMW 320i parameters and reject ``effects``; ``randomized``
+    draws a car around ``vehicle`` (docs/plants.md). ``options`` are the plant kind's own settings
+    (``[options]`` in TOML), checked against the kind's ``Options`` model when the file is read.
     """
 
     kind: str = Field("frenet", description="plant backend name (registry gprace.plant)")
@@ -195,6 +197,54 @@ class PlantConfig(Frozen):
     noise: NoiseConfig = Field(default_factory=NoiseConfig)
     substeps: int = Field(10, ge=1, le=1000, description="RK4 substeps per control period")
     seed: int = Field(0, description="seed of the sensor noise")
+    options: dict[str, Any] = Field(default_factory=dict, description="settings of the plant kind (its Options model)")
+
+    @field_validator("options")
+    @classmethod
+    def _options_of_the_kind(cls, v: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
+        """Options are checked by the plant kind's nested ``Options`` model (extra keys forbidden);
+        an unknown kind is left to the registry (its error lists the kinds)."""
+        if not v or "kind" not in info.data:
+            return v
+        from gprace.backends import plants  # lazy: the registry imports plant modules that import this one
+        from gprace.errors import UnknownBackendError
+
+        try:
+            plant_cls = plants.get(info.data["kind"])
+        except UnknownBackendError:
+            return v
+        plant_options(plant_cls, v)  # ValueError naming the key
+        return v
+
+    def digest(self) -> str:
+        """As :meth:`Frozen.digest`; empty ``options`` leave the hash of older files unchanged."""
+        data = self.model_dump(mode="json")
+        if not data["options"]:
+            del data["options"]
+        return config_hash(data)
+
+
+def plant_options(plant_cls: type, options: dict[str, Any]) -> BaseModel | None:
+    """``options`` validated by ``plant_cls.Options`` (None when the kind has none and none are
+    given); a ValueError naming the first bad key otherwise."""
+    model = getattr(plant_cls, "Options", None)
+    name = getattr(plant_cls, "NAME", plant_cls.__name__)
+    if model is None:
+        if options:
+            raise ValueError(f"plant {name!r} takes no options (got {', '.join(sorted(options))})")
+        return None
+    try:
+        return model.model_validate(options)
+    except ValidationError as exc:
+        err = next((e for e in exc.errors() if e["type"] == "extra_forbidden"), exc.errors()[0])
+        key = ".".join(str(p) for p in err["loc"]) or "(root)"
+        if err["type"] == "extra_forbidden":
+            valid = ", ".join(model.model_fields)
+            close = difflib.get_close_matches(str(err["loc"][0]), list(model.model_fields), n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise ValueError(f"{key}: unknown key for plant {name!r} ({hint}valid: {valid})") from None
+        msg = err["msg"].removeprefix("Value error, ")
+        raise ValueError(f"{key}: {msg}, got {err.get('input')!r}") from None
 
 
 class SimulateConfig(Frozen):

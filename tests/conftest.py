@@ -7,7 +7,9 @@ import pytest
 
 from gprace.config import load_vehicle
 
-TUM_TRACKS = "/work/shared/data/tumftm-racetrack-database/tracks"
+from shared_data import TUM_TRACKS as _TUM
+
+TUM_TRACKS = str(_TUM)
 
 
 @pytest.fixture(scope="session")

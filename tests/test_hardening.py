@@ -362,17 +362,18 @@ def test_track_and_raw_csv_readers_count_rows_as_the_run_reader(tmp_path):
     """A track CSV (comment header) and a raw global-frame CSV name their second sample
     'row 2 (line 3)', as the run reader does."""
     from gprace.errors import InputError
-    from gprace.ingest.readers import _csv_numbers
+    from gprace.ingest.mapping import RecordingMap
+    from gprace.ingest.readers import read_csv
     from gprace.tracks import load_track
 
     track = tmp_path / "t.csv"
     track.write_text("# x_m,y_m,w_tr_right_m,w_tr_left_m\n0,0,5,5\n100,abc,5,5\n100,80,5,5\n0,80,5,5\n")
-    with pytest.raises(InputError, match=r"row 2 \(line 3\), column y_m: not a number: 'abc'"):
+    with pytest.raises(InputError, match=r"column 'y_m' row 2 \(line 3\): 'abc' is not a number"):
         load_track(track)
     raw = tmp_path / "log.csv"
     raw.write_text("time,x,y\n0,0,0\n0.1,abc,0\n0.2,2,0\n")
     with pytest.raises(InputError, match=r"column 'x' row 2 \(line 3\): 'abc' is not a number"):
-        _csv_numbers(raw, ["time", "x", "y"])
+        read_csv(raw, RecordingMap.model_validate({"columns": {"t": "time"}}))
 
 
 def test_gp_settings_check_leaves_arrays_and_numbers_alone():

@@ -20,7 +20,7 @@ import pytest
 from gprace.cli import main
 from gprace.io.runs import read_run, write_run_csv
 
-TRACKS = Path(__file__).resolve().parents[2] / "shared" / "data" / "tumftm-racetrack-database" / "tracks"
+from shared_data import TUM_TRACKS as TRACKS
 NORIS = TRACKS / "Norisring.csv"
 pytestmark = pytest.mark.skipif(not NORIS.exists(), reason="TUM racetrack database not available")
 
@@ -577,7 +577,7 @@ def test_missing_mdf_channel_lists_the_channels(sim, tmp_path):
     mp.write_text(MDF_MAP.replace('"PosX"', '"Pos_X"'))
     out = tmp_path / "o.h5"
     _bad(_cli("import", rec, "--track", NORIS, "--map", mp, "-o", out), out,
-         "no position", "channel 'Pos_X'", "PosX", "VelX")
+         "channel 'Pos_X'", "[columns] x", "lacks", "PosX", "VelX")
 
 
 def test_time_going_backwards(sim, tmp_path):

@@ -48,7 +48,7 @@ def test_plant_registry(audi, circle_track):
     from gprace.plants.commonroad import CommonRoadSTDPlant
 
     assert isinstance(make_plant(PlantConfig(kind="commonroad-std", vehicle=audi), circle_track, 0.05), CommonRoadSTDPlant)
-    with pytest.raises(UnknownBackendError, match="available: commonroad-std, frenet"):
+    with pytest.raises(UnknownBackendError, match="available: commonroad-std, frenet, randomized"):
         make_plant(PlantConfig(kind="frenetic", vehicle=audi), circle_track, 0.05)
 
 

@@ -15,12 +15,9 @@ from gprace.tracks import DEFAULT_TRACK, Track, load_track, random_track, shippe
 from gprace.tracks.loaders import load_tum_csv
 from gprace.tracks.random import random_track_spec
 
-TUM_DIR = Path(
-    os.environ.get(
-        "GPRACE_TUM_TRACKS",
-        Path(__file__).resolve().parents[2] / "shared" / "data" / "tumftm-racetrack-database" / "tracks",
-    )
-)
+from shared_data import TUM_TRACKS
+
+TUM_DIR = Path(os.environ.get("GPRACE_TUM_TRACKS", TUM_TRACKS))
 REAL = sorted(TUM_DIR.glob("*.csv"))
 
 
@@ -346,15 +343,16 @@ ROWS = "".join(f"{10 * np.cos(a):.6f},{10 * np.sin(a):.6f},2.0,2.5\n" for a in n
         ("", "empty file"),
         ("\n\n", "empty file"),
         (HEADER, "no data rows"),
-        (ROWS, "line 1: missing header"),
+        ("".join(",".join(r.split(",")[:3]) + "\n" for r in ROWS.splitlines()), "3 columns without a header: a boundary polyline"),
+        ("1,2,3,4,5\n2,3,4,5,6\n", "5 columns and no header"),
         ("# x_m,y_m,w_tr_right_m\n1,2,3\n", "missing column.*w_tr_left_m"),
         ("# x_m,y_m,w_right,w_left\n1,2,3,4\n", "wrong columns"),
-        (HEADER + ROWS + "3.0,4.0\n", r"row 13 \(line 14\): expected 4 values, got 2"),
-        (HEADER + ROWS + "3.0,4.0,1.0,", r"row 13 \(line 14\), column w_tr_left_m: not a number: ''"),
+        (HEADER + ROWS + "3.0,4.0\n", r"row 13 \(line 14\) has 2 fields, the header has 4 \(truncated"),
+        (HEADER + ROWS + "3.0,4.0,1.0,", r"row 13 \(line 14\), column w_tr_left_m: empty cell"),
         (HEADER + ROWS.replace("2.0,2.5", "nan,2.5", 1), r"row 1 \(line 2\), column w_tr_right_m: value is not finite"),
         (HEADER + ROWS.replace("2.0,2.5", "2.0,inf", 1), r"row 1 \(line 2\), column w_tr_left_m: value is not finite"),
         (HEADER + ROWS.replace("10.000000,", "-Infinity,", 1), r"row 1 \(line 2\), column x_m: value is not finite"),
-        (HEADER + ROWS.replace("10.000000,", "abc,", 1), r"row 1 \(line 2\), column x_m: not a number: 'abc'"),
+        (HEADER + ROWS.replace("10.000000,", "abc,", 1), r"column 'x_m' row 1 \(line 2\): 'abc' is not a number"),
         (HEADER + ROWS.replace("2.0,2.5", "0.0,2.5", 1), r"row 1 \(line 2\), column w_tr_right_m: width must be positive"),
         (HEADER + "0,0,1,1\n1,0,1,1\n1,1,1,1\n", "only 3 data rows"),
         (HEADER + ROWS.splitlines(True)[0] + ROWS, r"row 1 \(line 2\) and row 2 \(line 3\): the same point twice"),
@@ -383,7 +381,7 @@ def test_csv_formats_accepted(tmp_path):
 
 def test_unknown_suffix_and_folder(tmp_path):
     with pytest.raises(InputError, match="unknown track format"):
-        load_track(_write(tmp_path, "t.txt", HEADER + ROWS))
+        load_track(_write(tmp_path, "t.json", HEADER + ROWS))
     with pytest.raises(InputError, match="folder"):
         load_track(tmp_path)
 
@@ -459,3 +457,164 @@ def test_toml_bad_input(tmp_path, text, exc, match):
 def test_toml_open_track_need_not_close(tmp_path):
     t = load_track(_write(tmp_path, "open.toml", GOOD.replace("closed = true", "closed = false").replace("length = 50.0", "length = 40.0", 1)))
     assert not t.closed and t.length == pytest.approx(90 + 20 * np.pi, rel=1e-4)
+
+
+# ---------------------------------------------------------------------------------------------
+# tracks as they come (issue 36): headerless centre lines, two boundary files, scale
+
+from shared_data import REAL_LOGS  # noqa: E402
+
+INI_CENTRE = REAL_LOGS / "ini_f1tenth_ipz20" / "centerline.csv"
+PUTNAM = [REAL_LOGS / "iac_putnam_park" / f"putnam_{k}_bound.csv" for k in ("inner", "outer")]
+
+
+def test_headerless_centre_line_equals_the_one_with_header(tmp_path):
+    raw = np.loadtxt(TUM_DIR / "Norisring.csv", delimiter=",", comments="#")
+    bare = tmp_path / "bare.csv"
+    np.savetxt(bare, raw, delimiter=",", fmt="%.6f")
+    ta, tb = load_track(TUM_DIR / "Norisring.csv"), load_track(bare)
+    assert tb.length == pytest.approx(ta.length, rel=1e-6) and tb.smoothing == pytest.approx(ta.smoothing)
+    s = np.linspace(0, ta.length, 500)
+    assert np.allclose(tb.width_left(s), ta.width_left(s), atol=1e-4) and np.allclose(tb.kappa(s), ta.kappa(s), atol=1e-4)
+
+
+@pytest.mark.skipif(not INI_CENTRE.exists(), reason="real logs not available")
+def test_a_25_m_and_a_5_km_track_load_with_the_same_command(capsys):
+    """The F1TENTH centre line as it comes (no header, points 0.1 m apart, widths ~1 m) and a TUM
+    circuit: smoothing follows the point spacing (0.1 m vs 5 m) and keeps every border."""
+    infos = []
+    for path in (INI_CENTRE, TUM_DIR / "Spa.csv"):
+        assert main(["track", "show", str(path), "--json"]) == 0
+        infos.append(json.loads(capsys.readouterr().out))
+    ini, spa = infos
+    assert 25 < ini["length_m"] < 32 and ini["smoothing_m"] == pytest.approx(0.1, rel=0.01)
+    assert 6900 < spa["length_m"] < 7100 and spa["smoothing_m"] == pytest.approx(5.0, rel=0.01)
+    # the file's widths survive the smoothing: centre +- width lands where the file puts the borders
+    raw = np.loadtxt(INI_CENTRE, delimiter=",")
+    t = load_track(INI_CENTRE)
+    s, e = t.to_frenet(raw[:, 0], raw[:, 1])
+    assert np.abs(e).max() < 0.01
+
+
+def _ring_bounds(n_a=700, n_b=500, noise=0.0, seed=0):
+    """Inner and outer boundary of a kidney-shaped loop with a varying width, and its true centre."""
+    rng = np.random.default_rng(seed)
+    u = np.linspace(0, 2 * np.pi, 4000, endpoint=False)
+    r = 60 + 15 * np.cos(2 * u) + 8 * np.sin(3 * u)
+    c = np.column_stack([r * np.cos(u), r * np.sin(u)])
+    d = np.gradient(c, axis=0)
+    t = d / np.hypot(*d.T)[:, None]
+    nrm = np.column_stack([-t[:, 1], t[:, 0]])
+    w = 5 + 1.5 * np.sin(u)
+    left, right = c + w[:, None] * nrm, c - w[:, None] * nrm
+
+    def pick(p, n):
+        i = np.sort(rng.choice(len(p), n, replace=False))
+        return p[i] + rng.normal(0, noise, (n, 2))
+
+    return pick(left, n_a), pick(right, n_b), c, w
+
+
+@pytest.mark.parametrize("variant", ["plain", "reversed", "rolled", "swapped", "noisy", "first_reversed"])
+def test_track_from_two_boundaries(tmp_path, variant):
+    """Centre line and widths from boundary files in either order, direction and start, point
+    counts differing; recovered to a few cm (the true centre is known)."""
+    left, right, c, w = _ring_bounds(noise=0.03 if variant == "noisy" else 0.0)
+    a, b = left, right
+    if variant == "reversed":
+        b = b[::-1]
+    if variant == "rolled":
+        b = np.roll(b, 137, axis=0)
+    if variant == "swapped":
+        a, b = right, left
+    if variant == "first_reversed":
+        a = a[::-1]
+    pa, pb = tmp_path / "a.csv", tmp_path / "b.csv"
+    np.savetxt(pa, np.column_stack([a, np.full(len(a), -34.0)]), delimiter=",")  # a z column, as IAC's
+    np.savetxt(pb, b, delimiter=",", header="x_m,y_m", comments="# ")
+    trk = load_track(f"{pa},{pb}")
+    assert trk.closed
+    s, e = trk.to_frenet(c[:, 0], c[:, 1])
+    tol = 0.12 if variant == "noisy" else 0.05
+    assert np.abs(e).max() < tol
+    assert np.abs(trk.width_left(s) + trk.width_right(s) - 2 * w).max() < 2 * tol + 0.05
+    # the first file sets the direction (counter-clockwise unless it runs the other way)
+    smp = trk.sample(1.0)
+    area = np.sum(smp.x * np.roll(smp.y, -1) - np.roll(smp.x, -1) * smp.y)
+    assert (area > 0) == (variant != "first_reversed")
+    # the pair syntax of `track show` (two arguments) gives the same track
+    assert main(["track", "show", str(pa), str(pb), "--json"]) == 0
+
+
+def test_crossing_boundary_files_are_refused(tmp_path, capsys):
+    left, right, _, _ = _ring_bounds()
+    bad = left.copy()
+    k = slice(100, 160)
+    bad[k] = right[np.clip(np.searchsorted(np.linspace(0, 1, len(right)), np.linspace(0, 1, len(left))[k]), 0, len(right) - 1)] * 1.02
+    pa, pb = tmp_path / "inner.csv", tmp_path / "outer.csv"
+    np.savetxt(pa, bad, delimiter=",")
+    np.savetxt(pb, right, delimiter=",")
+    with pytest.raises(InputError, match="the boundary files cross each other") as exc:
+        load_track([pa, pb])
+    assert "\n" not in str(exc.value)
+    assert main(["track", "show", f"{pa},{pb}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cross each other" in err[0]
+
+
+@pytest.mark.skipif(not PUTNAM[0].exists(), reason="real logs not available")
+def test_putnam_park_from_its_boundary_files():
+    """IAC's files as they come: x, y, z without a header, the "inner" file being the outer loop."""
+    trk = load_track(PUTNAM)
+    assert trk.closed and 2800 < trk.length < 2900
+    lo, hi = trk.width_range
+    assert 7.0 < lo and hi < 12.0
+    for p in PUTNAM:  # every boundary point lies on a border of the derived track
+        xy = np.loadtxt(p, delimiter=",")[:, :2]
+        s, e = trk.to_frenet(xy[:, 0], xy[:, 1])
+        border = np.where(e > 0, trk.width_left(s), -trk.width_right(s))
+        assert np.percentile(np.abs(e - border), 95) < 0.3
+
+
+def test_reversed_track_is_the_same_geometry():
+    t = load_track(TUM_DIR / "Norisring.csv")
+    r = t.reversed()
+    s = np.linspace(0, t.length, 700, endpoint=False)
+    sr = r.wrap(t.length - s)
+    x, y = t.position(s)
+    xr, yr = r.position(sr)
+    assert r.length == pytest.approx(t.length, rel=1e-6) and r.is_reversed and not t.is_reversed
+    assert np.hypot(x - xr, y - yr).max() < 1e-3
+    assert np.abs(t.kappa(s) + r.kappa(sr)).max() < 1e-3
+    assert np.abs(t.width_left(s) - r.width_right(sr)).max() < 0.05
+
+
+def test_smoothing_option_is_named_when_it_fails(tmp_path, capsys):
+    pts = [(10 * np.cos(a), 10 * np.sin(a)) for a in np.linspace(0, 2 * np.pi, 40, endpoint=False)]
+    p = _write(tmp_path, "narrow.csv", "".join(f"{x},{y},0.05,0.05\n" for x, y in pts))
+    assert main(["track", "show", str(p), "--smoothing", "20"]) == 2
+    err = capsys.readouterr().err
+    assert "--smoothing" in err and "moves the centre line outside" in err
+    assert main(["track", "show", str(p)]) == 0  # the automatic smoothing (point spacing) fits
+
+
+@pytest.mark.parametrize("name", ["Norisring", "Suzuka", "Spa"])
+def test_boundaries_of_real_circuits(tmp_path, name):
+    """Borders of TUM circuits (Suzuka's cross at the bridge) written as two files, the second
+    reversed, rolled, 5 cm noisy, the first with 30 % of its points dropped: the derived centre
+    is the midline between the borders (to 5 cm at the 95th percentile; TUM's own line sits
+    (w_left - w_right) / 2 off it) and the total width right to 15 cm."""
+    rng = np.random.default_rng(7)
+    t = load_track(TUM_DIR / f"{name}.csv")
+    smp = t.sample(2.0)
+    (xl, yl), (xr, yr) = t.borders(2.0)
+    a = np.column_stack([xl, yl])[rng.random(len(xl)) > 0.3]
+    b = np.roll(np.column_stack([xr, yr])[::-1], 333, axis=0) + rng.normal(0, 0.05, (len(xr), 2))
+    pa, pb = tmp_path / "left.csv", tmp_path / "right.csv"
+    np.savetxt(pa, a, delimiter=",")
+    np.savetxt(pb, b, delimiter=",")
+    tb = load_track([pa, pb])
+    assert abs(tb.length - t.length) < 0.005 * t.length
+    s, e = tb.to_frenet(smp.x, smp.y, s_hint=smp.s * tb.length / t.length)
+    assert np.percentile(np.abs(e + 0.5 * (smp.wl - smp.wr)), 95) < 0.05
+    assert np.percentile(np.abs(tb.width_left(s) + tb.width_right(s) - smp.wl - smp.wr), 95) < 0.15

@@ -83,6 +83,7 @@ def _import(target: str) -> type:
 plants = Registry("gprace.plant", "plant")
 plants.builtin("frenet", "gprace.plants.frenet:FrenetPlant")
 plants.builtin("commonroad-std", "gprace.plants.commonroad:CommonRoadSTDPlant")
+plants.builtin("randomized", "gprace.plants.randomized:RandomizedPlant")
 
 gps = Registry("gprace.gp", "GP backend")
 gps.builtin("exact", "gprace.backends.gp_exact:ExactGP")

@@ -11,8 +11,9 @@ import typer
 def register(app: typer.Typer) -> None:
     @app.command("import")
     def import_cmd(
-        recording: Optional[Path] = typer.Argument(None, help="Recording: .csv (global frame), .mcap, .db3, .bag, a rosbag2 folder, .mf4/.mdf."),
-        track: Optional[str] = typer.Option(None, "--track", help="Track: a TUM CSV / segment TOML path or a shipped name; none: a reference line from the driven path."),
+        recording: Optional[list[Path]] = typer.Argument(None, help="Recording: .csv (global frame), .mcap, .db3, .bag, a rosbag2 folder, .mf4/.mdf; several files of one drive (pose, IMU, commands) are merged on one time base."),
+        track: Optional[str] = typer.Option(None, "--track", help="Track: a centre-line CSV (TUM, header optional), two boundary files INNER.csv,OUTER.csv, a segment TOML or a shipped name; default the map's track, else a reference line from the laps of the driven path."),
+        track_smoothing: Optional[float] = typer.Option(None, "--track-smoothing", help="Whittaker smoothing length of a CSV track [m]; default its point spacing, at most 5 m."),
         output: Optional[Path] = typer.Option(None, "--output", "-o", help="Run file to write (.h5, or .csv with provenance in <name>.meta.json)."),
         map_file: Optional[Path] = typer.Option(None, "--map", help="Recording map (TOML): columns, topics, channels, units, signs."),
         dt: float = typer.Option(0.05, "--dt", help="Period of the written run, seconds."),
@@ -28,7 +29,7 @@ def register(app: typer.Typer) -> None:
 
             console.result(default_map_toml().rstrip("\n"))
             return
-        if recording is None:
+        if not recording:
             raise InputError("import: give a RECORDING (or --print-map)")
         if output is None:
             raise InputError("import: give the run file to write with -o/--output (.h5 or .csv)")
@@ -45,19 +46,20 @@ def register(app: typer.Typer) -> None:
 
         t0 = time.perf_counter()
         rmap = load_map(map_file)
-        run, trk = import_recording(recording, track=track, rmap=rmap, map_path=map_file, dt=dt, log=console.info)
+        run, trk = import_recording(recording, track=track, rmap=rmap, map_path=map_file, dt=dt, log=console.info,
+                                    track_smoothing=track_smoothing)
         if map_file is not None:
             run.meta["map_file"] = str(map_file)
-        write_run(run, output, config_hash=import_hash(run))
-        if output.suffix.lower() == ".csv":
-            _write_meta(run, output)
+        write_run(run, output, config_hash=import_hash(run))  # a CSV gets its meta in <name>.meta.json
         elapsed = time.perf_counter() - t0
         d = run.data
         summary = {
-            "output": str(output), "source": str(recording), "samples": run.n, "duration_s": float(d["t"][-1]),
+            "output": str(output), "source": " + ".join(map(str, recording)), "samples": run.n, "duration_s": float(d["t"][-1]),
             "dt": dt, "track": trk.name, "reference": run.meta["reference"], "laps": int(d["lap"].max() - d["lap"].min()),
             "gaps": run.meta["gaps"], "rows_dropped": run.meta["rows_dropped"],
-            "e_y_abs_max_m": float(abs(d["e_y"]).max()), "seconds": elapsed,
+            "e_y_abs_max_m": float(abs(d["e_y"]).max()), "s_min_m": float(d["s"].min()), "s_max_m": float(d["s"].max()),
+            "track_length_m": run.meta["track_length"], "inputs": run.meta["inputs"], "notes": run.meta["notes"],
+            "seconds": elapsed,
         }
         if json_out:
             console.json(summary)
@@ -68,11 +70,3 @@ def register(app: typer.Typer) -> None:
                 f"{summary['laps']} lap crossing(s), {summary['gaps']} gap(s), max |e_y| {summary['e_y_abs_max_m']:.2f} m"
             )
 
-
-def _write_meta(run, output: Path) -> None:
-    """Provenance of a CSV run (CSV has no attributes): ``<name>.meta.json`` beside it, atomically."""
-    import json
-
-    from gprace.io.artifacts import write_text_atomic
-
-    write_text_atomic(output.with_name(output.stem + ".meta.json"), json.dumps(run.meta, indent=1, default=str))

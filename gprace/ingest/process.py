@@ -155,6 +155,8 @@ class GlobalState:
     valid: np.ndarray
     notes: list[str]
     origin: dict[str, str]
+    v_cmd: np.ndarray | None = None  # speed command [m/s] when the recording has one
+    a_x_source: str = "column"  # "column" or "derived" (from the change of v_x)
 
 
 def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
@@ -169,7 +171,7 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
         raise raw.missing("position", ("x", "y"))
     if "delta" not in S and "steering_wheel" not in S:
         raise raw.missing("steering angle", ("delta", "steering_wheel"))
-    used = list(pos) + [q for q in ("yaw", "yaw_rate", "a_x") if q in S]
+    used = list(pos) + [q for q in ("yaw", "yaw_rate", "a_x", "v_cmd") if q in S]
     if "yaw" not in S and "course" in S:
         used.append("course")
     for group in (("v_x", "v_y"), ("speed", "course"), ("v_east", "v_north"), ("speed",)):
@@ -182,13 +184,16 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
     if not end > start + 2 * dt:
         spans = ", ".join(f"{S[q].origin} {S[q].t[0]:.3f}..{S[q].t[-1]:.3f} s" for q in used)
         raise InputError(f"{raw.source}: the sources do not overlap in time for more than 2 periods ({spans})")
+    check_clock(raw, used, start, end, dt)
     n = int(math.floor((end - start) / dt + 1e-9)) + 1
     tg = start + dt * np.arange(n)
     vals, valid = {}, np.ones(n, dtype=bool)
+    held = rmap.held()
     for q in used:
-        v, ok = resample(S[q], tg, dt, rmap.max_gap, q in rmap.hold, q in ANGLES)
+        v, ok = resample(S[q], tg, dt, rmap.max_gap, q in held, q in ANGLES)
         vals[q] = v
         valid &= ok
+    _constant_channels(raw, vals, valid, notes)
     if pos == ("lat", "lon"):
         if rmap.origin is not None:
             lat0, lon0 = math.radians(rmap.origin[0]), math.radians(rmap.origin[1])
@@ -198,6 +203,7 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
         notes.append(f"lat/lon projected on the tangent plane at ({math.degrees(lat0):.6f}, {math.degrees(lon0):.6f})")
     else:
         x, y = vals["x"], vals["y"]
+    valid = _position_jumps(raw, tg, x, y, vals, valid, dt, notes)
     vxw, okx = seg_gradient(x, valid, dt)
     vyw, oky = seg_gradient(y, valid, dt)
     path_heading = np.unwrap(np.arctan2(vyw, vxw))
@@ -233,12 +239,97 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
         notes.append("no velocities: from successive positions")
     yaw_rate, valid = _measured_or_rate(vals, "yaw_rate", yaw, valid, dt, notes, "the heading")
     delta = vals["delta"] if "delta" in vals else vals["steering_wheel"] / rmap.steering_ratio
+    a_x_source = "column" if "a_x" in vals else "derived"
     a_x, valid = _measured_or_rate(vals, "a_x", v_x, valid, dt, notes, "the change of v_x")
     origin = {q: S[q].origin for q in S}
-    gs = GlobalState(tg, x, y, yaw, v_x, v_y, yaw_rate, delta, a_x, valid, notes, origin)
+    gs = GlobalState(tg, x, y, yaw, v_x, v_y, yaw_rate, delta, a_x, valid, notes, origin,
+                     vals.get("v_cmd"), a_x_source)
     if rmap.check_units:
         check_units(raw, gs, vals, dt)
     return gs
+
+
+def check_clock(raw: Raw, used: list[str], start: float, end: float, dt: float) -> None:
+    """Refuse a grid far denser than the data before it is allocated: time stamps in ms, us or ns
+    read as seconds (the hint names the unit), or a span no recording has."""
+    S = raw.signals
+    n_grid = (end - start) / dt
+    n_data = max(len(S[q].t) for q in used)
+    if n_grid <= 50.0 * n_data + 1e5:
+        return
+    declared = raw.units.get("t", "s")
+    q = max(used, key=lambda k: len(S[k].t))
+    per = float(np.median(np.diff(S[q].t))) / UNITS["time"][declared]  # in the declared unit
+    for unit, f in sorted(UNITS["time"].items(), key=lambda kv: -kv[1]):
+        if unit != declared and 1e-4 <= per * f <= 2.0:
+            raise InputError(
+                f"{raw.source}: the time stamps advance by {per:.4g} {declared} per sample ({S[q].origin}): "
+                f"the time stamps look like {unit}, not {declared}: set [units] t = \"{unit}\" in the map")
+    raise InputError(
+        f"{raw.source}: {end - start:.4g} s of recording at --dt {dt:g} s would make {n_grid:.3g} rows from "
+        f"{n_data} samples; check the time column's unit ([units] t) or the clock offsets ([clocks])")
+
+
+def _position_jumps(raw: Raw, tg, x, y, vals: dict, valid: np.ndarray, dt: float, notes: list[str]) -> np.ndarray:
+    """Leave out positions that jump further than the car can go (a GNSS glitch, a re-fix): a
+    step longer than 10 times the distance the speed (else the typical step) allows. A single
+    sample off and back is dropped; after a lasting jump the rows before it and after it are
+    separate pieces (the projection checks the rest against the track)."""
+    idx = np.flatnonzero(valid)
+    if len(idx) < 4:
+        return valid
+    px, py = x[idx], y[idx]
+    step = np.hypot(np.diff(px), np.diff(py))
+    gap_dt = np.diff(tg[idx])
+    speed = None
+    for group in (("v_x", "v_y"), ("v_x",), ("speed",), ("v_east", "v_north")):
+        if all(q in vals for q in group):
+            speed = np.hypot(*[vals[q][idx] for q in group]) if len(group) > 1 else np.abs(vals[group[0]][idx])
+            break
+    typical = float(np.median(step))
+    allow = np.maximum(typical, 0.5 * (speed[1:] + speed[:-1]) * gap_dt if speed is not None else typical * gap_dt / dt)
+    jump = step > 10.0 * allow + 1e-3
+    if not jump.any():
+        return valid
+    out = valid.copy()
+    j = np.flatnonzero(jump)
+    # a spike: a jump out and one back, with the points either side close together
+    spike = np.zeros(len(idx), dtype=bool)
+    inner = j[(j + 1 < len(step)) & np.isin(j + 1, j)]
+    back = np.hypot(px[np.minimum(inner + 2, len(px) - 1)] - px[inner], py[np.minimum(inner + 2, len(px) - 1)] - py[inner])
+    spike[inner[back <= 10.0 * 2 * allow[inner]] + 1] = True
+    lasting = [k for k in j if not (spike[k + 1] or spike[k])]
+    out[idx[spike]] = False
+    for k in lasting:  # the row after a lasting jump starts a new piece: drop the row before it
+        out[idx[k]] = False
+    biggest = float(step[j].max())
+    k0 = int(j[np.argmax(step[j])])
+    notes.append(f"positions jump {len(j)} time(s) further than the speed allows (largest {biggest:.4g} m at "
+                 f"t = {tg[idx[k0 + 1]] - tg[idx[0]]:.2f} s, {raw.signals['x'].origin if 'x' in raw.signals else 'position'}): "
+                 f"{int(spike.sum())} glitch sample(s) left out, {len(lasting)} break(s) in the recording")
+    return out
+
+
+CONSTANT_FALLBACK = {"a_x": "the change of v_x", "yaw_rate": "the heading", "v_y": "successive positions"}
+
+
+def _constant_channels(raw: Raw, vals: dict, valid: np.ndarray, notes: list[str]) -> None:
+    """A channel that never changes (a placeholder: all zeros, a stuck sensor) is named in a note;
+    ``a_x``, ``yaw_rate`` and ``v_y`` are then taken as absent and derived as when missing."""
+    if valid.sum() < 3:
+        return
+    for q in ("v_x", "v_y", "yaw_rate", "delta", "steering_wheel", "a_x", "speed", "v_cmd"):
+        if q not in vals:
+            continue
+        v = vals[q][valid]
+        if np.ptp(v) > 1e-12 * max(1.0, abs(float(v[0]))):
+            continue
+        what = f"{raw.signals[q].origin} is constant ({float(v[0]):.6g})"
+        if q in CONSTANT_FALLBACK:
+            notes.append(f"{what}: left out, {q} from {CONSTANT_FALLBACK[q]}")
+            del vals[q]
+        else:
+            notes.append(f"{what}: kept, but it carries no information")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -382,16 +473,18 @@ def project(gs: GlobalState, track, source: str, origin_at_start: bool = False) 
         ds = track._ds(s[1:], s[:-1])
         dt_rows = np.diff(gs.t[m])
         expect = 0.5 * (speed[1:] + speed[:-1]) * dt_rows
-        jump = np.abs(ds - expect) > np.maximum(5.0, 0.5 * expect)
-        if jump.any():
-            ds = np.where(jump, expect, ds)
+        tol = min(5.0, 0.02 * L)  # a step off by more than this is a jump (scales with the track)
+        excursion = branch_excursions(ds, expect, tol)
+        if excursion.any():
+            ds = np.where(excursion, expect, ds)
             s_hint = track.wrap(s[0] + np.concatenate([[0.0], np.cumsum(ds)]))
-            s, e_y = track.to_frenet(x, y, s_hint=s_hint, window=max(50.0, 0.05 * L))
+            s, e_y = track.to_frenet(x, y, s_hint=s_hint, window=max(4.0 * tol, 0.05 * L))
             ds = track._ds(s[1:], s[:-1])
         s_cont = s[0] + np.concatenate([[0.0], np.cumsum(ds)])
         s_track = track.wrap(s_cont)
-        if origin_at_start:
-            s_cont = s_cont - s_cont[0]
+        if origin_at_start:  # the lowest s before the car has gone 2 % of a lap: a standing start's jitter stays in lap 0
+            away = np.flatnonzero(s_cont - s_cont[0] > 0.02 * L)
+            s_cont = s_cont - float(np.min(s_cont[: (away[0] if len(away) else len(s_cont)) + 1]))
         s_cont = s_cont - L * np.floor((s_cont[0] + 1e-3) / L)  # lap 0 at the start, even on the line
         lap = np.floor((s_cont + 1e-3) / L)  # within 1 mm before the line is on it
         s = np.maximum(s_cont - lap * L, 0.0)
@@ -409,6 +502,30 @@ def project(gs: GlobalState, track, source: str, origin_at_start: bool = False) 
         )
     e_psi = wrap(gs.yaw[m] - track.heading(s_track))
     return {"s": s, "e_y": e_y, "e_psi": e_psi, "kappa": track.kappa(s_track), "lap": lap}
+
+
+def branch_excursions(ds: np.ndarray, expect: np.ndarray, tol: float) -> np.ndarray:
+    """Steps of the projected ``s`` that jump to another branch of the line and back.
+
+    A step is a jump when it differs from the distance driven by more than ``max(tol, 50 %)``.
+    Two successive jumps that cancel (within the same tolerance) bound an *excursion*: the
+    nearest point sat on another part of the line (a crossing, an adjacent straight) and came
+    back; both steps are marked. A jump that is not undone is kept: the nearest point skipped
+    ahead (inside a hairpin tighter than the car's offset), and ``s`` really is further on.
+    Loops over the jumps only (a handful), never over samples.
+    """
+    d = ds - expect
+    jumps = np.flatnonzero(np.abs(d) > np.maximum(tol, 0.5 * expect))
+    out = np.zeros(len(ds), dtype=bool)
+    k = 0
+    while k < len(jumps) - 1:
+        a, b = jumps[k], jumps[k + 1]
+        if abs(d[a] + d[b]) < max(tol, 0.5 * (expect[a] + expect[b])):
+            out[a] = out[b] = True
+            k += 2
+        else:
+            k += 1
+    return out
 
 
 def segments(t: np.ndarray, dt: float) -> np.ndarray:

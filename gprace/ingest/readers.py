@@ -2,9 +2,15 @@
 
 One reader per family, chosen by :func:`recording_format` from the extension:
 
-* ``.csv`` (global-frame log): one row per time stamp, column names from the map's
-  ``[columns]``; an empty cell means the quantity was not sampled at that row (logs that merge
-  sources of different rates), so each quantity keeps its own time stamps.
+* ``.csv`` (global-frame log), read as it comes (:mod:`gprace.ingest.table`: comment preambles,
+  a header in the last comment line or none, BOM, CRLF, ``;``). *Wide*: one row per time stamp,
+  column names from the map's ``[columns]``; an empty cell means the quantity was not sampled at
+  that row (logs that merge sources of different rates), so each quantity keeps its own time
+  stamps. *Long*: one row per channel sample (name, value, time; declared with ``layout =
+  "long"`` or recognised from its header), the ``[columns]`` names being channel names.
+* Several files of one drive (pose, IMU, commands), each with its own clock (``[clocks."f.csv"]``:
+  time column, unit, offset), are merged quantity by quantity (:func:`merge_raw`); the import then
+  resamples every quantity on one grid as for a single file.
 * ROS: ``.mcap``, ``.db3`` and a rosbag2 folder (``metadata.yaml``), or a ROS 1 ``.bag``, through
   ``rosbags`` (pure Python). Message types ``nav_msgs/msg/Odometry``, ``geometry_msgs/msg/PoseStamped``,
   ``sensor_msgs/msg/Imu`` and ``ackermann_msgs/msg/AckermannDriveStamped`` (not in rosbags'
@@ -60,6 +66,9 @@ class Raw:
     kind: str = "csv"  # csv | ros | mdf
     hints: dict[str, str] = field(default_factory=dict)  # quantity -> where the map looks for it
     units: dict[str, str] = field(default_factory=dict)  # quantity -> unit it was read in
+    notes: list[str] = field(default_factory=list)
+    origin_file: dict[str, str] = field(default_factory=dict)
+    layout: str = "wide"
 
     def add(self, q: str, t: np.ndarray, v: np.ndarray, origin: str, rmap: RecordingMap, unit: str | None = None) -> None:
         """Store quantity ``q`` converted to SI with the map's sign (``unit`` overrides the map's)."""
@@ -93,7 +102,14 @@ def recording_format(path: Path) -> str | None:
     return None
 
 
-def read_raw(path: Path, rmap: RecordingMap) -> Raw:
+def read_raw(path: Path | list[Path], rmap: RecordingMap) -> Raw:
+    """Every signal of a recording (one file, or the files of one drive merged: :func:`merge_raw`)."""
+    if isinstance(path, (list, tuple)):
+        return merge_raw([_read_one(Path(p), rmap) for p in path], rmap)
+    return merge_raw([_read_one(Path(path), rmap)], rmap)
+
+
+def _read_one(path: Path, rmap: RecordingMap) -> Raw:
     fmt = recording_format(path)
     if fmt == "csv":
         return read_csv(path, rmap)
@@ -104,16 +120,18 @@ def read_raw(path: Path, rmap: RecordingMap) -> Raw:
     raise InputError(f"{path}: unknown recording format {path.suffix!r} (expected .csv, .mcap, .db3, .bag, a rosbag2 folder, .mf4 or .mdf)")
 
 
-def check_time(t: np.ndarray, source: str, what: str, rows: np.ndarray | None = None) -> None:
+def check_time(t: np.ndarray, source: str, what: str, rows: np.ndarray | None = None,
+               lines: np.ndarray | None = None) -> None:
     """Time stamps must not go backwards (equal stamps are allowed: the last sample counts).
 
     ``rows``: the file row (:func:`gprace.errors.at_row`) of each stamp, for a table whose
-    quantity was not sampled on every row; without it the stamp is counted within ``what``.
+    quantity was not sampled on every row (``lines``: its file line); without it the stamp is
+    counted within ``what``.
     """
     bad = np.flatnonzero(np.diff(t) < 0)
     if len(bad):
         i = int(bad[0])
-        where = f"sample {i + 2}" if rows is None else at_row(int(rows[i + 1]))
+        where = f"sample {i + 2}" if rows is None else at_row(int(rows[i + 1]), None if lines is None else int(lines[i + 1]))
         raise InputError(
             f"{source}: time stamps go backwards in {what} at {where} "
             f"({t[i + 1]:.6g} s after {t[i]:.6g} s); sort the log or fix the clock"
@@ -123,68 +141,133 @@ def check_time(t: np.ndarray, source: str, what: str, rows: np.ndarray | None = 
 # ----------------------------------------------------------------------------------------------
 # CSV
 
+LONG_NAMES = ("name", "channel", "signal", "field", "key", "topic", "variable")
+LONG_VALUES = ("value", "val", "data", "reading")
+LONG_TIMES = ("timestamp", "time", "t", "stamp", "time_s", "ts")
+
+
+def _clock(path: Path, rmap: RecordingMap) -> tuple[str, str, float]:
+    """Time column, unit and offset [s] of ``path`` (its ``[clocks."name"]`` table, else the map's)."""
+    c = rmap.clocks.get(path.name)
+    col = c.column if c is not None and c.column else rmap.columns.t
+    unit = c.unit if c is not None and c.unit else rmap.units.t
+    return col, unit, (c.offset if c is not None else 0.0)
+
+
+def _long_layout(tbl, rmap: RecordingMap, time_col: str) -> tuple[str, str, str] | None:
+    """``(name, value, time)`` columns when ``tbl`` is long-format telemetry (declared, or a header
+    with a channel-name, a value and a time column and no column the map's x/y/lat/lon name)."""
+    low = {n.lower(): n for n in tbl.names}
+    lf = rmap.long
+    if rmap.layout == "wide":
+        return None
+
+    def pick(own: str | None, aliases: tuple[str, ...]) -> str | None:
+        if own is not None and own in tbl.names:
+            return own
+        return next((low[a] for a in aliases if a in low), None)
+
+    name = pick(lf.name if "name" in lf.model_fields_set or rmap.layout == "long" else None, LONG_NAMES)
+    value = pick(lf.value if "value" in lf.model_fields_set or rmap.layout == "long" else None, LONG_VALUES)
+    time = pick(lf.time or time_col, LONG_TIMES)
+    found = name is not None and value is not None and time is not None
+    if rmap.layout == "long":
+        if not found:
+            raise InputError(
+                f"{tbl.path}: layout = \"long\" but no {'name' if name is None else 'value' if value is None else 'time'} "
+                f"column ([long] name = {lf.name!r}, value = {lf.value!r}, time = {lf.time or time_col!r}); columns: {', '.join(tbl.names)}")
+        return name, value, time
+    cols = rmap.columns
+    wide = any(getattr(cols, q) in tbl.names for q in ("x", "y", "lat", "lon"))
+    return (name, value, time) if found and not wide and len(tbl.names) <= 6 else None
+
 
 def read_csv(path: Path, rmap: RecordingMap) -> Raw:
-    try:
-        with path.open() as fh:
-            header_line = fh.readline()
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text CSV file") from None
-    header = [h.strip() for h in header_line.lstrip("#").strip().split(",")]
-    if not header or header == [""]:
-        raise InputError(f"{path}: empty file")
-    arr = _csv_numbers(path, header)
-    if len(arr) == 0:
-        raise InputError(f"{path}: no data rows after the header")
+    """A CSV recording as it comes (:mod:`gprace.ingest.table`): wide (a column per quantity) or
+    long (one row per channel sample); each quantity keeps its own time stamps."""
+    from gprace.ingest.table import numbers, sniff, strings
+
+    tbl = sniff(path, "recording")
     cols = rmap.columns
+    t_col, t_unit, t_off = _clock(path, rmap)
+    long = _long_layout(tbl, rmap, t_col)
+    if long is not None:
+        n_col, v_col, t_col = long
+        chan = strings(tbl, n_col)
+        arr = numbers(tbl, [t_col, v_col])
+        names = sorted(set(chan))
+        raw = Raw(str(path), present=names, kind="csv", hints={q: f"channel {getattr(cols, q)!r}" for q in QUANTITIES})
+        raw.layout = "long"
+        t_all = arr[:, 0] * si_factor("t", t_unit) + t_off
+        raw.units["t"] = t_unit
+        for q in QUANTITIES[1:]:
+            name = getattr(cols, q)
+            sel = (chan == name) & np.isfinite(t_all) & np.isfinite(arr[:, 1])
+            if not sel.any():
+                continue
+            rows = np.flatnonzero(sel)
+            t = t_all[rows]
+            order = np.argsort(t, kind="stable")
+            if np.any(np.diff(order) < 0):  # a long file sorted by channel, not time: fine, sort it
+                rows, t = rows[order], t[order]
+            check_time(t, str(path), f"channel {name!r}", rows=rows + 1, lines=tbl.body_lines[rows])
+            raw.add(q, t, arr[rows, 1], f"channel {name!r}", rmap)
+        return raw
+    header = tbl.names
     raw = Raw(str(path), present=header, kind="csv", hints={q: f"column {getattr(cols, q)!r}" for q in QUANTITIES})
-    if cols.t not in header:
-        raise raw.missing("time stamps", ("t",))
-    t_all = arr[:, header.index(cols.t)] * si_factor("t", rmap.units.t)
-    raw.units["t"] = rmap.units.t
+    if t_col not in header and "t" not in rmap.columns.model_fields_set and path.name not in rmap.clocks:
+        low = {n.lower(): n for n in header}
+        found = next((low[a] for a in LONG_TIMES + ("time(s)", "time [s]", "time_sec", "seconds") if a in low), None)
+        if found is not None:
+            raw.notes.append(f"time from column {found!r} (the map names no [columns] t)")
+            t_col = found
+    if t_col not in header:
+        where = f'[clocks."{path.name}"] column' if path.name in rmap.clocks and rmap.clocks[path.name].column else "[columns] t"
+        raise InputError(f"{path}: no time column {t_col!r} ({where}); columns present: {', '.join(header)}"
+                         + ("" if tbl.has_header else " (no header found: columns are numbered)"))
+    wanted = [q for q in QUANTITIES[1:] if getattr(cols, q) in header]
+    arr = numbers(tbl, [t_col] + [getattr(cols, q) for q in wanted])
+    t_all = arr[:, 0] * si_factor("t", t_unit) + t_off
+    raw.units["t"] = t_unit
     keep_t = np.isfinite(t_all)
-    for q in QUANTITIES[1:]:
+    for k, q in enumerate(wanted, start=1):
         name = getattr(cols, q)
-        if name not in header:
-            continue
-        v = arr[:, header.index(name)]
+        v = arr[:, k]
         ok = keep_t & np.isfinite(v)
         if not ok.any():
             continue
-        t = t_all[ok]
-        check_time(t, str(path), f"column {cols.t!r}", rows=np.flatnonzero(ok) + 1)
-        raw.add(q, t, v[ok], f"column {name!r}", rmap)
+        rows = np.flatnonzero(ok)
+        check_time(t_all[ok], str(path), f"column {t_col!r}", rows=rows + 1, lines=tbl.body_lines[rows])
+        raw.add(q, t_all[ok], v[ok], f"column {name!r}", rmap)
     return raw
 
 
-def _csv_numbers(path: Path, header: list[str]) -> np.ndarray:
-    """The body of a CSV as floats (empty cells NaN), fast; errors name the row and column."""
-    try:
-        import pandas as pd
-    except ImportError:  # pragma: no cover - pandas comes with asammdf
-        pd = None
-    if pd is not None:
-        try:
-            df = pd.read_csv(path, header=None, skiprows=1, names=header, dtype=float, engine="c",
-                             skip_blank_lines=True)
-            return df.to_numpy(dtype=float)
-        except (ValueError, pd.errors.ParserError):
-            pass  # fall through to the slow path, which names the bad cell
-    lines = [(n, ln) for n, ln in enumerate(path.read_text().splitlines(), start=1) if ln.strip()][1:]
-    rows = [ln.split(",") for _, ln in lines]
-    out = np.full((len(rows), len(header)), np.nan)
-    for i, r in enumerate(rows):
-        where = at_row(i + 1, lines[i][0])
-        if len(r) != len(header):
-            raise InputError(f"{path}: {where} has {len(r)} fields, header has {len(header)} (truncated file?)")
-        for j, c in enumerate(r):
-            c = c.strip()
-            if not c:
-                continue
-            try:
-                out[i, j] = float(c)
-            except ValueError:
-                raise InputError(f"{path}: column {header[j]!r} {where}: {c!r} is not a number") from None
+def merge_raw(raws: list[Raw], rmap: RecordingMap) -> Raw:
+    """One :class:`Raw` from several files of one drive (each quantity from the first file that
+    has it; the others are noted). Columns the map names itself must be in some file."""
+    if len(raws) == 1:
+        out = raws[0]
+    else:
+        out = Raw(" + ".join(r.source for r in raws), kind=raws[0].kind, hints=raws[0].hints)
+        out.present = [f"{Path(r.source).name}: {p}" for r in raws for p in r.present]
+        for r in raws:
+            for q, sig in r.signals.items():
+                if q in out.signals:
+                    out.notes.append(f"{q} is in {out.origin_file[q]} and {Path(r.source).name}: the first is used")
+                    continue
+                out.signals[q] = Signal(sig.t, sig.v, f"{Path(r.source).name} {sig.origin}")
+                out.units[q] = r.units.get(q, "")
+                out.origin_file[q] = Path(r.source).name
+            out.units.setdefault("t", r.units.get("t", "s"))
+    if out.kind in ("csv", "mdf"):
+        explicit = rmap.explicit_columns()
+        lacking = [q for q in explicit if q not in out.signals and not (q == "t" and out.signals)]
+        if lacking:
+            noun = "channel" if out.kind == "mdf" or getattr(raws[0], "layout", "") == "long" else "column"
+            q = lacking[0]
+            listing = ", ".join(out.present) if out.present else "nothing"
+            raise InputError(f"{out.source}: the map names {noun} {explicit[q]!r} for {q} ([columns] {q}), "
+                             f"which the file lacks (or holds no number in); {noun}s present: {listing}")
     return out
 
 

@@ -1,11 +1,12 @@
 """A reference line made from the driven path itself, for recordings without a track file.
 
-The path (valid samples, in time order) is resampled every ``spacing`` metres of driven distance.
-If it returns to its start (within ``max(5 m, 3 spacing)``, heading within 60 degrees, after going
-at least 4 times that far away) the first lap becomes a *closed* line (``s = 0`` where the
-recording starts); otherwise the whole path is an *open* line. Either way it is smoothed with the
-track's Whittaker smoother (``smoothing`` metres, which removes GNSS noise and weave while keeping
-corner radii) and given a constant half width (only border checks use it).
+When the path closes (:func:`gprace.tracks.laps.path_laps`: the lap length from the closure of
+the path, one line averaged over all laps, smoothed and closed), the line is closed and the
+import wraps ``s`` per lap and counts the laps on it. Otherwise (an open stage, less than about
+1.02 laps) the whole path is an *open* line: resampled every ``spacing`` metres of driven
+distance (standstill adds none) and smoothed over three spacings. Either way the half width is
+only for border checks (a path is not a track): twice the spread of the laps around the line,
+or the map's ``reference_width``; ``reference_smoothing`` overrides the smoothing length.
 """
 
 from __future__ import annotations
@@ -15,34 +16,31 @@ import numpy as np
 from gprace.errors import InputError
 
 
-def path_reference(x: np.ndarray, y: np.ndarray, *, smoothing: float = 10.0, half_width: float = 6.0,
-                   spacing: float = 2.0, name: str = "path", source: str | None = None):
+def path_reference(x: np.ndarray, y: np.ndarray, *, smoothing: float | None = None, half_width: float | None = None,
+                   name: str = "path", source: str | None = None):
     from gprace.tracks import Track
+    from gprace.tracks.laps import driven_distance, path_laps, reference_half_width
 
-    d = np.hypot(np.diff(x), np.diff(y))
-    cum = np.concatenate([[0.0], np.cumsum(d)])
-    total = float(cum[-1])
-    if total < 20.0 * spacing:
-        raise InputError(f"{source or name}: the car drives only {total:.1f} m; too short to make a reference line from the path; give a track (`gprace import --track`, or `track = ...` in the recording's .map.toml)")
-    idx = np.unique(np.searchsorted(cum, np.arange(0.0, total, spacing)))
-    px, py, pc = x[idx], y[idx], cum[idx]
-    tol = max(5.0, 3.0 * spacing)
-    dist0 = np.hypot(px - px[0], py - py[0])
-    left = np.flatnonzero(dist0 > 4.0 * tol)
-    closed = False
-    if len(left):
-        after = np.arange(len(px)) > left[0]
-        back = np.flatnonzero(after & (dist0 < tol))
-        if len(back):
-            # the nearest approach to the start on the first return
-            j0 = back[0]
-            stop = np.flatnonzero(after & (np.arange(len(px)) > j0) & (dist0 >= tol))
-            j1 = stop[0] if len(stop) else len(px)
-            j = j0 + int(np.argmin(dist0[j0:j1]))
-            h0 = np.arctan2(py[1] - py[0], px[1] - px[0])
-            hj = np.arctan2(py[min(j + 1, len(px) - 1)] - py[j - 1], px[min(j + 1, len(px) - 1)] - px[j - 1])
-            if np.cos(hj - h0) > 0.5 and pc[j] > 8.0 * tol:
-                closed = True
-                px, py = px[:j], py[:j]
-    w = np.full(len(px), float(half_width))
-    return Track(px, py, w, w, closed=closed, name=name, smoothing=smoothing, source=source or name)
+    d = driven_distance(x, y)
+    total = float(d[-1])
+    extent = float(np.hypot(np.ptp(x), np.ptp(y))) if len(x) else 0.0
+    if not total > 0 or len(x) < 16 or total < 2.0 * max(extent, 1e-9) and total < 1.0:
+        raise InputError(f"{source or name}: the car drives only {total:.2f} m; too short to make a reference line from the path; "
+                         "give a track (`gprace import --track`, or `track = ...` in the recording's map)")
+    laps = path_laps(x, y)
+    if laps is not None:
+        w = reference_half_width(laps) if half_width is None else float(half_width)
+        if smoothing is None:
+            return laps.track(name=name, source=source or name, half_width=w)
+        ww = np.full(len(laps.x), w)
+        return Track(laps.x, laps.y, ww, ww, closed=True, name=name, smoothing=smoothing, source=source or name)
+    step = np.hypot(np.diff(x), np.diff(y))
+    spacing = max(float(np.median(step[step > 0])) if np.any(step > 0) else total / 100, total / 20_000)
+    idx = np.unique(np.searchsorted(d, np.arange(0.0, total, spacing)))
+    px, py = x[idx], y[idx]
+    if len(px) < 8:
+        raise InputError(f"{source or name}: the car drives only {total:.2f} m; too short to make a reference line from the path; "
+                         "give a track (`gprace import --track`, or `track = ...` in the recording's map)")
+    w = np.full(len(px), float(half_width) if half_width is not None else max(0.05 * extent, 0.5))
+    return Track(px, py, w, w, closed=False, name=name, smoothing=3.0 * spacing if smoothing is None else smoothing,
+                 source=source or name)

@@ -12,6 +12,13 @@ gprace's own closed loops (``simulate``, the time trial's drive) mark their runs
 ``meta[OWN_RUN] = True``: the unit check is meant for a user's files, and on a lap in which the
 car spun it would read the slide as a units error (v_y of 8 m/s looks like km/h). Structure,
 finiteness and time order are still checked.
+
+``meta["inputs"]`` says what the input columns hold (issue 36): ``{"delta": "commanded" |
+"measured", "a_x": "commanded" | "measured" | "derived" | "absent"}`` (plus ``"v_cmd":
+"commanded"`` with a speed-command column); a run without it is read as
+:data:`DEFAULT_INPUTS`. HDF5 keeps it as an attribute; a CSV run written with it gets its meta in
+``<name>.meta.json`` beside it, with the CSV's sha256, and :func:`read_run` reads it back when
+the sha256 still matches.
 """
 
 from __future__ import annotations
@@ -29,6 +36,8 @@ from gprace.io.artifacts import Artifact, read_artifact, write_artifact
 RUN_COLUMNS = ("t", "s", "e_y", "e_psi", "v_x", "v_y", "yaw_rate", "delta", "a_x", "kappa")
 STATE_COLUMNS = ("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s")
 INPUT_COLUMNS = ("delta", "a_x")
+DEFAULT_INPUTS = {"delta": "commanded", "a_x": "commanded"}
+"""What a run without ``meta["inputs"]`` holds: gprace's own recordings log the commands."""
 
 # Plausibility limits on ROBUST statistics of the whole file (a quantile, never the maximum: a
 # spin or a slide in one corner is data, handled by gprace.io.envelope, not a units error):
@@ -38,7 +47,7 @@ OWN_RUN = "own_run"  # meta key: a run recorded by gprace's own loop (no user-fi
 _PLAUSIBLE = {
     "v_x": (0.5, 120.0, "km/h instead of m/s?"),
     "v_y": (0.9, 8.0, "km/h instead of m/s?"),
-    "yaw_rate": (0.9, 2.0, "deg/s instead of rad/s?"),
+    "yaw_rate": (0.9, 6.0, "deg/s instead of rad/s?"),  # a 1:10 car turns at 3 rad/s; deg/s is also named by the heading check
     "e_psi": (0.9, 1.0, "degrees instead of rad?"),  # a car drifting round a skidpad holds 0.9 rad
     "delta": (0.9, 0.5, "degrees instead of rad? steering-wheel instead of road-wheel angle?"),
     "a_x": (0.9, 30.0, "not m/s^2?"),
@@ -77,6 +86,11 @@ class Run:
     def inputs(self) -> np.ndarray:
         """(n, 2) array ``[delta, a_x]``."""
         return np.column_stack([self.data[c] for c in INPUT_COLUMNS])
+
+    @property
+    def inputs_kind(self) -> dict[str, str]:
+        """``meta["inputs"]``, or :data:`DEFAULT_INPUTS` for a run without it."""
+        return {**DEFAULT_INPUTS, **(self.meta.get("inputs") or {})}
 
     def vehicle(self):
         """The nominal vehicle the run carries, or None."""
@@ -153,7 +167,41 @@ def write_run_csv(run: Run, path: str | Path) -> Path:
     tmp = path.with_name(f".{path.name}.tmp")
     np.savetxt(tmp, arr, delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
     tmp.replace(path)
+    if "inputs" in run.meta:
+        _write_sidecar(run.meta, path)
     return path
+
+
+def sidecar(path: Path) -> Path:
+    """``<name>.meta.json`` beside a CSV run."""
+    return path.with_name(path.stem + ".meta.json")
+
+
+def _write_sidecar(meta: dict, path: Path) -> None:
+    import hashlib
+    import json
+
+    from gprace.io.artifacts import write_text_atomic
+
+    doc = dict(meta, csv_sha256=hashlib.sha256(path.read_bytes()).hexdigest())
+    write_text_atomic(sidecar(path), json.dumps(doc, indent=1, default=str))
+
+
+def _read_sidecar(path: Path) -> dict:
+    """The meta of a CSV run from its sidecar, when it was written for this very file."""
+    import hashlib
+    import json
+
+    sc = sidecar(path)
+    if not sc.is_file():
+        return {}
+    try:
+        doc = json.loads(sc.read_text())
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(doc, dict) or doc.pop("csv_sha256", None) != hashlib.sha256(path.read_bytes()).hexdigest():
+        return {}
+    return doc
 
 
 def _read_csv(path: Path) -> Run:
@@ -178,4 +226,4 @@ def _read_csv(path: Path) -> Run:
             except ValueError:
                 raise InputError(f"{path}: column {h!r} {where}: {v!r} is not a number") from None
     arrays = {h: np.asarray(v, dtype=float) for h, v in data.items()}
-    return Run(arrays, {}, str(path))
+    return Run(arrays, _read_sidecar(path), str(path))

@@ -1,5 +1,6 @@
-"""Plants: "the real car" behind the registry ``gprace.plant`` (``frenet``, ``commonroad-std``)."""
+"""Plants: "the real car" behind the registry ``gprace.plant`` (``frenet``, ``commonroad-std``,
+``commonroad-mb``, ``randomized``)."""
 
-from gprace.plants.base import Plant, make_plant
+from gprace.plants.base import Approximation, Plant, approximate, make_plant
 
-__all__ = ["Plant", "make_plant"]
+__all__ = ["Approximation", "Plant", "approximate", "make_plant"]

@@ -9,16 +9,36 @@ better) at the period the caller chooses.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import ClassVar
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
-from gprace.config import PlantConfig
+from gprace.config import EffectConfig, PlantConfig, VehicleConfig
 from gprace.model.dynamics import State
+
+
+@dataclass(frozen=True)
+class Approximation:
+    """A plant's physics in the nominal model's terms, for an oracle lap.
+
+    ``known``: whether gprace knows them at all; then ``vehicle`` (effects empty) with the
+    catalogue ``effects`` is the nominal-model car closest to the plant, ``exact`` when it *is* the
+    plant, and ``missing`` names what the nominal model cannot hold. ``why`` says why not known.
+    """
+
+    known: bool
+    vehicle: VehicleConfig | None = None
+    effects: tuple[EffectConfig, ...] = ()
+    exact: bool = False
+    missing: tuple[str, ...] = ()
+    why: str = ""
 
 
 class Plant(ABC):
     NAME: ClassVar[str]
+    Options: ClassVar[type | None] = None
+    """Pydantic model of the kind's ``options`` (extra keys forbidden); None: the kind takes none."""
 
     def __init__(self, config: PlantConfig, track, dt: float) -> None:
         self.config = config
@@ -39,6 +59,15 @@ class Plant(ABC):
     @abstractmethod
     def state(self) -> np.ndarray:
         """True (noise-free) Frenet state (6,)."""
+
+    def describe(self) -> dict[str, Any]:
+        """What this plant is, for run metadata (a randomized plant adds the car it drew)."""
+        return {"kind": self.NAME}
+
+    @classmethod
+    def approximate(cls, config: PlantConfig) -> Approximation:
+        """The plant's physics in the nominal model's terms (:class:`Approximation`); unknown by default."""
+        return Approximation(known=False, why=f"the physics of plant kind {config.kind!r} are not known to gprace")
 
     def _noisy(self, y: np.ndarray) -> np.ndarray:
         n = self.config.noise
@@ -62,3 +91,12 @@ def make_plant(config: PlantConfig, track, dt: float) -> Plant:
     from gprace.backends import plants
 
     return plants.create(config.kind, config, track, dt)
+
+
+def approximate(config: PlantConfig) -> Approximation:
+    """:meth:`Plant.approximate` of the configured kind (no track needed): the oracle's model."""
+    from gprace.backends import plants
+
+    cls = plants.get(config.kind)
+    fn = getattr(cls, "approximate", None)
+    return fn(config) if fn is not None else Plant.approximate.__func__(cls, config)

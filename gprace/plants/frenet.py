@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from gprace.model import NominalModel
-from gprace.plants.base import Plant
+from gprace.plants.base import Approximation, Plant
 
 
 class FrenetPlant(Plant):
@@ -41,12 +41,28 @@ class FrenetPlant(Plant):
     def state(self):
         return self._x[:6].copy()
 
+    @classmethod
+    def approximate(cls, config):
+        """Exact: the plant *is* the nominal model of its vehicle with its effects."""
+        return Approximation(known=True, vehicle=config.vehicle.model_copy(update={"effects": ()}),
+                             effects=tuple(config.vehicle.effects) + tuple(config.effects), exact=True)
+
     def measurement(self) -> np.ndarray:
         return self._noisy(self.model.measure(self._x)[0])
 
 
 def compiled_step(model: NominalModel, track, dt: float, substeps: int):
     """``casadi.Function`` (x, u) -> x after ``dt`` by RK4 with ``substeps``, kappa(s) re-evaluated."""
+    import casadi as ca
+
+    x = ca.SX.sym("x", model.nx)
+    u = ca.SX.sym("u", 2)
+    return ca.Function("plant_step", [x, u], [model.rk4_expression(x, u, casadi_kappa_of_s(track), dt, substeps)])
+
+
+def casadi_kappa_of_s(track):
+    """``kappa(s)`` for CasADi expressions of ``s``: the track's B-spline table at the wrapped
+    (closed tracks) or clamped (open tracks) arc length."""
     import casadi as ca
 
     interp = track.casadi_kappa()
@@ -57,6 +73,4 @@ def compiled_step(model: NominalModel, track, dt: float, substeps: int):
             return interp(ca.fmod(ca.fmod(s, L) + L, L))
         return interp(ca.fmin(ca.fmax(s, 0.0), L))
 
-    x = ca.SX.sym("x", model.nx)
-    u = ca.SX.sym("u", 2)
-    return ca.Function("plant_step", [x, u], [model.rk4_expression(x, u, kappa, dt, substeps)])
+    return kappa

@@ -8,19 +8,26 @@ import typer
 
 
 def register(app: typer.Typer) -> None:
-    track_app = typer.Typer(help="Inspect race tracks (TUM CSV, segment TOML, shipped names).", no_args_is_help=True)
+    track_app = typer.Typer(help="Inspect race tracks (TUM CSV, two boundary files, segment TOML, shipped names).", no_args_is_help=True)
 
     @track_app.command("show")
     def show_cmd(
-        file: str = typer.Argument(..., help="Track: a .csv (TUM) or .toml (segments) path, or a shipped name."),
+        files: list[str] = typer.Argument(..., help="Track: a centre-line .csv (TUM, with or without header), two boundary files (INNER OUTER, or INNER,OUTER), a .toml (segments) path, or a shipped name."),
         plot: Path | None = typer.Option(None, "--plot", help="Write a PNG of centre line and borders."),
+        smoothing: float | None = typer.Option(None, "--smoothing", help="Whittaker smoothing length of a CSV centre line [m]; default its point spacing, at most 5 m."),
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
     ) -> None:
-        """Print length, min radius, width range and point count of FILE; optionally plot it."""
+        """Print length, min radius, width range and point count of a track; optionally plot it."""
         from gprace.console import console
+        from gprace.errors import InputError
         from gprace.tracks import load_track
 
-        track = load_track(file)
+        if len(files) > 2:
+            raise InputError(f"track show: one track file, or two boundary files; got {len(files)}")
+        try:
+            track = load_track(files if len(files) == 2 else files[0], smoothing=smoothing)
+        except InputError as exc:
+            raise InputError(str(exc).replace("--track-smoothing", "--smoothing")) from None
         info = track.summary()
         if plot is not None:
             plot_track(track, plot)
@@ -33,6 +40,7 @@ def register(app: typer.Typer) -> None:
         console.result(f"min radius  {info['min_radius_m']:.2f} m")
         console.result(f"width       {info['width_min_m']:.2f} .. {info['width_max_m']:.2f} m")
         console.result(f"points      {info['n_points']}")
+        console.result(f"smoothing   {info['smoothing_m']:.3g} m")
         if plot is not None:
             console.result(f"plot        {plot}")
 

@@ -1,13 +1,24 @@
-"""Track loaders: TUM racetrack-database CSV files, segment TOML files, shipped track names.
+"""Track loaders: centre lines (TUM CSV, headerless or not), two boundary files, segment TOML
+files, shipped track names.
 
-* CSV (TUM format): a header ``# x_m,y_m,w_tr_right_m,w_tr_left_m`` (the ``#`` is optional, the
-  columns may come in any order), then one centre-line point per row. The loop is implicitly
-  closed (the last row does not repeat the first, and the ends may be several metres apart).
-  These centre lines come from OpenStreetMap polylines with visible kinks, so they are smoothed
-  with a Whittaker length of :data:`TUM_SMOOTHING` metres (see :mod:`gprace.tracks.track`); the
-  borders are kept where the file puts them.
+* CSV centre line (TUM format): columns ``x_m, y_m, w_tr_right_m, w_tr_left_m`` named in a header
+  (``# x_m,...``; the ``#`` is optional, the columns may come in any order, a comment preamble may
+  precede it) or, without a header, in that order (x, y, width right, width left; as TUM and the
+  F1TENTH stacks keep them). The file is read by :mod:`gprace.ingest.table` (BOM, CRLF, ``;``).
+  The loop is implicitly closed (the last row does not repeat the first, and the ends may be
+  several metres apart).
+* Two boundary polylines ``"inner.csv,outer.csv"`` (or a pair of paths): x, y (a third column,
+  z, is ignored) in either order, direction and start; the centre line and widths are derived
+  from them (:mod:`gprace.tracks.bounds`).
 * TOML: a segment description (:mod:`gprace.tracks.segments`).
 * A name without a suffix: a track shipped in ``gprace/data/configs/tracks/``.
+
+**Smoothing that scales.** Centre lines from OpenStreetMap polylines (TUM) have kinks at their
+vertices, about one point spacing apart; a Whittaker length equal to the median point spacing,
+at most :data:`TUM_SMOOTHING` metres, removes them (5 m on the TUM circuits as before, 0.1 m on a
+25 m F1TENTH track whose points are 0.1 m apart). When smoothing would move the centre line past
+a border (a narrow track), it is halved until it does not (three times at most); when it still
+does, the error names the option (``--track-smoothing`` / ``track_smoothing``).
 
 Bad files raise :class:`~gprace.errors.InputError` naming the file, line and column (or
 :class:`~gprace.errors.ConfigError` naming the TOML key for a schema error).
@@ -30,7 +41,11 @@ DEFAULT_TRACK = "gprace_ring"
 
 TUM_COLUMNS = ("x_m", "y_m", "w_tr_right_m", "w_tr_left_m")
 TUM_SMOOTHING = 5.0
-"""Whittaker smoothing length [m] applied to TUM CSV centre lines."""
+"""Largest Whittaker smoothing length [m] given to a CSV centre line (the TUM circuits' point
+spacing); smaller tracks get their own median point spacing."""
+
+SMOOTHING_OPTION = "--track-smoothing"
+"""How the messages name the smoothing override (``track show`` calls it ``--smoothing``)."""
 
 
 def tracks_dir() -> Path:
@@ -42,12 +57,46 @@ def shipped_tracks() -> list[str]:
     return sorted(p.stem for p in tracks_dir().glob("*.toml"))
 
 
-def load_track(name_or_path: str | Path, *, smoothing: float | None = None) -> Track:
-    """A track from a ``.csv`` or ``.toml`` path, or the name of a shipped track.
+def track_paths(spec) -> list[Path] | None:
+    """The two boundary files of a track spec (``"a.csv,b.csv"`` or a pair), else None."""
+    if isinstance(spec, (list, tuple)):
+        if len(spec) == 1:
+            return None
+        if len(spec) != 2:
+            raise InputError(f"a track from boundaries takes two files (inner, outer), got {len(spec)}: {', '.join(map(str, spec))}")
+        return [Path(p) for p in spec]
+    text = str(spec)
+    if "," in text and not Path(text).exists():
+        parts = [p.strip() for p in text.split(",")]
+        if len(parts) != 2 or not all(parts):
+            raise InputError(f"{text}: a track from boundaries is two files separated by one comma (inner.csv,outer.csv)")
+        return [Path(p) for p in parts]
+    return None
 
-    ``smoothing`` overrides the CSV smoothing length (ignored for TOML tracks). Loaded tracks
-    are cached by path, modification time and size, so repeated loads are free.
+
+def load_track(name_or_path, *, smoothing: float | None = None) -> Track:
+    """A track from a ``.csv`` or ``.toml`` path, a shipped name, or two boundary files
+    (``"inner.csv,outer.csv"`` or a pair of paths).
+
+    ``smoothing`` overrides the automatic smoothing length of CSV tracks (ignored for TOML
+    tracks). Loaded tracks are cached by path, modification time and size, so repeated loads are
+    free.
     """
+    if smoothing is not None and not (np.isfinite(smoothing) and smoothing >= 0):
+        raise InputError(f"{SMOOTHING_OPTION} must be a length >= 0 [m], got {smoothing}")
+    pair = track_paths(name_or_path)
+    if pair is not None:
+        keys = []
+        for p in pair:
+            if not p.exists():
+                raise InputError(f"{p}: no such file (boundary of the track {name_or_path})")
+            if p.is_dir():
+                raise InputError(f"{p}: is a folder, not a boundary file")
+            st = p.stat()
+            keys += [str(p.resolve()), st.st_mtime_ns, st.st_size]
+        return _bounds_cached(tuple(keys), smoothing)
+    if isinstance(name_or_path, (list, tuple)):
+        name_or_path = name_or_path[0]
     p = Path(name_or_path)
     if not p.exists():
         cand = tracks_dir() / (p.name if p.suffix == ".toml" else f"{p.name}.toml")
@@ -66,11 +115,51 @@ def load_track(name_or_path: str | Path, *, smoothing: float | None = None) -> T
 def _load_cached(path: str, mtime_ns: int, size: int, smoothing: float | None) -> Track:
     p = Path(path)
     suffix = p.suffix.lower()
-    if suffix == ".csv":
-        return load_tum_csv(p, smoothing=TUM_SMOOTHING if smoothing is None else smoothing)
+    if suffix in (".csv", ".txt"):
+        return load_tum_csv(p, smoothing=smoothing)
     if suffix == ".toml":
         return load_segment_toml(p)
-    raise InputError(f"{p}: unknown track format {p.suffix!r} (expected .csv or .toml)")
+    raise InputError(f"{p}: unknown track format {p.suffix!r} (expected .csv or .toml, or two boundary files a.csv,b.csv)")
+
+
+@functools.lru_cache(maxsize=16)
+def _bounds_cached(keys: tuple, smoothing: float | None) -> Track:
+    from gprace.tracks.bounds import track_from_bounds
+
+    return track_from_bounds(Path(keys[0]), Path(keys[3]), smoothing=smoothing)
+
+
+def auto_smoothing(x: np.ndarray, y: np.ndarray, closed: bool = True) -> float:
+    """Default Whittaker length of a centre line: its median point spacing, at most
+    :data:`TUM_SMOOTHING` (module docstring)."""
+    p = np.column_stack([x, y])
+    d = np.hypot(*np.diff(np.vstack([p, p[:1]]) if closed else p, axis=0).T)
+    return float(min(TUM_SMOOTHING, np.median(d)))
+
+
+def smoothed_track(x, y, wl, wr, *, closed: bool, name: str, source: str, smoothing: float | None) -> Track:
+    """A :class:`Track` with the given or automatic smoothing; automatic smoothing that pushes the
+    line past a border is halved (three times at most) before the error names the option."""
+    if smoothing is not None:
+        try:
+            return Track(x, y, wl, wr, closed=closed, name=name, smoothing=smoothing, source=source)
+        except InputError as exc:
+            raise _with_option(exc) from None
+    l = auto_smoothing(x, y, closed)
+    for k in range(4):
+        try:
+            return Track(x, y, wl, wr, closed=closed, name=name, smoothing=l / 2**k, source=source)
+        except InputError as exc:
+            if "smoothing of" not in str(exc) or k == 3:
+                raise _with_option(exc) from None
+    raise AssertionError  # pragma: no cover
+
+
+def _with_option(exc: InputError) -> InputError:
+    msg = str(exc)
+    if "use less smoothing" in msg:
+        msg = msg.replace("use less smoothing", f"use less smoothing ({SMOOTHING_OPTION} L, in metres; 0 keeps the points)")
+    return InputError(msg)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -79,21 +168,21 @@ def _load_cached(path: str, mtime_ns: int, size: int, smoothing: float | None) -
 
 def read_tum_csv(path: str | Path) -> dict[str, np.ndarray]:
     """The columns of a TUM track CSV as float arrays, after checking every row."""
+    from gprace.ingest.table import numbers, sniff
+
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    try:
-        text = path.read_text()
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text file") from None
-    lines = [(i + 1, ln.strip()) for i, ln in enumerate(text.splitlines())]
-    lines = [(i, ln) for i, ln in lines if ln]
-    if not lines:
-        raise InputError(f"{path}: empty file (expected header '# {','.join(TUM_COLUMNS)}' and rows)")
-    head_no, head = lines[0]
-    names = [c.strip() for c in head.lstrip("#").split(",")]
-    if _is_number(names[0]):
-        raise InputError(f"{path}: line {head_no}: missing header '# {','.join(TUM_COLUMNS)}'")
+    tbl = sniff(path, "track file")
+    names = tbl.names
+    if not tbl.has_header:
+        if len(names) in (2, 3):
+            raise InputError(
+                f"{path}: {len(names)} columns without a header: a boundary polyline (x, y{', z' if len(names) == 3 else ''})? "
+                "give both boundaries as --track inner.csv,outer.csv; a centre line has x, y, width right, width left")
+        if len(names) != 4:
+            raise InputError(f"{path}: {len(names)} columns and no header; expected '# {','.join(TUM_COLUMNS)}' "
+                             "or four headerless columns (x, y, width right, width left)")
+        names = list(TUM_COLUMNS)
+    head_no = tbl.header_line
     if sorted(names) != sorted(TUM_COLUMNS):
         missing = [c for c in TUM_COLUMNS if c not in names]
         extra = [c for c in names if c not in TUM_COLUMNS]
@@ -106,65 +195,37 @@ def read_tum_csv(path: str | Path) -> dict[str, np.ndarray]:
             if part
         ) or "duplicate columns"
         raise InputError(f"{path}: line {head_no}: wrong columns ({detail}); expected {','.join(TUM_COLUMNS)}")
-    rows = [(i, ln) for i, ln in lines[1:] if not ln.startswith("#")]
-    if not rows:
-        raise InputError(f"{path}: no data rows after the header")
-    cells = [ln.split(",") for _, ln in rows]
-    for r, ((i, _), c) in enumerate(zip(rows, cells)):
-        if len(c) != len(names):
-            raise InputError(
-                f"{path}: {at_row(r + 1, i)}: expected {len(names)} values, got {len(c)} (truncated or malformed row)"
-            )
-    try:
-        data = np.array(cells, dtype=float)
-    except ValueError:
-        for r, ((i, _), c) in enumerate(zip(rows, cells)):
-            for name, v in zip(names, c):
-                if not _is_number(v):
-                    raise InputError(f"{path}: {at_row(r + 1, i)}, column {name}: not a number: {v.strip()!r}") from None
-        raise  # pragma: no cover - np.array failed for a reason the loop did not find
+    tbl.names = names
+    data = numbers(tbl)
+    lines = tbl.body_lines
     bad = ~np.isfinite(data)
     if bad.any():
         r, c = np.argwhere(bad)[0]
-        raise InputError(f"{path}: {at_row(r + 1, rows[r][0])}, column {names[c]}: value is not finite ({data[r, c]})")
+        what = "empty cell" if np.isnan(data[r, c]) and not tbl.split(tbl.row_text(r))[c].strip() else f"value is not finite ({data[r, c]})"
+        raise InputError(f"{path}: {at_row(r + 1, int(lines[r]))}, column {names[c]}: {what}")
     cols = {name: data[:, j] for j, name in enumerate(names)}
     for name in ("w_tr_right_m", "w_tr_left_m"):
         nonpos = cols[name] <= 0
         if nonpos.any():
             r = int(np.argmax(nonpos))
-            raise InputError(f"{path}: {at_row(r + 1, rows[r][0])}, column {name}: width must be positive, got {cols[name][r]}")
+            raise InputError(f"{path}: {at_row(r + 1, int(lines[r]))}, column {name}: width must be positive, got {cols[name][r]}")
     if len(data) < 4:
         raise InputError(f"{path}: only {len(data)} data rows; a track needs at least 4 points")
     step = np.hypot(np.diff(cols["x_m"]), np.diff(cols["y_m"]))
     tiny = 1e-9 * max(np.ptp(cols["x_m"]), np.ptp(cols["y_m"]), 1e-12)
     if np.any(step <= tiny):
         r = int(np.argmax(step <= tiny))
-        raise InputError(f"{path}: {at_row(r + 1, rows[r][0])} and {at_row(r + 2, rows[r + 1][0])}: the same point twice (degenerate track)")
+        raise InputError(f"{path}: {at_row(r + 1, int(lines[r]))} and {at_row(r + 2, int(lines[r + 1]))}: the same point twice (degenerate track)")
     return cols
 
 
-def load_tum_csv(path: str | Path, *, smoothing: float = TUM_SMOOTHING, name: str | None = None) -> Track:
-    """A closed :class:`Track` from a TUM racetrack-database CSV file."""
+def load_tum_csv(path: str | Path, *, smoothing: float | None = None, name: str | None = None) -> Track:
+    """A closed :class:`Track` from a TUM racetrack-database CSV file (automatic smoothing when
+    ``smoothing`` is None: module docstring)."""
     path = Path(path)
     c = read_tum_csv(path)
-    return Track(
-        c["x_m"],
-        c["y_m"],
-        c["w_tr_left_m"],
-        c["w_tr_right_m"],
-        closed=True,
-        name=name or path.stem,
-        smoothing=smoothing,
-        source=str(path),
-    )
-
-
-def _is_number(v: str) -> bool:
-    try:
-        float(v)
-    except ValueError:
-        return False
-    return True
+    return smoothed_track(c["x_m"], c["y_m"], c["w_tr_left_m"], c["w_tr_right_m"], closed=True,
+                          name=name or path.stem, source=str(path), smoothing=smoothing)
 
 
 # ----------------------------------------------------------------------------------------------

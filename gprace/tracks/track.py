@@ -103,6 +103,7 @@ class Track:
 
         self.name = str(name)
         self.closed = bool(closed)
+        self.is_reversed = False  # set by reversed(): driven against the file's direction
         self.source = source
         self.smoothing = float(smoothing)
 
@@ -452,7 +453,31 @@ class Track:
             "width_min_m": lo,
             "width_max_m": hi,
             "n_points": self.n_points,
+            "smoothing_m": self.smoothing,
         }
+
+    def reversed(self) -> "Track":
+        """The same track driven the other way: ``s' = L - s`` (closed: the start stays where it
+        is), left and right swapped, curvature negated. Rebuilt through the knots without further
+        smoothing, so the geometry is the same spline to rounding."""
+        s = self._knots[:-1] if self.closed else self._knots
+        xy = self._spl(s)
+        wl, wr = self.width_left(s), self.width_right(s)
+        order = np.r_[0, np.arange(len(s) - 1, 0, -1)] if self.closed else np.arange(len(s) - 1, -1, -1)
+        out = Track(xy[order, 0], xy[order, 1], wr[order], wl[order], closed=self.closed, name=self.name,
+                    smoothing=0.0, spacing=self._h, source=self.source)
+        # the widths on this track's own nodes (not only at the knots), mirrored
+        ws = (self.length - self._ws) * (out.length / self.length)
+        if self.closed:
+            ws = np.mod(ws, out.length)
+        order = np.argsort(ws, kind="stable")
+        ws, keep = np.unique(ws[order], return_index=True)
+        out._ws, out._wl, out._wr = ws, self._wr[order][keep], self._wl[order][keep]
+        out.smoothing_shift = self.smoothing_shift
+        out.smoothing = self.smoothing
+        out.n_points = self.n_points
+        out.is_reversed = not self.is_reversed
+        return out
 
     def __repr__(self) -> str:
         kind = "closed" if self.closed else "open"
