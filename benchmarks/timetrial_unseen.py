@@ -2,12 +2,12 @@
 
 Runs ``gprace iterate`` (2 trials, 5 iterations, the default alphas 0.857, 0.714, 0) on
 
-- 20 seeded ``randomized`` plants (the plant family of issue 37; seeds 1..20). Until that plant
-  kind is installed, frenet stand-ins drawn from the same distribution where the effect catalogue
-  can express it (:func:`standin`: grip per axle 0.8 to 1.05, downforce 0 to 1.5 of the Audi's
-  coefficient, CoG height 0.3 to 0.6 m with load transfer, combined slip, steering lag 0 to 80 ms,
-  yaw inertia +-25 %, drag 0.7 to 1.5x; no tire relaxation and no measurement delay), half on
-  audi_tt_cup, half on bmw_320i;
+- 20 seeded ``randomized`` plants (the plant family of issue 37, docs/plants.md; cars 1..20, odd
+  seeds around bmw_320i, even ones around audi_tt_cup). Where that plant kind is not installed,
+  frenet stand-ins drawn from the same distribution where the effect catalogue can express it
+  (:func:`standin`: grip per axle 0.8 to 1.05, downforce 0 to 1.5 of the Audi's coefficient, CoG
+  height 0.3 to 0.6 m with load transfer, combined slip, steering lag 0 to 80 ms, yaw inertia +-25
+  %, drag 0.7 to 1.5x; no tire relaxation and no measurement delay); ``--standins`` runs those;
 - ``commonroad-mb`` (when installed) and ``commonroad-std`` (bmw_commonroad), nominal vehicle bmw_320i;
 - ``audi_hidden``.
 
@@ -19,7 +19,7 @@ the gap it closed, stability interventions, GP error and coverage of the last it
 acceptance checks (0 lost laps on every plant; best alpha-0 lap faster than iteration 0 on >= 90 %
 of the plants; median share of the gap closed >= 60 % where the oracle is known).
 
-Usage: ``nice python benchmarks/timetrial_unseen.py [--only NAME,NAME] [--plants N] [--trials T]
+Usage: ``nice python benchmarks/timetrial_unseen.py [--only NAME,NAME] [--plants N] [--standins] [--trials T]
 [--iterations I] [--workers W] [--executor dask --scheduler ADDR] [--out DIR]``.
 Long: about 2 minutes of CPU per trial and plant.
 """
@@ -61,11 +61,12 @@ def standin(seed: int) -> dict:
 
 
 def randomized(seed: int) -> dict:
-    """A ``randomized`` plant of the given seed on its vehicle (the plants helper's kind)."""
-    return {"kind": "randomized", "vehicle": VEHICLES[seed % 2], "seed": seed}
+    """A ``randomized`` plant (docs/plants.md): car ``seed`` of the family around its vehicle."""
+    return {"kind": "randomized", "vehicle": VEHICLES[seed % 2], "substeps": 10, "seed": 0, "options": {"seed": seed},
+            "noise": {"v_x": 0.02, "v_y": 0.01, "yaw_rate": 0.005, "e_psi": 0.002, "e_y": 0.02, "s": 0.05}}
 
 
-def plants(n: int, folder: Path) -> dict[str, tuple[str, str]]:
+def plants(n: int, folder: Path, standins: bool = False) -> dict[str, tuple[str, str]]:
     """``name -> (plant TOML or shipped name, nominal vehicle)``; writes the TOMLs into ``folder``."""
     import tomli_w
 
@@ -74,8 +75,9 @@ def plants(n: int, folder: Path) -> dict[str, tuple[str, str]]:
     have = set(registry.names())
     folder.mkdir(parents=True, exist_ok=True)
     out: dict[str, tuple[str, str]] = {}
+    use_randomized = "randomized" in have and not standins
     for seed in range(1, n + 1):
-        data, name = (randomized(seed), f"randomized_{seed:02d}") if "randomized" in have else (standin(seed), f"standin_{seed:02d}")
+        data, name = (randomized(seed), f"randomized_{seed:02d}") if use_randomized else (standin(seed), f"standin_{seed:02d}")
         path = folder / f"{name}.toml"
         path.write_text(tomli_w.dumps(data))
         out[name] = (str(path), data["vehicle"])
@@ -149,6 +151,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--plants", type=int, default=20, help="seeded randomized plants")
     ap.add_argument("--only", default="", help="comma-separated plant names to run (default: all)")
+    ap.add_argument("--standins", action="store_true", help="frenet stand-ins instead of the randomized plants")
     ap.add_argument("--trials", type=int, default=2)
     ap.add_argument("--iterations", type=int, default=5)
     ap.add_argument("--workers", type=int, default=2)
@@ -156,7 +159,7 @@ def main(argv=None) -> None:
     ap.add_argument("--scheduler", default=None)
     ap.add_argument("--out", type=Path, default=OUT)
     a = ap.parse_args(argv)
-    family = plants(a.plants, a.out / "plants")
+    family = plants(a.plants, a.out / "plants", a.standins)
     if a.only:
         keep = set(a.only.split(","))
         family = {k: v for k, v in family.items() if k in keep}

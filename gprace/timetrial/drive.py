@@ -5,7 +5,7 @@ The car starts on the plan at ``s = 0`` with the plan's state (a flying lap), th
 applied input, curvature, lap counter, ``border_hit`` (footprint over an edge), ``solve_time``
 of the QP, ``fallback`` (the QP failed, the shifted previous solution was applied) and
 ``explore`` (Algorithm 1 changed the reference), and the stability envelope's
-(:mod:`gprace.mpc.stability`) ``e_r``, ``e_beta``, ``envelope`` (its score, > 1 outside the band)
+(:mod:`gprace.mpc.stability`) ``e_r``, ``e_beta``, ``d_r``, ``d_beta``, ``envelope`` (its score, > 1 outside the band)
 and ``speed_factor``. A car that leaves the track, spins or stalls (:func:`gprace.sim.stop.run_end`)
 ends the run early (``meta.completed = False``); the run is still returned, and marked as gprace's
 own (no user-file unit check: a spun lap is data, never an input error).
@@ -25,7 +25,7 @@ from gprace.config import CommandSettings
 from gprace.errors import InputError
 from gprace.io.runs import OWN_RUN, Run
 from gprace.model.dynamics import Input, State
-from gprace.mpc.stability import Envelope, EnvelopeSettings, signals
+from gprace.mpc.stability import SIGNALS, Envelope, EnvelopeSettings, signals
 from gprace.mpc.tracking import MPCSettings, TrackingMPC
 from gprace.sim.stop import run_end
 
@@ -78,7 +78,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     Y = np.empty((n_max + 1, 6))
     X = np.empty((n_max + 1, 6))  # true states, for the footprint check
     U = np.empty((n_max + 1, 2))
-    cols = {k: np.zeros(n_max + 1) for k in ("lap", "solve_time", "fallback", "explore", "gamma", "e_r", "e_beta",
+    cols = {k: np.zeros(n_max + 1) for k in ("lap", "solve_time", "fallback", "explore", "gamma", *SIGNALS,
                                               "envelope", "speed_factor")}
     env = Envelope(settings.envelope, dt, band)
     before = None  # the state the last solution predicted for this period
@@ -93,15 +93,17 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         plan_brake = float(info["uref"][:, Input.A_X].min()) / mpc.speed_factor**2
         x = plant.state
         Y[k], X[k], U[k] = y, x, u
-        e_r, e_beta = signals(mpc.predicted, before)
+        sig = signals(mpc.predicted, before, info["xref"][0])
         before = mpc.prev_x[0]
         cols["lap"][k] = plant.lap
         cols["solve_time"][k] = info["solve_time"]
         cols["fallback"][k] = float(info["fallback"])
         cols["explore"][k] = float(mpc.last_target is not None and info.get("explored", False))
         cols["gamma"][k] = float(info["gamma"][0]) if len(info["gamma"]) else 0.0
-        cols["e_r"][k], cols["e_beta"][k], cols["speed_factor"][k] = e_r, e_beta, env.rho
-        cols["envelope"][k] = env.update(e_r, e_beta, bool(in_control(y[None, :])[0]))
+        for name, v in zip(SIGNALS, sig):
+            cols[name][k] = v
+        cols["speed_factor"][k] = env.rho
+        cols["envelope"][k] = env.update(sig, bool(in_control(y[None, :])[0]))
         k += 1
         if (reason := run_end(track, plant, vehicle.width, v_stall, goal, k, n_max, "no lap")) is not None:
             break

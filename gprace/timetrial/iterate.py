@@ -346,22 +346,27 @@ def oracle_lap(settings: IterateSettings, out: Path | None = None) -> dict:
     from gprace.timetrial.drive import DriveSettings, drive
     from gprace.tracks import load_track
 
+    from gprace.mpc.stability import EnvelopeSettings
+    from gprace.plants.base import approximate
+
     plant = load_plant(settings.plant)
-    if plant.kind != "frenet":
-        return {"known": False, "why": f"the physics of plant kind {plant.kind!r} are not known to gprace"}
+    approx = approximate(plant)  # the plant's physics in the nominal model's terms (the plant kind says)
+    if not approx.known:
+        return {"known": False, "why": approx.why or f"the physics of plant kind {plant.kind!r} are not known to gprace"}
     if not settings.oracle:
         return {"known": False, "why": "not computed (oracle = false)"}
-    vehicle = load_vehicle(settings.vehicle)
-    effects = [e for e in plant.effects if make_effect(e).n_states == 0]
-    truth = NominalModel(vehicle, effects)
+    effects = [e for e in approx.effects if make_effect(e).n_states == 0]
+    lag = sum(float(e.params.get("tau", 0.0)) for e in approx.effects if e.name == "steering_lag")
+    truth = NominalModel(approx.vehicle or load_vehicle(settings.vehicle), effects)
     track = load_track(settings.track)
-    from gprace.mpc.stability import EnvelopeSettings
-
-    # the oracle is the tracking MPC of the true model as issue 13 defined it: no stability envelope
-    dset = DriveSettings(laps=settings.laps, mpc=MPCSettings(solver=settings.solver, beta=settings.beta, grip=settings.grip),
+    # the oracle is the tracking MPC of the true model as issue 13 defined it (no stability
+    # envelope), predicting over the steering lag it knows
+    dset = DriveSettings(laps=settings.laps, mpc=MPCSettings(solver=settings.solver, beta=settings.beta, grip=settings.grip,
+                                                             delay=min(lag, 0.5)),
                          envelope=EnvelopeSettings(enabled=False))
     res: dict = {"known": True, "planned": float("nan"), "driven": float("nan"), "completed": False,
-                 "effects": [e.name for e in effects], "tried": []}
+                 "effects": [e.name for e in effects], "tried": [], "exact": bool(approx.exact),
+                 "missing": list(approx.missing)}
     warm = None
     for margin in ORACLE_MARGINS:
         scaled = NominalModel(vehicle, effects + [EffectConfig(name="tire_friction", params={"front": margin, "rear": margin})])
@@ -520,9 +525,12 @@ def _iteration_zero(c: _Chain) -> None:
         console.info(f"iterate: {c.out.name} trial {c.trial} iteration 0 (nominal model): {what}, drive")
     nominal = G.nominal_cap(c.model, 1.0)
     shake = None
+    reference = _calibration_samples(c)
+    start_delay = c.delay_known if c.delay_known is not None else _delay_before(reference, c.mpc.dt)
     if st.shakedown:
         shake = Shakedown(racing_line(c.track, c.model, st.plan_ds), c.model, nominal,
-                          ShakedownSettings(start=st.shakedown_start), c.mpc.dt, delay_known=c.delay_known is not None)
+                          ShakedownSettings(start=st.shakedown_start), c.mpc.dt, delay_known=c.delay_known is not None,
+                          delay=start_delay, reference=reference)
     if not c.steps.done(c.tag(0, "plan")):
         if shake is not None:
             p0 = shake.plan()
@@ -534,7 +542,7 @@ def _iteration_zero(c: _Chain) -> None:
         c.steps.mark(c.tag(0, "plan"))
     if not c.steps.done(c.tag(0, "drive")):
         plan = read_plan(d0 / "plan_start.h5", c.track)
-        run = drive(plan, c.plant, c.track, c.model, c.drive_settings(c.delay_known or 0.0), seed=c.seed * 100,
+        run = drive(plan, c.plant, c.track, c.model, c.drive_settings(start_delay), seed=c.seed * 100,
                     supervisor=shake)
         extra = {"delay": float("nan"), "delay_source": "known" if c.delay_known is not None else "estimated"}
         if shake is not None:
@@ -547,13 +555,39 @@ def _iteration_zero(c: _Chain) -> None:
             from gprace.timetrial.learning import in_control
 
             X = run.states()
-            dead, lag = estimate(X, run.inputs(), run.dt, in_control(X))
-            extra["delay"] = float(min(dead + lag, c.mpc.N * c.mpc.dt)) if np.isfinite(dead) else float("nan")
+            dead, lag = estimate(X, run.inputs(), run.dt, in_control(X), more=reference)
+            extra["delay"] = float(min(dead + lag, c.mpc.N * c.mpc.dt)) if np.isfinite(dead) else start_delay
         plan.write(d0 / "plan.h5")
         write_run(run, d0 / "run.h5")
         write_record(d0 / "record.json", _record(0, 0.0, c, plan, run, None, None,
                                                 {**_lap_extra(run, c.model), **extra, "plan_source": what}))
         c.steps.mark(c.tag(0, "drive"))
+
+
+def _calibration_samples(c: _Chain) -> tuple:
+    """``((X, U, in-control mask),)`` of the calibration run (the reference controller weaving on
+    the same car), or ``()`` without one; the held-out run stays a test set."""
+    from gprace.timetrial.learning import in_control
+
+    run = c.runs.get("calib")
+    if run is None:
+        return ()
+    X = run.states()
+    return ((X, run.inputs(), in_control(X)),)
+
+
+def _delay_before(reference: tuple, dt: float) -> float:
+    """The delay iteration 0 starts with when none is known: estimated from the calibration run,
+    else the shakedown's prior."""
+    from gprace.mpc.delay import estimate
+    from gprace.timetrial.shakedown import DELAY_PRIOR
+
+    if reference:
+        X, U, ok = reference[0]
+        dead, lag = estimate(X, U, dt, ok)
+        if np.isfinite(dead):
+            return float(dead + lag)
+    return DELAY_PRIOR
 
 
 def _select(c: _Chain, i: int) -> None:
@@ -694,19 +728,19 @@ def _grip_shown(c: _Chain, i: int) -> float | None:
     return float(min(ratios)) if ratios else None
 
 
-def _band(c: _Chain, i: int) -> tuple[float, float] | None:
-    """The stability envelope's band for iteration ``i``: from the last completed lap's clean samples."""
+def _band(c: _Chain, i: int):
+    """The stability envelope's bands for iteration ``i``: from the last completed lap's clean samples."""
     from gprace.io.runs import read_run
-    from gprace.mpc.stability import EnvelopeSettings, bands
+    from gprace.mpc.stability import SIGNALS, EnvelopeSettings, bands
     from gprace.timetrial.learning import in_control
 
     for k in range(i - 1, -1, -1):
         if c.record(k)["completed"]:
-            run = read_run(c.dir(k) / "run.h5", )
-            if "e_r" not in run.data:
+            run = read_run(c.dir(k) / "run.h5")
+            if any(name not in run.data for name in SIGNALS):
                 return None
             ok = in_control(run.states()) & (run["envelope"] <= 1.0)
-            return bands(run["e_r"][ok], run["e_beta"][ok], EnvelopeSettings())
+            return bands(np.column_stack([run[name][ok] for name in SIGNALS]), EnvelopeSettings())
     return None
 
 

@@ -2,7 +2,8 @@
 
 A team with a new car does not start at a fixed share of its paper limits. Iteration 0 drives the
 minimum-curvature line (:func:`gprace.plan.racing_line`) at a speed profile whose friction limits
-``(lateral, drive, brake)`` [m/s^2] start at ``start`` (0.5) of the nominal model's own limits: on
+``(lateral, drive, brake)`` [m/s^2] start at ``start`` (0.5) of the nominal model's own limits
+(braking at most ``start_brake_g`` = 0.5 g): on
 the documented family of cars (grip per axle down to 0.8 of nominal, a CoG up to 0.6 m with
 combined slip, 80 ms of steering lag) that leaves at least a third of the grip unused on every
 axis. Every ``every`` seconds of the lap the :class:`Shakedown` (a supervisor of
@@ -27,9 +28,14 @@ from the next period (a few milliseconds). So the iteration-0 lap is as fast as 
 can go, and it starts slow. The limits it ends with are the plan's limits (``plan.meta``), from
 which the GP iterations widen further (:mod:`gprace.timetrial.grip`).
 
-Every update also estimates the total steering and measurement delay from the yaw response
-(:func:`gprace.mpc.delay.estimate`) when ``estimate_delay`` is set and no delay is known; the MPC
-predicts over it from then on.
+The delay matters from the first metre: on cars of the randomized family (measurement delay up to
+two periods, steering lag up to 80 ms, a rate-limited actuator) the MPC that predicted over no
+delay started a growing yaw oscillation on the start straight and spun the car within 4 s at half
+the nominal limits; predicting over 80 to 120 ms it completed the lap. So the lap starts with the
+known delay, else an estimate from the calibration run the loop already has (weaving at 0.9 of the
+reference profile), else ``DELAY_PRIOR``; at 200, 400, 800 ... periods the delay is estimated again
+from the lap so far and the calibration run together (:func:`gprace.mpc.delay.estimate`) and the
+MPC predicts over the new value.
 """
 
 from __future__ import annotations
@@ -37,7 +43,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field
 
-from gprace.config import Frozen
+from gprace.config import G, Frozen
 from gprace.model.dynamics import Input, State
 
 
@@ -45,6 +51,7 @@ class ShakedownSettings(Frozen):
     """Iteration 0's shakedown (:mod:`gprace.timetrial.shakedown`)."""
 
     start: float = Field(0.5, gt=0, le=1, description="share of the nominal model's limits at the start")
+    start_brake_g: float = Field(0.5, gt=0, description="braking at the start at most this many g")
     step: float = Field(0.1, ge=0, lt=1, description="widening of an axis per update")
     reach: float = Field(0.85, gt=0, le=1, description="share of an axis' limit the car must have used before it widens")
     hold: float = Field(0.8, gt=0, description="slip use (either axle, share of the nominal peak slip angle) that "
@@ -54,9 +61,11 @@ class ShakedownSettings(Frozen):
     every: float = Field(2.0, gt=0, description="seconds between updates [s]")
     cap: float = Field(1.0, gt=0, description="at most this share of the nominal model's limits")
     estimate_delay: bool = Field(True, description="estimate the total delay from the yaw response during the lap")
+    first_estimate: int = Field(200, ge=20, description="period of the first estimate inside the lap (then doubling)")
 
 
 MIN_SLIP_SAMPLES = 40   # samples of an axle and phase the grip ratio needs
+DELAY_PRIOR = 0.08      # [s] predicted over before anything is known: the middle of the family's 0 to 180 ms
 QUIET_KAPPA = 0.004     # largest centre-line curvature [1/m] over the horizon where a faster profile is taken
 DRIVE_LEAD = 0.2        # the drive limit's share of nominal may exceed the lateral one by this much
 SLIP_WINDOW = (0.2, 1.5)  # slip angles (share of the nominal peak) the grip ratio uses
@@ -121,21 +130,27 @@ class Shakedown:
     Call :meth:`plan` for the first plan; the drive loop calls the object every period.
     """
 
-    def __init__(self, line, model, nominal, settings: ShakedownSettings, dt: float, delay_known: bool = False) -> None:
+    def __init__(self, line, model, nominal, settings: ShakedownSettings, dt: float, delay_known: bool = False,
+                 delay: float = float("nan"), reference: tuple = ()) -> None:
         self.line, self.model, self.settings, self.dt = line, model, settings, float(dt)
         self.nominal = np.asarray(nominal, dtype=float)
         self.limits = settings.start * self.nominal
+        # braking starts at most at start_brake_g: under braking, load transfer takes the rear's
+        # grip, and a car with a light, worn rear diverges in yaw on a straight (measured: a
+        # rear at 0.8, CoG 0.6 m, 80 ms lag spun at -7 m/s^2 from 48 m/s, half the Audi's -14)
+        self.limits[2] = min(self.limits[2], settings.start_brake_g * G)
         self.cap = settings.cap * self.nominal
         self.every = max(int(round(settings.every / dt)), 1)
         self.since = 0            # first sample at the current limits
         self.frozen = False       # an intervention ended the widening for this lap
         self.interventions = 0
         self.delay_known = delay_known
-        self.delay = float("nan")
+        self.delay = float(delay)  # the latest estimate (NaN: none yet)
+        self.reference = reference  # ((X, U, mask), ...) of earlier recordings of the car (the calibration run)
         self.log: list[dict] = []  # one entry per change of the limits
         self.pending = None  # a plan waiting for a quiet stretch of track
         self.swapped = 0  # period the current plan was taken
-        self.next_estimate = 200  # period of the next delay estimate
+        self.next_estimate = settings.first_estimate  # period of the next delay estimate
         self.seen_onsets = 0
 
     def plan(self):
@@ -167,7 +182,7 @@ class Shakedown:
             self.next_estimate *= 2  # at 200, 400, 800 ... periods: each estimate takes ~0.1 s
             from gprace.mpc.delay import estimate
 
-            dead, lag = estimate(Y, U, self.dt, ok)
+            dead, lag = estimate(Y, U, self.dt, ok, more=self.reference)
             if np.isfinite(dead):
                 self.delay = dead + lag
                 mpc.set_delay(min(self.delay, mpc.N * mpc.dt))
