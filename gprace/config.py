@@ -204,12 +204,20 @@ class VehicleConfig(Frozen):
     speed_loop_gain: float = Field(1.0, gt=0, le=1e4, description="speed the car's controller aims at per unit "
                                    "of the speed command [-]")
 
-    OPTIONAL_AT_DEFAULT: ClassVar[dict[str, float]] = {
-        "steering_gain": 1.0, "steering_offset": 0.0, "speed_loop_tau": 0.5, "speed_loop_gain": 1.0}
+    # known delays (issue 37): the tracking MPC predicts over them; None: unknown
+    actuator_delay: float | None = Field(None, ge=0, description="known dead time of the steering actuator [s] (a "
+                                         "first-order lag: its time constant); the tracking MPC predicts over it. "
+                                         "None: unknown (gprace iterate estimates it in the shakedown)")
+    measurement_delay: float | None = Field(None, ge=0, description="known age of the measurements when the "
+                                            "controller gets them [s]; the tracking MPC predicts over it")
+
+    OPTIONAL_AT_DEFAULT: ClassVar[dict[str, float | None]] = {
+        "steering_gain": 1.0, "steering_offset": 0.0, "speed_loop_tau": 0.5, "speed_loop_gain": 1.0,
+        "actuator_delay": None, "measurement_delay": None}
 
     @model_serializer(mode="wrap")
     def _drop_defaults(self, handler):
-        """The fields added by issue 36 stay out of a dump while they hold their defaults."""
+        """The fields added by issues 36 and 37 stay out of a dump while they hold their defaults."""
         out = handler(self)
         for k, d in self.OPTIONAL_AT_DEFAULT.items():
             if k in out and out[k] == d:
@@ -283,6 +291,13 @@ class VehicleConfig(Frozen):
     @property
     def wheelbase(self) -> float:
         return self.l_f + self.l_r
+
+    @property
+    def known_delay(self) -> float | None:
+        """Total delay the controller predicts over [s], or None when neither delay is given."""
+        if self.actuator_delay is None and self.measurement_delay is None:
+            return None
+        return (self.actuator_delay or 0.0) + (self.measurement_delay or 0.0)
 
 
 class NoiseConfig(Frozen):

@@ -8,6 +8,11 @@ and its period (``meta["dt"]``).
 
 HDF5 runs are artifacts of kind ``run``; CSV runs have a header row, any column order.
 
+gprace's own closed loops (``simulate``, the time trial's drive) mark their runs with
+``meta[OWN_RUN] = True``: the unit check is meant for a user's files, and on a lap in which the
+car spun it would read the slide as a units error (v_y of 8 m/s looks like km/h). Structure,
+finiteness and time order are still checked.
+
 ``meta["inputs"]`` says what the input columns hold (issue 36): ``{"delta": "commanded" |
 "measured", "a_x": "commanded" | "measured" | "derived" | "absent"}`` (plus ``"v_cmd":
 "commanded"`` with a speed-command column); a run without it is read as
@@ -38,6 +43,8 @@ DEFAULT_INPUTS = {"delta": "commanded", "a_x": "commanded"}
 # Plausibility limits on ROBUST statistics of the whole file (a quantile, never the maximum: a
 # spin or a slide in one corner is data, handled by gprace.io.envelope, not a units error):
 # column -> (quantile of |x|, limit in SI units, probable wrong unit when above)
+OWN_RUN = "own_run"  # meta key: a run recorded by gprace's own loop (no user-file unit check)
+
 _PLAUSIBLE = {
     "v_x": (0.5, 120.0, "km/h instead of m/s?"),
     "v_y": (0.9, 8.0, "km/h instead of m/s?"),
@@ -55,7 +62,7 @@ class Run:
     source: str = "<memory>"
 
     def __post_init__(self) -> None:
-        check_columns(self.data, self.source)
+        check_columns(self.data, self.source, units=not self.meta.get(OWN_RUN, False))
 
     @property
     def n(self) -> int:
@@ -100,9 +107,9 @@ class Run:
         return Run({k: v[mask] for k, v in self.data.items()}, dict(self.meta), self.source)
 
 
-def check_columns(data: dict[str, np.ndarray], source: str) -> None:
-    """Columns, lengths, finiteness, time order and units; rows as :func:`gprace.errors.at_row`
-    counts them (samples from 1, the header of a CSV not counted)."""
+def check_columns(data: dict[str, np.ndarray], source: str, units: bool = True) -> None:
+    """Columns, lengths, finiteness, time order and (``units``) units; rows as
+    :func:`gprace.errors.at_row` counts them (samples from 1, the header of a CSV not counted)."""
     missing = [c for c in RUN_COLUMNS if c not in data]
     if missing:
         raise InputError(f"{source}: missing column{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
@@ -121,6 +128,8 @@ def check_columns(data: dict[str, np.ndarray], source: str) -> None:
     if np.any(np.diff(data["t"]) <= 0):
         i = int(np.argmax(np.diff(data["t"]) <= 0))
         raise InputError(f"{source}: column 't' is not strictly increasing at {at_row(i + 2)}")
+    if not units:
+        return
     from gprace.io.units import check_units
 
     check_units(data, source, _PLAUSIBLE)  # robust statistics + consistency between channels

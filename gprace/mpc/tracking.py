@@ -35,6 +35,17 @@ Each control period:
    GP variance and grows with it; beta = 0.6 gives ``gamma = 0.253 sigma``.
 6. **QP** through the ``gprace.solver`` registry. A failed solve falls back to the previous
    solution shifted by one step (counted in ``fallbacks``); a lap never crashes on a solver.
+
+Beyond the paper, two run-time hooks:
+
+- **Delay** (``settings.delay``, :mod:`gprace.mpc.delay`): the measured state is first predicted
+  over the total actuator and measurement delay with the nominal model and the inputs already
+  sent; the QP starts from that state.
+- **Speed factor** (``speed_factor`` in (0, 1], set by the stability envelope,
+  :mod:`gprace.mpc.stability`): the reference runs slower, at ``rho`` times the plan's speed
+  (plan time advances by ``rho dt`` per step; speeds and yaw rate times ``rho``, the acceleration
+  times ``rho^2``). 1 leaves the reference untouched. A plan can be swapped between periods
+  (:meth:`TrackingMPC.set_plan`, the shakedown's widening).
 """
 
 from __future__ import annotations
@@ -78,12 +89,20 @@ class MPCSettings(CommandSettings):
     grip: bool = Field(True, description="bound the rear slip angle (False: the paper's QP)")
     grip_share: float = Field(0.9, gt=0, le=2, description="share of the nominal rear tire's peak slip angle")
     weights: Weights = Field(default_factory=Weights, description="weights of the tracking cost")
+    delay: float = Field(0.0, ge=0, description="total actuator and measurement delay [s] the MPC predicts over "
+                         "(gprace.mpc.delay); at most the horizon N dt")
 
     @model_validator(mode="after")
     def _check(self) -> MPCSettings:
+        from gprace.mpc.delay import check
+
         quantile_factor(self.beta)
         if self.integrator not in ("euler", "rk4"):
             raise ValueError(f"unknown integrator {self.integrator!r}; available: euler, rk4")
+        try:
+            check(self.delay, self.N, self.dt, "--delay")
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from None
         return self
 
 
@@ -190,6 +209,7 @@ class TrackingMPC:
         lim = model.vehicle.limits
         self.u_lo = np.array([-lim.steering_max, lim.accel_min])
         self.u_hi = np.array([lim.steering_max, lim.accel_max])
+        self.bounds = (self.u_lo, self.u_hi)  # this period's input bounds (the stability envelope narrows them)
         self.half = 0.5 * model.vehicle.width + settings.margin
         self.steer_step = lim.steering_rate_max * self.dt  # the actuator's rate limit per period
         self.prev_x: np.ndarray | None = None  # (N, 6) absolute s
@@ -198,6 +218,10 @@ class TrackingMPC:
         self.fallbacks = 0
         self.steps = 0
         self.last_target: np.ndarray | None = None
+        self.speed_factor = 1.0
+        self.delay = float(settings.delay)
+        self.sent: np.ndarray | None = None  # inputs sent, oldest first (the delay's history)
+        self.predicted: np.ndarray | None = None  # the state the last QP started from (after the delay)
 
     def _build_linearisation(self):
         import casadi as ca
@@ -223,17 +247,57 @@ class TrackingMPC:
         f = ca.Function("mpc_lin", [x, u, k], [xn, ca.densify(ca.jacobian(xn, x).T), ca.densify(ca.jacobian(xn, u).T)])
         return Linearisation(compiled_function(f.map(self.N)), self.N)
 
+    def _build_delay_step(self):
+        """``(x, u, [kappa, slope, s], h) -> x`` after ``h`` seconds (RK4, curvature affine in s):
+        the prediction over the delay, compiled (numpy's RK4 took 6 ms of a 30 ms period under load)."""
+        import casadi as ca
+
+        from gprace.backends.compiled import compiled_function
+
+        x, u, k, h = ca.SX.sym("x", 6), ca.SX.sym("u", 2), ca.SX.sym("k", 3), ca.SX.sym("h")
+        xn = self.model.rk4_expression(x, u, lambda ss: k[0] + k[1] * (ss - k[2]), h)
+        return compiled_function(ca.Function("mpc_delay_step", [x, u, k, h], [xn]))
+
+    def _delay_step(self, x: np.ndarray, u: np.ndarray, h: float) -> np.ndarray:
+        if self.__dict__.get("_step_fn") is None:
+            self._step_fn = self._build_delay_step()
+        s = float(x[State.S])
+        kap, up, dn = self.track.kappa(np.array([s, s + KAPPA_DS, s - KAPPA_DS]))
+        return np.asarray(self._step_fn(x, u, [kap, (up - dn) / (2 * KAPPA_DS), s], h)).ravel()
+
     def reset(self, delta_prev: float = 0.0, a_prev: float = 0.0) -> None:
+        from gprace.mpc.delay import history_length
+
         self.prev_x = self.prev_u = None
         self.delta_prev, self.a_prev = float(delta_prev), float(a_prev)
+        self.sent = np.tile([self.delta_prev, self.a_prev], (history_length(self.delay, self.dt), 1))
+
+    def set_delay(self, delay: float) -> None:
+        """Predict over ``delay`` [s] from the next period on (checked against the horizon)."""
+        from gprace.mpc.delay import check, history_length
+
+        self.delay = check(delay, self.N, self.dt)
+        need = history_length(self.delay, self.dt)
+        last = self.sent[-1:] if self.sent is not None else np.array([[self.delta_prev, self.a_prev]])
+        old = self.sent if self.sent is not None else last
+        self.sent = np.vstack([np.repeat(old[:1], max(need - len(old), 0), axis=0), old])[-need:]
+
+    def set_plan(self, plan) -> None:
+        """Track ``plan`` from the next period on (same track; the warm start is kept)."""
+        self.plan = plan
 
     # --------------------------------------------------------------------------------------
     def reference(self, s_abs: float) -> tuple[np.ndarray, np.ndarray]:
-        """``xref`` (N, 6) for k = 1..N with relative s, ``uref`` (N, 2) for k = 0..N-1."""
+        """``xref`` (N, 6) for k = 1..N with relative s, ``uref`` (N, 2) for k = 0..N-1 (at
+        ``speed_factor`` times the plan's speed)."""
+        rho = self.speed_factor
         t0 = float(self.plan.time_at(s_abs))
-        ts = t0 + self.dt * np.arange(self.N + 1)
+        ts = t0 + rho * self.dt * np.arange(self.N + 1)
         X, U = self.plan.at_time(ts)
         X[:, State.S] -= X[0, State.S]
+        if rho != 1.0:
+            X[:, State.V_X:State.YAW_RATE + 1] *= rho
+            U[:, Input.A_X] *= rho * rho
         return X[1:], U[:-1]
 
     def explore(self, xref: np.ndarray, uref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -327,14 +391,22 @@ class TrackingMPC:
             a_now = abs(float(rear_slip_rows(x_meas[None, :6], self.model.params.lr, self.model.params.vmin)[0][0]))
             room = np.maximum(room, a_now * (1.0 - np.arange(1, N + 1) / RECOVER_STEPS))
             grip = {"grip_G": G, "grip_lo": -room - off, "grip_hi": room - off}
-        pb = LtvProblem(A, B, c, x0, xref, uref, lo, hi, self.u_lo, self.u_hi, self.delta_prev, self.settings.weights, **grip,
+        pb = LtvProblem(A, B, c, x0, xref, uref, lo, hi, *self.bounds, self.delta_prev, self.settings.weights, **grip,
                         a_prev=self.a_prev, steer_step=self.steer_step)
         return pb, {"gamma": gamma, "s0": s0, "xref": xref, "uref": uref, "explored": xref is not xr0}
 
     def step(self, x_meas: np.ndarray) -> tuple[np.ndarray, dict]:
         """Input for the measured state (6,); info has solve time, status, fallback flag."""
+        from gprace.mpc.delay import predict
+
         self.steps += 1
-        pb, info = self.build(np.asarray(x_meas, dtype=float))
+        if self.sent is None:
+            self.reset(self.delta_prev, self.a_prev)
+        x = np.asarray(x_meas, dtype=float)
+        if self.delay > 0:
+            x = predict(self._delay_step, x, self.sent, self.delay, self.dt)
+        self.predicted = x
+        pb, info = self.build(x)
         res = self.qp.solve(pb)
         fallback = not res.status.usable
         if fallback:
@@ -350,7 +422,8 @@ class TrackingMPC:
             x_seq = res.x.copy()
             x_seq[:, State.S] += info["s0"]
         self.prev_u, self.prev_x = u_seq, x_seq
-        u = np.clip(u_seq[0], self.u_lo, self.u_hi)
+        u = np.clip(u_seq[0], *self.bounds)
         self.delta_prev, self.a_prev = float(u[Input.DELTA]), float(u[Input.A_X])
+        self.sent = np.vstack([self.sent[1:], u[None, :]])
         info.update(solve_time=res.solve_time, status=res.status, fallback=fallback, iterations=res.iterations)
         return u, info

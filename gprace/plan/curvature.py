@@ -11,6 +11,9 @@ lateral demand on a friction ellipse, drag on the drive side.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 from scipy import sparse
 
@@ -86,13 +89,23 @@ def speed_profile(kappa_p: np.ndarray, ds: np.ndarray, a_lat: float, a_acc: floa
     return v
 
 
-def curvature_plan(track, model, ds: float = 6.0, speed_scale: float = 0.85, margin: float = 0.3,
-                   a_lat: float | None = None) -> Plan:
-    """The minimum-curvature line with its speed profile, as a :class:`Plan` (method ``min_curvature``).
+@dataclass(frozen=True)
+class Line:
+    """The minimum-curvature line of a track: offsets, heading error and curvature of the path at
+    ``n`` nodes ``h`` apart, and the path length per centre-line metre (``ds_p``)."""
 
-    ``speed_scale`` scales the lateral and braking limits (iteration 0 drives with the nominal MPC on a car it
-    does not know exactly); ``margin`` is kept from the borders on top of half the car width.
-    """
+    track: Any
+    s: np.ndarray
+    e: np.ndarray
+    epsi: np.ndarray
+    kappa_p: np.ndarray
+    ds_p: np.ndarray
+    scale: np.ndarray  # 1 - kappa e
+    h: float
+
+
+def racing_line(track, model, ds: float = 6.0, margin: float = 0.3) -> Line:
+    """The minimum-curvature line, ``margin`` from the borders on top of half the car width."""
     smp = track.sample(ds)
     s, kappa = smp.s, smp.kappa
     n = len(s)
@@ -100,7 +113,6 @@ def curvature_plan(track, model, ds: float = 6.0, speed_scale: float = 0.85, mar
     half = 0.5 * model.vehicle.width + margin
     lo, hi = -smp.wr + half, smp.wl - half
     e = min_curvature_offsets(kappa, lo, hi, h)
-    scale = 1.0 - kappa * e
     # geometry of the offset line from its global points (periodic central differences)
     X, Y = track.to_global(s, e)
     dX, dY = (np.roll(X, -1) - np.roll(X, 1)) / 2, (np.roll(Y, -1) - np.roll(Y, 1)) / 2
@@ -108,27 +120,48 @@ def curvature_plan(track, model, ds: float = 6.0, speed_scale: float = 0.85, mar
     kappa_p = (dX * ddY - dY * ddX) / np.maximum(np.hypot(dX, dY), 1e-12) ** 3
     epsi = np.angle(np.exp(1j * (np.arctan2(dY, dX) - track.heading(s))))
     ds_p = np.hypot(np.roll(X, -1) - X, np.roll(Y, -1) - Y) / h
-    kappa_p = _smooth(kappa_p)
-    if a_lat is None:
-        a_lat = lateral_limit(model)
-    lim = model.vehicle.limits
-    v = speed_profile(kappa_p, ds_p * h, speed_scale * a_lat, lim.accel_max, -speed_scale * lim.accel_min, lim.speed_max,
-                      model.params.cxw / model.params.m)
-    vy, r, delta = steady_state_inputs(model, v, kappa_p)
+    return Line(track, s, e, epsi, _smooth(kappa_p), ds_p, 1.0 - kappa * e, h)
+
+
+def line_plan(line: Line, model, limits, meta: dict | None = None) -> Plan:
+    """The line driven at the friction-limited speed profile of ``limits`` = (lateral, drive,
+    brake) [m/s^2, all > 0], with the steady-state sideslip, yaw rate and steering of each node."""
+    a_lat, a_drive, a_brake = (float(v) for v in limits)
+    lim, p = model.vehicle.limits, model.params
+    track, h = line.track, line.h
+    v = speed_profile(line.kappa_p, line.ds_p * h, a_lat, a_drive, a_brake, lim.speed_max, p.cxw / p.m)
+    vy, r, delta = steady_state_inputs(model, v, line.kappa_p)
     beta = np.arctan2(vy, v)  # sideslip: the body points off the path by -beta
     vx = v * np.cos(beta)
     vy = v * np.sin(beta)
-    epsi = epsi - beta
-    sdot = (vx * np.cos(epsi) - vy * np.sin(epsi)) / scale
+    epsi = line.epsi - beta
+    sdot = (vx * np.cos(epsi) - vy * np.sin(epsi)) / line.scale
     dt = h * 0.5 * (1 / sdot + 1 / np.roll(sdot, -1))
     t = np.concatenate([[0.0], np.cumsum(dt)])
-    ax = np.gradient(np.append(vx, vx[0]), t)[:-1] + (model.params.cxw * vx**2) / model.params.m + model.params.crr * model.params.g
+    ax = np.gradient(np.append(vx, vx[0]), t)[:-1] + (p.cxw * vx**2) / p.m + p.crr * p.g
     ax = np.clip(ax, lim.accel_min, lim.accel_max)
     return Plan(
-        s=s, e_y=e, e_psi=epsi, v_x=vx, v_y=vy, yaw_rate=r, delta=delta, a_x=ax, t=t[:-1], lap_time=float(t[-1]),
-        track=track.name, track_length=track.length, track_hash=track_hash(track), vehicle=model.vehicle.name,
-        method="min_curvature", meta={"speed_scale": speed_scale, "a_lat": a_lat, "ds": h},
+        s=line.s, e_y=line.e, e_psi=epsi, v_x=vx, v_y=vy, yaw_rate=r, delta=delta, a_x=ax, t=t[:-1],
+        lap_time=float(t[-1]), track=track.name, track_length=track.length, track_hash=track_hash(track),
+        vehicle=model.vehicle.name, method="min_curvature",
+        meta={"ds": h, "limits": [a_lat, a_drive, a_brake], **(meta or {})},
     )
+
+
+def curvature_plan(track, model, ds: float = 6.0, speed_scale: float = 0.85, margin: float = 0.3,
+                   a_lat: float | None = None, limits=None) -> Plan:
+    """The minimum-curvature line with its speed profile, as a :class:`Plan` (method ``min_curvature``).
+
+    ``speed_scale`` scales the lateral and braking limits (the drive limit stays the vehicle's);
+    ``limits`` = (lateral, drive, brake) [m/s^2] gives all three instead. ``margin`` is kept from
+    the borders on top of half the car width.
+    """
+    if a_lat is None:
+        a_lat = lateral_limit(model)
+    lim = model.vehicle.limits
+    if limits is None:
+        limits = (speed_scale * a_lat, lim.accel_max, -speed_scale * lim.accel_min)
+    return line_plan(racing_line(track, model, ds, margin), model, limits, {"speed_scale": speed_scale, "a_lat": a_lat})
 
 
 def _smooth(a: np.ndarray, w: int = 2) -> np.ndarray:

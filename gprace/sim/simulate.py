@@ -19,7 +19,7 @@ import numpy as np
 from gprace.config import PlantConfig, SimulateConfig, config_hash
 from gprace.console import console
 from gprace.errors import RunFailedError
-from gprace.io.runs import Run
+from gprace.io.runs import OWN_RUN, Run
 from gprace.plants import make_plant
 from gprace.resources import check_size
 from gprace.sim.controller import ReferenceController
@@ -102,6 +102,7 @@ def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Ru
         "weave_amplitude": sim_config.weave_amplitude,
         "weave_wavelength": sim_config.weave_wavelength,
         "completed": not reason,
+        OWN_RUN: True,  # a recording of gprace's own loop: no user-file unit check (gprace.io.runs)
     }
     return Run(data, meta, source=f"simulate({plant_config.kind}, {track.name})")
 

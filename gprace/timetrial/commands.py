@@ -38,6 +38,8 @@ DICTIONARY = typer.Option(1000, "--dictionary-size", help="GP dictionary size M 
 FEATURES = typer.Option("full", "--features", help="GP inputs: full (v_x, v_y, yaw_rate, delta, a_x) or paper (v_y, yaw_rate, delta).")
 SEED = typer.Option(0, "--seed", help="Base seed.")
 WORKERS = typer.Option(2, "--workers", help="Parallel trials.")
+DELAY = typer.Option(None, "--delay", help="Total steering and measurement delay [s] the MPC predicts over "
+                     "(default: the vehicle's known delays, else estimated in the shakedown).")
 
 
 EVAL_HELP = ("Evaluate: run the paper's protocols (timetrial, head2head) or score finished results (iterate: "
@@ -118,6 +120,7 @@ def run_cmd(
     solver: str = typer.Option("clarabel", "--solver", help="QP backend: clarabel, cvxpy-clarabel, casadi or a plugin."),
     beta: float = typer.Option(0.6, "--beta", help="Risk parameter of the lateral chance constraints."),
     radius: float = typer.Option(0.5, "--explore-radius", help="Exploration trust region (scaled feature distance)."),
+    delay: float | None = DELAY,
     seed: int = typer.Option(0, "--seed", help="Seed of the plant's sensor noise."),
     output: Path = typer.Option(..., "--output", "-o", help="Run file to write (.h5)."),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
@@ -140,12 +143,14 @@ def run_cmd(
         raise ConfigError(f"--alpha must be in [0, 1], got {alpha}")
     if laps <= 0:
         raise ConfigError(f"--laps must be positive, got {laps}")
-    mpc = MPCSettings(solver=solver, beta=beta, explore_radius=radius)  # checks radius and beta
+    m = NominalModel(load_vehicle(vehicle))
+    known = m.vehicle.known_delay if delay is None else delay
+    # checks radius, beta and the delay (at most the horizon)
+    mpc = MPCSettings(solver=solver, beta=beta, explore_radius=radius, delay=known or 0.0)
     solvers.get(solver)  # an unknown name lists the registered ones
     p0 = read_plan(plan)
     tr = load_track(track or p0.track)
     p0.check_track(tr, str(plan))
-    m = NominalModel(load_vehicle(vehicle))
     gp = grid = None
     if model is not None:
         from gprace.timetrial.learning import load_predictor
@@ -198,6 +203,7 @@ def iterate_cmd(
     features: str = FEATURES,
     grip: bool = typer.Option(True, "--grip/--no-grip", help="Rear-slip (grip) constraint in the tracking MPC; --no-grip is the paper's QP."),
     solver: str = typer.Option("clarabel", "--solver", help="QP backend."),
+    delay: float | None = DELAY,
     seed: int = SEED,
     workers: int = WORKERS, executor: str = EXECUTOR, scheduler: str | None = SCHEDULER,
     out: Path = typer.Option(Path("iterate_out"), "--out", help="Folder for every artifact (rerun to resume)."),
@@ -208,7 +214,7 @@ def iterate_cmd(
 
     st = IterateSettings(alphas=_floats(alpha, "--alpha"), iterations=iterations, trials=trials, selection=selection,
                          plant=plant, track=track, vehicle=vehicle, dictionary_size=dictionary, solver=solver, seed=seed,
-                         features=features, grip=grip)
+                         features=features, grip=grip, delay=delay)
     from gprace.executor import check_execution
 
     check_execution(executor, workers, scheduler)
@@ -276,20 +282,24 @@ def _print_summary(summary: dict, as_json: bool) -> None:
         console.json(summary)
         return
     head = ("iter", "trial", "alpha", "planned", "driven", "gap", "errTrk", "errPln", "Mtrk", "Mpln", "qp50ms", "qp99ms",
-            "hits", "fallb")
+            "hits", "fallb", "interv")
     keys = ("iteration", "trial", "alpha", "planned", "driven", "gap", "err_tracking", "err_planning", "dict_tracking",
-            "dict_planning", "solve_median_ms", "solve_p99_ms", "border_hits", "fallbacks")
+            "dict_planning", "solve_median_ms", "solve_p99_ms", "border_hits", "fallbacks", "interventions")
     lines = ["per iteration and trial (lap times [s]; GP errors: RMS on the held-out weaving run, per output / its std)",
              " ".join(f"{h:>7}" for h in head)]
     for r in summary["rows"]:
-        lines.append(" ".join(_cell(r.get(k)) for k in keys) + ("" if r.get("completed", True) else f"  ({r.get('reason')})"))
+        note = "" if r.get("completed", True) else f"  ({r.get('reason')})"
+        if r.get("plan_source", "").startswith(("back", "last good")):
+            note += f"  [{r['plan_source']}]"
+        lines.append(" ".join(_cell(r.get(k)) for k in keys) + note)
     lines.append("")
     lines.append("per iteration, mean +- std over the completed laps; done = laps completed of laps driven;")
     lines.append("cov = smallest share of held-out errors inside the GP's 95 % band; closed = smallest share of the")
-    lines.append("gap between iteration 0 and the oracle lap closed by a trial")
-    head2 = ("iter", "alpha", "done", "planned", "+-", "driven", "+-", "gap", "errTrk", "errPln", "covTrk", "covPln", "closed")
+    lines.append("gap between iteration 0 and the oracle lap closed by a trial; interv = stability-envelope interventions")
+    head2 = ("iter", "alpha", "done", "planned", "+-", "driven", "+-", "gap", "errTrk", "errPln", "covTrk", "covPln", "closed",
+             "interv")
     keys2 = ("iteration", "alpha", "done", "planned_mean", "planned_std", "driven_mean", "driven_std", "gap_mean",
-             "err_tracking", "err_planning", "cov_tracking", "cov_planning", "gap_closed_min")
+             "err_tracking", "err_planning", "cov_tracking", "cov_planning", "gap_closed_min", "interventions")
     lines.append(" ".join(f"{h:>7}" for h in head2))
     for a in summary["by_iteration"]:
         a = {**a, "done": f"{a['completed']}/{a['trials']}"}

@@ -4,8 +4,14 @@ The car starts on the plan at ``s = 0`` with the plan's state (a flying lap), th
 ``dt`` and the plant integrates each period. Recorded per period: the measured Frenet state, the
 applied input, curvature, lap counter, ``border_hit`` (footprint over an edge), ``solve_time``
 of the QP, ``fallback`` (the QP failed, the shifted previous solution was applied) and
-``explore`` (Algorithm 1 changed the reference). A car that leaves the track, spins or stalls
-(:func:`gprace.sim.stop.run_end`) ends the run early (``meta.completed = False``).
+``explore`` (Algorithm 1 changed the reference), and the stability envelope's
+(:mod:`gprace.mpc.stability`) ``e_r``, ``e_beta``, ``d_r``, ``d_beta``, ``envelope`` (its score, > 1 outside the band)
+and ``speed_factor``. A car that leaves the track, spins or stalls (:func:`gprace.sim.stop.run_end`)
+ends the run early (``meta.completed = False``); the run is still returned, and marked as gprace's
+own (no user-file unit check: a spun lap is data, never an input error).
+
+A ``supervisor`` (the shakedown of :mod:`gprace.timetrial.shakedown`) is called after every
+period with the loop's state and may swap the MPC's plan or its delay.
 """
 
 from __future__ import annotations
@@ -17,8 +23,9 @@ from pydantic import Field
 
 from gprace.config import CommandSettings
 from gprace.errors import InputError
-from gprace.io.runs import Run
+from gprace.io.runs import OWN_RUN, Run
 from gprace.model.dynamics import Input, State
+from gprace.mpc.stability import SIGNALS, Envelope, EnvelopeSettings, signals
 from gprace.mpc.tracking import MPCSettings, TrackingMPC
 from gprace.sim.stop import run_end
 
@@ -28,6 +35,7 @@ class DriveSettings(CommandSettings):
 
     laps: float = Field(1.0, gt=0, description="laps to drive")
     mpc: MPCSettings = Field(default_factory=MPCSettings, description="the tracking MPC")
+    envelope: EnvelopeSettings = Field(default_factory=EnvelopeSettings, description="the run-time stability envelope")
 
 
 def start_state(plan, track, vehicle) -> tuple[np.ndarray, np.ndarray]:
@@ -46,10 +54,12 @@ def start_state(plan, track, vehicle) -> tuple[np.ndarray, np.ndarray]:
 
 
 def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSettings(), gp=None, grid=None,
-          alpha: float = 0.0, seed: int = 0) -> Run:
-    """Drive ``settings.laps`` laps; ``gp`` is a callable ``Z -> (mean, var)`` (the tracking GP)."""
+          alpha: float = 0.0, seed: int = 0, band: tuple[float, float] | None = None, supervisor=None) -> Run:
+    """Drive ``settings.laps`` laps; ``gp`` is a callable ``Z -> (mean, var)`` (the tracking GP);
+    ``band`` the stability envelope's band from earlier laps (None: learned inside this run)."""
     from gprace.plants import make_plant
     from gprace.sim.record import border_hits, lap_times_of, run_columns
+    from gprace.timetrial.learning import in_control
 
     plan.check_track(track, "plan")
     dt = settings.mpc.dt
@@ -68,22 +78,37 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     Y = np.empty((n_max + 1, 6))
     X = np.empty((n_max + 1, 6))  # true states, for the footprint check
     U = np.empty((n_max + 1, 2))
-    cols = {k: np.zeros(n_max + 1) for k in ("lap", "solve_time", "fallback", "explore", "gamma")}
+    cols = {k: np.zeros(n_max + 1) for k in ("lap", "solve_time", "fallback", "explore", "gamma", *SIGNALS,
+                                              "envelope", "speed_factor")}
+    env = Envelope(settings.envelope, dt, band)
+    before = None  # the state the last solution predicted for this period
+    plan_brake = 0.0  # the hardest braking the plan asks for over the horizon (before easing)
     k = 0
     reason = ""
     wall = time.perf_counter()
     while True:
+        mpc.speed_factor = env.rho
+        mpc.bounds = env.input_bounds(mpc.u_lo, mpc.u_hi, plan_brake)
         u, info = mpc.step(y)
+        plan_brake = float(info["uref"][:, Input.A_X].min()) / mpc.speed_factor**2
         x = plant.state
         Y[k], X[k], U[k] = y, x, u
+        sig = signals(mpc.predicted, before, info["xref"][0])
+        before = mpc.prev_x[0]
         cols["lap"][k] = plant.lap
         cols["solve_time"][k] = info["solve_time"]
         cols["fallback"][k] = float(info["fallback"])
         cols["explore"][k] = float(mpc.last_target is not None and info.get("explored", False))
         cols["gamma"][k] = float(info["gamma"][0]) if len(info["gamma"]) else 0.0
+        for name, v in zip(SIGNALS, sig):
+            cols[name][k] = v
+        cols["speed_factor"][k] = env.rho
+        cols["envelope"][k] = env.update(sig, bool(in_control(y[None, :])[0]))
         k += 1
         if (reason := run_end(track, plant, vehicle.width, v_stall, goal, k, n_max, "no lap")) is not None:
             break
+        if supervisor is not None:
+            supervisor(k, Y[:k], U[:k], mpc, env)
         y = plant.step(u)
     data = {
         **run_columns(track, dt, Y[:k], U[:k]),
@@ -101,6 +126,8 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         "border_hit": bool(data["border_hit"].any()),
         "solve_time_median": float(np.median(st)) if k else float("nan"),
         "solve_time_p99": float(np.quantile(st, 0.99)) if k else float("nan"),
-        "wall_time": time.perf_counter() - wall, "seed": int(seed), "gp": gp is not None,
+        "wall_time": time.perf_counter() - wall, "seed": int(seed), "gp": gp is not None, OWN_RUN: True,
+        "interventions": int(env.interventions), "eased_steps": int(env.eased), "band": [float(b) for b in env.band],
+        "delay": float(mpc.delay),
     }
     return Run(data, meta, source=f"drive({plant_config.kind}, {track.name})")

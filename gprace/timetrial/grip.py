@@ -27,20 +27,24 @@ QUANTILE = 0.99  # robust peak of a measured acceleration (one lap has about 1,1
 
 
 def envelope(run, in_control) -> np.ndarray:
-    """Measured ``(a_lat, a_drive, a_brake)`` [m/s^2] of a run's in-control samples.
+    """Measured ``(a_lat, a_drive, a_brake)`` [m/s^2] of a run's in-control samples."""
+    X = run.states()
+    return envelope_of(X, run.inputs(), run["t"], in_control(X))
+
+
+def envelope_of(X: np.ndarray, U: np.ndarray, t: np.ndarray, ok: np.ndarray, quantile: float = QUANTILE) -> np.ndarray:
+    """``(a_lat, a_drive, a_brake)`` [m/s^2]: robust peaks of the samples ``ok`` of states ``X`` and inputs ``U``.
 
     The lateral acceleration is ``v_x r + dv_y/dt`` (central differences): ``v_x r`` alone counts
     a yaw oscillation in a fast chicane (r = 1 rad/s at 55 m/s) as 55 m/s^2 of grip.
     """
-    X, U = run.states(), run.inputs()
-    ok = in_control(X)
     if ok.sum() < 10:
         return np.full(3, np.nan)
-    vy_dot = np.gradient(X[:, 1], run["t"])
+    vy_dot = np.gradient(X[:, 1], t)
     a_lat = np.abs(X[ok, 0] * X[ok, 2] + vy_dot[ok])
     ax = U[ok, 1]
-    return np.array([np.quantile(a_lat, QUANTILE), np.quantile(np.maximum(ax, 0.0), QUANTILE),
-                     np.quantile(np.maximum(-ax, 0.0), QUANTILE)])
+    return np.array([np.quantile(a_lat, quantile), np.quantile(np.maximum(ax, 0.0), quantile),
+                     np.quantile(np.maximum(-ax, 0.0), quantile)])
 
 
 def utilisation(run, model, in_control) -> float:
@@ -62,16 +66,27 @@ def nominal_cap(model, share: float) -> np.ndarray:
     return share * np.array([lateral_limit(model), lim.accel_max, -lim.accel_min])
 
 
+def widening(util: float, widen: float, widen_max: float, hold: float = 0.8, low: float = 0.3) -> float:
+    """Step of the next widening: ``widen_max`` while the rear slip used stays below ``low`` of the
+    peak, falling linearly to ``widen`` at ``hold`` (a car far from its limit widens faster)."""
+    if not np.isfinite(util):
+        return widen
+    room = float(np.clip((hold - util) / max(hold - low, 1e-9), 0.0, 1.0))
+    return widen + (max(widen_max, widen) - widen) * room
+
+
 def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, util: float, cap: np.ndarray,
-                widen: float = 0.05, hold: float = 0.8, failed=(), border_hits: int = 0) -> np.ndarray:
+                widen: float = 0.05, hold: float = 0.8, failed=(), border_hits: int = 0, interventions: int = 0,
+                widen_max: float | None = None) -> np.ndarray:
     """Limits of the next plan from the last plan's ``previous`` limits and the lap it gave.
 
-    A completed lap widens them by ``widen``, unless it came near the peak slip (``util >=
-    hold``) or touched a border (``border_hits > 0``): then they are held. Measured on
-    bmw_commonroad (2026-11-24): a lap that completes with border hits is the last warning; one
-    Double-GP trial widened past two such laps and lost the car in the hairpin at s = 1607 m.
-    ``failed`` are the limits of earlier plans whose laps failed: the next limits stay below
-    each of them by ``widen`` (a level that lost the car is not tried again).
+    A completed lap widens them by ``widen`` (up to ``widen_max`` when the rear slip used was far
+    from the peak, :func:`widening`), unless it came near the peak slip (``util >= hold``), touched
+    a border (``border_hits > 0``) or made the stability envelope intervene: then they are held.
+    Measured on bmw_commonroad (2026-11-24): a lap that completes with border hits is the last
+    warning; one Double-GP trial widened past two such laps and lost the car in the hairpin at
+    s = 1607 m. ``failed`` are the limits of earlier plans whose laps failed: the next limits stay
+    below each of them by ``widen`` (a level that lost the car is not tried again).
     """
     previous, measured, cap = (np.asarray(a, dtype=float) for a in (previous, measured, cap))
     if not completed or not np.all(np.isfinite(measured)):
@@ -81,7 +96,9 @@ def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, uti
         # the plan's limits are transients (a yaw oscillation in a fast chicane), not grip shown;
         # an axis the lap hardly used (a partial lap that never braked) tells nothing: keep its limit
         base = np.where(measured >= 0.5 * previous, np.minimum(measured, previous), previous)
-        out = base if (np.isfinite(util) and util >= hold) or border_hits > 0 else base * (1.0 + widen)
+        held = (np.isfinite(util) and util >= hold) or border_hits > 0 or interventions > 0
+        step = widening(util, widen, widen_max if widen_max is not None else widen, hold)
+        out = base if held else base * (1.0 + step)
     for f in failed:
         f = np.asarray(f, dtype=float)
         if np.all(out >= f * (1.0 - widen)):

@@ -54,21 +54,28 @@ def in_control(X: np.ndarray) -> np.ndarray:
     return (np.abs(X[:, 3]) < SPIN_EPSI) & (np.abs(X[:, 1]) < SPIN_SLIP * np.abs(X[:, 0]) + 1.0)
 
 
-def features(run, model, track, kind: str, feature_set: str = "full", step: str = "rk4") -> tuple[np.ndarray, np.ndarray]:
+def features(run, model, track, kind: str, feature_set: str = "full", step: str = "rk4",
+             delay: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """``(Z (n, d), Y (n, 2))`` of one run for the ``tracking`` or ``planning`` GP (vectorised).
 
     Samples of a car out of control are left out, and so are the last ``SPIN_HORIZON`` seconds
     before a lap that ended in a spin or off the track: the GP compensates the car in control.
+    With a total ``delay`` [s] (:mod:`gprace.mpc.delay`) the inputs are those that acted over each
+    recorded period (the tracking target: the residual of the delay-aware step the MPC predicts
+    with; the input features: their mean over the period), and the first samples, whose acting
+    inputs were sent before the recording, are left out.
     """
     from gprace.gp.features import dyn_feature_set, dyn_inputs
+    from gprace.mpc import delay as D
 
     if kind not in OUTPUTS:
         raise InputError(f"unknown GP feature map {kind!r}; available: tracking, planning")
     names = dyn_feature_set(feature_set)
-    X, U = run.states(), run.inputs()
+    X, Usent = run.states(), run.inputs()
     dt = run.dt
     if len(X) < 3:
         return np.zeros((0, len(names))), np.zeros((0, 2))
+    U = D.blended(Usent, delay, dt) if delay > 0 else Usent
     t = run["t"]
     if kind == "planning":
         # derivative errors at each interior sample: central difference of the measurement minus f
@@ -80,7 +87,12 @@ def features(run, model, track, kind: str, feature_set: str = "full", step: str 
         ok = np.abs(np.diff(t) - dt) < 1e-6 * max(dt, 1.0)
         x0, u0, x1 = X[:-1][ok], U[:-1][ok], X[1:][ok]
         # the MPC's step: RK4 with the curvature following s through the step (mpc.tracking)
-        pred = model.rk4(x0, u0, track.kappa, dt) if step == "rk4" else model.euler(x0, u0, track.kappa(x0[:, 5]), dt)
+        if delay > 0:
+            pred = D.acting_step(model, X[:-1], Usent[:-1], track.kappa, dt, delay)[ok]
+        elif step == "rk4":
+            pred = model.rk4(x0, u0, track.kappa, dt)
+        else:
+            pred = model.euler(x0, u0, track.kappa(x0[:, 5]), dt)
         Y = (x1 - pred)[:, 1:3]
         t0 = t[:-1][ok]
     Z = dyn_inputs(x0, u0, names)
@@ -89,6 +101,8 @@ def features(run, model, track, kind: str, feature_set: str = "full", step: str 
     good &= in_control(x0)
     if not run.meta.get("completed", True):
         good &= t0 < t[-1] - SPIN_HORIZON
+    if delay > 0:
+        good &= t0 >= t[0] + D.skipped(delay, dt) * dt - 1e-9
     return Z[good], Y[good]
 
 

@@ -63,6 +63,19 @@ class IterationRecord(Frozen):
     envelope: list[float] = Field(default_factory=list, description="measured lateral, drive and brake "
                                   "accelerations of the in-control samples [m/s^2]")
     utilisation: Num = Field(NAN, description="robust peak rear slip over the nominal tire's peak slip")
+    status: str = Field("", description="good, lost (not completed) or slower (an alpha-0 lap slower than the best so "
+                        "far); empty in records before issue 37")
+    interventions: int = Field(0, ge=0, description="stability-envelope interventions during the lap")
+    eased_steps: int = Field(0, ge=0, description="periods driven with the reference speed eased")
+    band: list[float] = Field(default_factory=list, description="stability-envelope bands at the end of the lap "
+                              "(gprace.mpc.stability.SIGNALS: e_r, e_beta, d_r, d_beta)")
+    delay: Num = Field(NAN, description="total steering and measurement delay the MPC predicted over [s] (iteration 0: "
+                       "the shakedown's estimate or the known delay)")
+    delay_source: str = Field("", description="known (configured) or estimated (the shakedown)")
+    plan_source: str = Field("", description="where the driven plan came from: shakedown, curvature plan, replan, "
+                             "back to iteration k, last good plan, replan failed")
+    safety: dict[str, float | str] = Field(default_factory=dict, description="the plan's predicted safety "
+                                           "(gprace.timetrial.guard.plan_safety)")
 
     @model_validator(mode="before")
     @classmethod
@@ -103,6 +116,7 @@ class IterationSummary(Frozen):
     gap_closed_min: Num = Field(description="smallest share of the gap to the oracle closed over trials")
     completed: int = Field(ge=0, description="completed laps")
     failed: list[FailedLap] = Field(description="the laps not completed")
+    interventions: int = Field(0, ge=0, description="stability-envelope interventions over the trials' laps")
 
 
 class TrialSummary(Frozen):

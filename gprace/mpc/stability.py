@@ -1,0 +1,159 @@
+"""The stability envelope: ease the reference when the car leaves what it has been seen to do.
+
+Four signals per control period (:data:`SIGNALS`), two errors of what the controller expected and
+two deviations from what the plan asked:
+
+- ``e_r``, ``e_beta``: the **one-step errors** of the yaw rate and of the sideslip ``v_y / v_x``:
+  the state the MPC now starts from (the measurement predicted over the delay) minus the one its
+  last solution predicted for this instant (nominal model plus the tracking GP's mean);
+- ``d_r``, ``d_beta``: the **deviations** of the yaw rate and of the sideslip ``atan(v_y / v_x)``
+  from the reference. A growing yaw oscillation under braking (load transfer, a measurement delay)
+  shows here seconds before it shows in the one-step errors, which the model partly predicts
+  (measured on a randomized Audi: yaw swings of +-0.3 rad/s on a straight for 2 s before the
+  one-step error left its band, then a spin).
+
+A **band** per signal is learned from the car's own laps (:func:`bands`: a high quantile of the
+in-control samples of laps that were not lost, times a factor, between a floor and a cap). Before
+the first lap the band is learned inside the lap (:class:`Envelope` keeps the quantile of the
+samples so far inside the band, starting from the caps). The cap matters on a car whose normal
+driving already has large errors (a lag the model does not know, low grip): a band learned from
+its oscillations alone would never trigger. When the largest ``|signal| / band`` exceeds 1 in two
+periods in a row (or 2 in one) the envelope **intervenes**: the reference speed factor ``rho`` of
+the MPC falls by ``ease`` per period (down to ``rho_min``) and the longitudinal command is held
+inside a gentle range (neither hard braking nor full drive: a sliding rear needs its grip for
+cornering, and in the braking instability of a car with load transfer it is the braking that takes
+it away), with at least ``plan_brake_share`` of the braking the plan itself asks for there (an
+eased car must still make the corner). Once the signals have been back inside the band for
+``hold`` seconds, ``rho`` recovers by ``recover`` per period. The envelope never changes the model:
+it catches what the model has not learned yet.
+
+Counted per lap: ``interventions`` (onsets, at least ``hold`` apart) and the periods eased.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field
+
+from gprace.config import Frozen
+from gprace.model.dynamics import Input, State
+
+
+SIGNALS = ("e_r", "e_beta", "d_r", "d_beta")
+
+
+class EnvelopeSettings(Frozen):
+    """The run-time stability envelope (:mod:`gprace.mpc.stability`)."""
+
+    enabled: bool = Field(True, description="watch the car and ease the reference when it leaves the band")
+    quantile: float = Field(0.995, gt=0.5, lt=1.0, description="quantile of the clean laps' signals the band starts from")
+    factor: float = Field(1.6, ge=1.0, description="band = factor x that quantile")
+    floors: tuple[float, float, float, float] = Field((0.04, 0.004, 0.1, 0.03), description="smallest bands of "
+                                                      "e_r [rad/s], e_beta [rad], d_r [rad/s], d_beta [rad]")
+    caps: tuple[float, float, float, float] = Field((0.15, 0.015, 0.3, 0.06), description="widest bands (also the "
+                                                    "bands before any lap), same order")
+    ease: float = Field(0.02, gt=0, lt=1, description="fall of the speed factor per period while outside the band")
+    rho_min: float = Field(0.75, gt=0, le=1, description="lowest speed factor")
+    recover: float = Field(0.01, gt=0, description="rise of the speed factor per period once back inside")
+    hold: float = Field(0.5, ge=0, description="seconds inside the band before the speed factor recovers [s]")
+    gentle_brake: float = Field(0.4, gt=0, le=1, description="share of the braking limit allowed while outside the band")
+    plan_brake_share: float = Field(0.8, ge=0, le=1, description="share of the plan's own braking always allowed")
+    gentle_drive: float = Field(0.3, gt=0, le=1, description="share of the drive limit allowed while outside the band")
+    warmup: int = Field(60, ge=0, description="samples before a band learned inside the lap replaces the caps")
+
+
+def signals(predicted_now: np.ndarray, predicted_before: np.ndarray | None, ref: np.ndarray) -> np.ndarray:
+    """:data:`SIGNALS` of one period: the one-step errors of the yaw rate and the sideslip (what
+    the MPC starts from now minus what its last solution predicted for now; 0 at the first period)
+    and their deviations from the reference state ``ref``."""
+    now = predicted_now
+    vx = max(abs(float(now[State.V_X])), 1.0)
+    beta = np.arctan2(now[State.V_Y], vx)
+    out = np.zeros(4)
+    if predicted_before is not None:
+        out[0] = now[State.YAW_RATE] - predicted_before[State.YAW_RATE]
+        out[1] = beta - np.arctan2(predicted_before[State.V_Y], vx)
+    out[2] = now[State.YAW_RATE] - ref[State.YAW_RATE]
+    out[3] = beta - np.arctan2(ref[State.V_Y], max(abs(float(ref[State.V_X])), 1.0))
+    return out
+
+
+def bands(samples: np.ndarray, settings: EnvelopeSettings) -> np.ndarray | None:
+    """Bands (4,) from clean samples ``(n, 4)`` of the signals (None when fewer than 50)."""
+    a = np.abs(np.asarray(samples, float))
+    a = a[np.all(np.isfinite(a), axis=1)]
+    if len(a) < 50:
+        return None
+    return np.clip(settings.factor * np.quantile(a, settings.quantile, axis=0), settings.floors, settings.caps)
+
+
+class Envelope:
+    """Watches one run; :meth:`update` is called once per period after the MPC's step."""
+
+    def __init__(self, settings: EnvelopeSettings, dt: float, band=None) -> None:
+        self.settings, self.dt = settings, float(dt)
+        self.fixed = band is not None and len(band) == len(SIGNALS)  # from earlier laps; else learned here
+        self.band = np.array(band if self.fixed else settings.caps, float)
+        self.rho = 1.0
+        self.inside_for = np.inf  # seconds since the signals were last outside the band
+        self.interventions = 0
+        self.eased = 0
+        self._seen: list[np.ndarray] = []
+        self.active = False
+        self._last = 0.0
+        self.period = -1   # periods seen
+        self.onsets: list[int] = []  # period of each intervention's onset
+
+    def update(self, sig: np.ndarray, in_control: bool = True) -> float:
+        """Score of this period (``max |signal| / band``); moves ``rho`` and counts onsets."""
+        st = self.settings
+        self.period += 1
+        score = float(np.max(np.abs(sig) / self.band))
+        # a slide persists, sensor noise does not: outside means two periods in a row, or twice the band
+        outside = (score > 1.0 and self._last > 1.0) or score > 2.0
+        self._last = score
+        if not outside and not self.fixed and in_control:
+            self._learn(sig)
+        if not st.enabled:
+            return score
+        if outside:
+            if not self.active and self.inside_for >= st.hold:
+                self.interventions += 1
+                self.onsets.append(self.period)
+            self.active = True
+            self.inside_for = 0.0
+            self.rho = max(st.rho_min, self.rho - st.ease)
+        else:
+            self.inside_for += self.dt
+            if self.inside_for >= st.hold:
+                self.active = False
+                self.rho = min(1.0, self.rho + st.recover)
+        if self.rho < 1.0:
+            self.eased += 1
+        return score
+
+    def _learn(self, sig: np.ndarray) -> None:
+        """The band inside the first lap: from the clean samples so far (updated every 20)."""
+        self._seen.append(np.asarray(sig, float))
+        n = len(self._seen)
+        if n >= self.settings.warmup and n % 20 == 0:
+            b = bands(np.asarray(self._seen), self.settings)
+            if b is not None:
+                self.band = b
+
+    def input_bounds(self, u_lo: np.ndarray, u_hi: np.ndarray, plan_brake: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """The MPC's input bounds for the next period: the longitudinal range narrowed while active.
+
+        ``plan_brake`` is the hardest braking the plan itself asks for over the horizon (before
+        any easing); ``plan_brake_share`` of it stays allowed, so a car eased at a corner's entry
+        still makes the corner. Measured: with braking held to half the limit the oracle lap of
+        audi_hidden ran off at the hairpin (s = 450 m); with no limit a worn-rear BMW sliding out
+        of a corner braked at full force for the eased speed and spun (s = 1562 m).
+        """
+        if not self.active:
+            return u_lo, u_hi
+        st = self.settings
+        lo, hi = u_lo.copy(), u_hi.copy()
+        lo[Input.A_X] = max(u_lo[Input.A_X], min(st.gentle_brake * u_lo[Input.A_X], st.plan_brake_share * plan_brake))
+        hi[Input.A_X] = st.gentle_drive * u_hi[Input.A_X]
+        return lo, hi

@@ -1,0 +1,85 @@
+"""The loop never makes the car worse: lap status, the way back, and a plan's predicted safety.
+
+* **Status of a lap** (:func:`lap_status`): ``lost`` (not completed), ``slower`` (a racing lap,
+  alpha 0, slower than the best completed alpha-0 lap so far, iteration 0 included, by more than a
+  tolerance) or ``good``. Exploration laps (alpha > 0) are meant to be slower; they are judged only
+  by whether they were completed.
+* **The way back** (:func:`last_good`): after a lost or slower lap the next iteration re-plans from
+  the last good lap's plan and limits (no widening), with all data kept: the GPs have learned from
+  the bad lap too.
+* **Predicted safe** (:func:`plan_safety`): a GP plan is driven only if the models the loop has
+  (the nominal model with the planning GP's compensation, the tracking MPC's grip bound) predict
+  that it is drivable:
+
+  - the rear slip angle it asks for stays within the tracking MPC's grip bound (``grip_share`` of
+    the nominal tire's peak slip angle) and the front one below the nominal peak: beyond them the
+    MPC cannot follow the plan without its slack;
+  - it stays where the planning GP has data: at most ``novel_share`` of its nodes may have a
+    calibrated predictive std of the lateral-acceleration compensation above ``novel_std`` times the
+    GP's noise std (a plan that leans on an extrapolated compensation is a guess).
+
+  Otherwise the last good plan is driven again (its limits too), and the record says why.
+
+Pure functions over arrays; the iterate loop calls them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gprace.model.dynamics import State
+
+NOVEL_STD = 3.0     # predictive std over the GP's noise std above which a plan node counts as novel
+NOVEL_SHARE = 0.1   # largest share of novel nodes in a plan that is driven
+
+
+def lap_status(record: dict, earlier: list[dict], tolerance: float) -> str:
+    """``good``, ``lost`` or ``slower`` for ``record`` given the ``earlier`` records of its trial."""
+    if not record["completed"]:
+        return "lost"
+    if record["alpha"] != 0.0:
+        return "good"
+    best = [r["driven"] for r in earlier if r["completed"] and r["alpha"] == 0.0 and np.isfinite(r["driven"])]
+    if best and record["driven"] > min(best) * (1.0 + tolerance):
+        return "slower"
+    return "good"
+
+
+def last_good(records: list[dict]) -> int | None:
+    """Index of the last record whose lap was good (None if none was)."""
+    good = [k for k, r in enumerate(records) if r.get("status", "good" if r["completed"] else "lost") == "good"]
+    return good[-1] if good else None
+
+
+def plan_safety(plan, model, gp_plan=None, grip_share: float = 0.9, novel_std: float = NOVEL_STD,
+                novel_share: float = NOVEL_SHARE) -> dict:
+    """``{"safe": bool, "why": str, "slip_rear", "slip_front", "novel"}`` of a plan (vectorised over its nodes).
+
+    ``slip_*`` are the plan's robust peak slip angles over their bounds (1 = at the bound),
+    ``novel`` the share of nodes where the planning GP extrapolates.
+    """
+    from gprace.mpc.tracking import peak_slip, rear_slip_rows
+
+    p = model.params
+    X, U = plan.states(), plan.inputs()
+    a_r, _ = rear_slip_rows(X, p.lr, p.vmin)
+    vx = np.maximum(X[:, State.V_X], p.vmin)
+    a_f = U[:, 0] - np.arctan((X[:, State.V_Y] + p.lf * X[:, State.YAW_RATE]) / vx)
+    slip_rear = float(np.quantile(np.abs(a_r), 0.99) / (grip_share * peak_slip(p.br, p.cr)))
+    slip_front = float(np.quantile(np.abs(a_f), 0.99) / peak_slip(p.bf, p.cf))
+    novel = 0.0
+    if gp_plan is not None:
+        from gprace.gp.features import dyn_inputs
+
+        _, var = gp_plan.predictive(dyn_inputs(X, U, gp_plan.inputs))
+        noise = np.asarray(gp_plan.gp.noise_, float) * np.asarray(gp_plan.var_scale, float)
+        z = np.sqrt(var / np.maximum(noise, 1e-12))
+        novel = float(np.mean(np.any(z > novel_std, axis=1)))
+    why = []
+    if slip_rear > 1.0:
+        why.append(f"rear slip {slip_rear:.2f} of the MPC's bound")
+    if slip_front > 1.0:
+        why.append(f"front slip {slip_front:.2f} of the nominal peak")
+    if novel > novel_share:
+        why.append(f"{100 * novel:.0f} % of the plan where the planning GP has no data")
+    return {"safe": not why, "why": "; ".join(why), "slip_rear": slip_rear, "slip_front": slip_front, "novel": novel}

@@ -1,0 +1,276 @@
+"""Time trial on cars it has never met (issue 37): the shakedown, the delay, the stability envelope,
+the never-worse guard, and a lost lap that stays data.
+
+The cars are frenet stand-ins for the corners of the issue's plant distribution (catalogue
+effects: grip per axle, load transfer, combined slip, steering lag, yaw inertia), driven on a
+short stadium (two 250 m straights, two 30 m hairpins): hard braking from speed into a tight
+corner is where such cars are lost.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from gprace.errors import InputError
+
+pytest.importorskip("gprace.gp")
+
+STADIUM = """name = "stadium"
+closed = true
+width = 10.0
+
+[[segments]]
+type = "straight"
+length = 250.0
+
+[[segments]]
+type = "arc"
+radius = 30.0
+angle_deg = 180.0
+
+[[segments]]
+type = "straight"
+length = 250.0
+
+[[segments]]
+type = "arc"
+radius = 30.0
+angle_deg = 180.0
+"""
+
+# the corners of the distribution (docs/decisions.md, issue 37)
+CORNERS = {
+    "lowest grip, longest lag": [("tire_friction", {"front": 0.8, "rear": 0.8}), ("steering_lag", {"tau": 0.08}),
+                                 ("combined_slip", {"k": 1.0}), ("load_transfer", {"cog_height": 0.45})],
+    "highest CoG, combined slip": [("load_transfer", {"cog_height": 0.6}), ("combined_slip", {"k": 1.0}),
+                                   ("tire_friction", {"front": 1.0, "rear": 0.85}), ("yaw_inertia", {"factor": 0.75})],
+}
+
+
+@pytest.fixture(scope="module")
+def stadium(tmp_path_factory):
+    from gprace.tracks import load_track
+
+    path = tmp_path_factory.mktemp("track") / "stadium.toml"
+    path.write_text(STADIUM)
+    return load_track(str(path))
+
+
+def _plant(effects, vehicle="audi_tt_cup", seed=0):
+    from gprace.config import EffectConfig, PlantConfig, load_plant, load_vehicle
+
+    noise = load_plant("audi_nominal").noise
+    return PlantConfig(kind="frenet", vehicle=load_vehicle(vehicle), noise=noise, seed=seed,
+                       effects=tuple(EffectConfig(name=n, params=p) for n, p in effects))
+
+
+def _shakedown(track, plant, vehicle="audi_tt_cup"):
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import racing_line
+    from gprace.timetrial import grip as G
+    from gprace.timetrial.drive import drive
+    from gprace.timetrial.shakedown import Shakedown, ShakedownSettings
+
+    m = NominalModel(load_vehicle(vehicle))
+    nominal = G.nominal_cap(m, 1.0)
+    sh = Shakedown(racing_line(track, m, 6.0), m, nominal, ShakedownSettings(every=1.0), 0.05)
+    run = drive(sh.plan(), plant, track, m, seed=3, supervisor=sh)
+    return run, sh.limits / nominal, sh
+
+
+@pytest.mark.parametrize("corner", sorted(CORNERS))
+def test_shakedown_completes_iteration0_on_the_corners_of_the_distribution(stadium, corner):
+    """The extreme corners complete the shakedown lap; the nominal car (the model is right) widens
+    past the start, and each corner ends below where the nominal car ends (it read its weakness)."""
+    nominal_run, nominal_share, _ = _shakedown(stadium, _plant([]))
+    assert nominal_run.meta["completed"], nominal_run.meta["reason"]
+    assert nominal_share[0] > 0.6 and nominal_run.meta["interventions"] == 0
+    run, share, sh = _shakedown(stadium, _plant(CORNERS[corner]))
+    assert run.meta["completed"], (corner, run.meta["reason"], sh.log)
+    assert share[0] < nominal_share[0]
+    assert np.all(share >= 0.3)  # it backs off, it does not stop
+
+
+def test_delay_is_estimated_from_the_yaw_response(stadium):
+    """A steering lag of 80 ms, and the same run with its measurements two periods late: the dead
+    time is read within a quarter period, the total delay the MPC predicts over within 25 ms."""
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.mpc.delay import estimate
+    from gprace.plan import line_plan, racing_line
+    from gprace.timetrial import grip as G
+    from gprace.timetrial.drive import drive
+    from gprace.timetrial.learning import in_control
+
+    m = NominalModel(load_vehicle("audi_tt_cup"))
+    plan = line_plan(racing_line(stadium, m, 6.0), m, 0.5 * G.nominal_cap(m, 1.0))
+    for lag in (0.0, 0.08):
+        run = drive(plan, _plant([("steering_lag", {"tau": lag})] if lag else []), stadium, m, seed=5)
+        X, U = run.states(), run.inputs()
+        for late in (0, 2):  # measurements `late` periods old: the states shift against the inputs
+            Xd = np.vstack([np.repeat(X[:1], late, 0), X[:len(X) - late]])
+            dead, tau = estimate(Xd, U, 0.05, in_control(Xd))
+            assert abs(dead - late * 0.05) <= 0.0125 + 1e-9, (lag, late, dead, tau)
+            assert abs(dead + tau - lag - late * 0.05) <= 0.025, (lag, late, dead, tau)
+
+
+def test_gp_targets_follow_the_delay_the_car_has(stadium):
+    """A car whose inputs act two periods late (simulated with the nominal model): the tracking
+    GP's targets are zero when the features know the delay and far from it when they do not."""
+    from gprace.config import load_vehicle
+    from gprace.io.runs import OWN_RUN, Run
+    from gprace.model import NominalModel
+    from gprace.mpc import delay as D
+    from gprace.sim.record import run_columns
+    from gprace.timetrial.learning import features
+
+    m = NominalModel(load_vehicle("audi_tt_cup"))
+    dt, n = 0.05, 400
+    t = dt * np.arange(n)
+    U = np.column_stack([0.04 * np.sin(1.3 * t) + 0.02 * np.sin(3.1 * t), 1.0 * np.sin(0.7 * t)])
+    X = np.empty((n, 6))
+    X[0] = [20.0, 0.0, 0.0, 0.0, 0.0, 10.0]
+    acting = D.blended(U, 2 * dt, dt)
+    for k in range(n - 1):  # the plant: the input sent two periods ago acts now
+        X[k + 1] = m.rk4(X[k][None], acting[k][None], stadium.kappa, dt)[0]
+    run = Run(run_columns(stadium, dt, X, U), {"dt": dt, "completed": True, OWN_RUN: True})
+    _, Y_known = features(run, m, stadium, "tracking", delay=2 * dt)
+    _, Y_blind = features(run, m, stadium, "tracking", delay=0.0)
+    assert np.max(np.abs(Y_known)) < 1e-9
+    assert np.sqrt(np.mean(Y_blind**2)) > 1e-3
+
+
+def test_stability_envelope_triggers_on_a_slide_and_not_on_a_clean_lap(stadium):
+    """A clean lap of the nominal car at half its limits: no intervention. The same plan on a car
+    that meets a patch of low grip in the second hairpin: the envelope intervenes there (and the
+    car stays on the road)."""
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import line_plan, racing_line
+    from gprace.timetrial import grip as G
+    from gprace.timetrial.drive import drive
+
+    m = NominalModel(load_vehicle("audi_tt_cup"))
+    plan = line_plan(racing_line(stadium, m, 6.0), m, 0.6 * G.nominal_cap(m, 1.0))
+    clean = drive(plan, _plant([]), stadium, m, seed=7)
+    assert clean.meta["completed"] and clean.meta["interventions"] == 0
+    band = tuple(clean.meta["band"])  # learned on the clean lap, used on the next as on a GP lap
+    start = 250 + np.pi * 30 + 250  # the second hairpin
+    patch = [("friction_patch", {"factor": 0.55, "s_start": start + 10, "s_end": start + 60, "ramp": 1.0})]
+    slide = drive(plan, _plant(patch), stadium, m, seed=7, band=band)
+    assert slide.meta["interventions"] >= 1
+    first = np.flatnonzero(slide["envelope"] > 1.0)[0]
+    assert start <= slide["s"][first] <= start + 100, slide["s"][first]
+    assert slide["speed_factor"].min() < 1.0
+    assert clean.meta["interventions"] == 0 and drive(plan, _plant([]), stadium, m, seed=7, band=band).meta["interventions"] == 0
+
+
+def test_lost_lap_is_data_not_an_input_error():
+    """The spin of issue 37: a lap lost in a long slide has v_y of a km/h-looking magnitude. The
+    loop's own run keeps it (and reads it back); the same columns as a user's file are refused."""
+    from gprace.io.runs import OWN_RUN, Run, check_columns, read_run, write_run
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import curvature_plan
+    from gprace.timetrial.drive import DriveSettings, drive
+    from gprace.mpc.stability import EnvelopeSettings
+    from gprace.timetrial.learning import features
+    from gprace.tracks import load_track
+
+    track, m = load_track("gprace_ring"), NominalModel(load_vehicle("audi_tt_cup"))
+    plan = curvature_plan(track, m, ds=6.0, speed_scale=0.7)  # the old iteration 0: a fixed share
+    weak = _plant(CORNERS["lowest grip, longest lag"])
+    run = drive(plan, weak, track, m, DriveSettings(envelope=EnvelopeSettings(enabled=False)), seed=100)
+    assert not run.meta["completed"] and run.meta[OWN_RUN]
+    with pytest.raises(InputError, match="typical magnitude"):
+        check_columns({k: v.copy() for k, v in run.data.items()}, "user.csv")
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        back = read_run(write_run(run, Path(d) / "run.h5"))
+    Z, Y = features(back, m, track, "tracking")
+    assert len(Z) > 20 and np.all(np.isfinite(Y))
+    with pytest.raises(InputError):
+        Run({k: v.copy() for k, v in run.data.items()}, {}, "user.csv")
+
+
+def test_a_lost_lap_does_not_stop_the_loop_and_the_next_goes_back(tmp_path, monkeypatch):
+    """Iteration 1's lap is lost (the drive is cut short): iteration 2 re-plans from iteration 0's
+    plan and limits, and its GPs have iteration 1's samples (the data are kept)."""
+    from gprace.io.artifacts import read_artifact
+    from gprace.timetrial import drive as drive_module
+    from gprace.timetrial.iterate import IterateSettings, iterate
+
+    real = drive_module.drive
+
+    def lose_iteration_1(plan, *args, **kw):
+        run = real(plan, *args, **kw)
+        if kw.get("alpha", 0.0) == 0.5:  # iteration 1 of this experiment
+            keep = np.arange(run.n) < run.n // 2
+            run = run.slice(keep)
+            run.meta.update(completed=False, reason="the car spun at s = 1.0 m (injected)", lap_time=float("nan"))
+        return run
+
+    monkeypatch.setattr(drive_module, "drive", lose_iteration_1)
+    st = IterateSettings(alphas=(0.5, 0.0), iterations=2, trials=1, track="circle_100", plant="audi_nominal",
+                         dictionary_size=150, max_fit_points=80, plan_ds=8.0, heldout_laps=0.3, grid_values=4,
+                         oracle=False)
+    summary = iterate(st, tmp_path / "exp")
+    rows = {r["iteration"]: r for r in summary["rows"]}
+    assert rows[1]["status"] == "lost" and not rows[1]["completed"]
+    assert rows[2]["plan_source"].startswith("back to iteration 0")
+    assert rows[2]["limits"] == pytest.approx(rows[0]["limits"])
+    d1 = read_artifact(tmp_path / "exp/trial_0/iter_01/data_tracking.h5", "dataset").attrs["n_seen"]
+    d2 = read_artifact(tmp_path / "exp/trial_0/iter_02/data_tracking.h5", "dataset").attrs["n_seen"]
+    assert d2 > d1  # the lost lap's samples were streamed in
+    assert rows[2]["completed"]
+
+
+def test_plan_safety_refuses_a_plan_beyond_the_grip_bound():
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import curvature_plan
+    from gprace.timetrial.guard import lap_status, last_good, plan_safety
+    from gprace.tracks import load_track
+
+    m = NominalModel(load_vehicle("audi_tt_cup"))
+    plan = curvature_plan(load_track("circle_100"), m, ds=8.0, speed_scale=0.6)
+    assert plan_safety(plan, m)["safe"]
+    plan.v_y = plan.v_y - 0.3 * plan.v_x  # a plan that slides the rear far past its peak slip
+    res = plan_safety(plan, m)
+    assert not res["safe"] and "rear slip" in res["why"]
+    recs = [{"completed": True, "alpha": 0.0, "driven": 60.0}, {"completed": True, "alpha": 0.0, "driven": 58.0}]
+    assert lap_status({"completed": True, "alpha": 0.0, "driven": 59.0}, recs, 0.005) == "slower"
+    assert lap_status({"completed": True, "alpha": 0.5, "driven": 70.0}, recs, 0.005) == "good"
+    assert lap_status({"completed": False, "alpha": 0.0, "driven": np.nan}, recs, 0.005) == "lost"
+    assert last_good([{**recs[0], "status": "good"}, {**recs[1], "status": "slower"}]) == 0
+
+
+@pytest.mark.parametrize("args", [["iterate", "--delay", "1.5"], ["iterate", "--delay", "-0.1"]])
+def test_a_delay_longer_than_the_horizon_is_bad_input(capsys, tmp_path, args):
+    from gprace.cli import main
+
+    out = tmp_path / "it"
+    assert main(args + ["--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--delay" in err[0], err
+    assert not out.exists()
+
+
+def test_a_vehicle_delay_longer_than_the_horizon_is_bad_input(capsys, tmp_path):
+    from gprace.cli import main
+    from gprace.config import builtin_config
+
+    car = tmp_path / "slow_servo.toml"
+    car.write_text(builtin_config("vehicles", "audi_tt_cup").read_text() .replace(
+        "[tire]", "actuator_delay = 0.8\nmeasurement_delay = 0.3\n\n[tire]"))
+    out = tmp_path / "it"
+    assert main(["iterate", "--vehicle", str(car), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "longer than the MPC horizon" in err[0], err
+    assert not out.exists()
