@@ -54,11 +54,16 @@ def in_control(X: np.ndarray) -> np.ndarray:
     return (np.abs(X[:, 3]) < SPIN_EPSI) & (np.abs(X[:, 1]) < SPIN_SLIP * np.abs(X[:, 0]) + 1.0)
 
 
-def features(run, model, track, kind: str, feature_set: str = "full", step: str = "rk4") -> tuple[np.ndarray, np.ndarray]:
+def features(run, model, track, kind: str, feature_set: str = "full", step: str = "rk4",
+             keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(Z (n, d), Y (n, 2))`` of one run for the ``tracking`` or ``planning`` GP (vectorised).
 
     Samples of a car out of control are left out, and so are the last ``SPIN_HORIZON`` seconds
     before a lap that ended in a spin or off the track: the GP compensates the car in control.
+    ``keep`` (n,) replaces the in-control rule by a mask of usable samples (a recording's envelope,
+    :func:`gprace.io.envelope.envelope`: on a small track the heading to the centre line passes
+    0.5 rad in every hairpin, which says nothing about control); a sample pair or triple is used
+    when all its samples are kept.
     """
     from gprace.gp.features import dyn_feature_set, dyn_inputs
 
@@ -76,6 +81,7 @@ def features(run, model, track, kind: str, feature_set: str = "full", step: str 
         xm, x0, xp, u0 = X[:-2][ok], X[1:-1][ok], X[2:][ok], U[1:-1][ok]
         Y = ((xp - xm) / (2 * dt) - model.f(x0, u0, track.kappa(x0[:, 5])))[:, 1:3]
         t0 = t[1:-1][ok]
+        kept = None if keep is None else (keep[:-2] & keep[1:-1] & keep[2:])[ok]
     else:
         ok = np.abs(np.diff(t) - dt) < 1e-6 * max(dt, 1.0)
         x0, u0, x1 = X[:-1][ok], U[:-1][ok], X[1:][ok]
@@ -83,10 +89,11 @@ def features(run, model, track, kind: str, feature_set: str = "full", step: str 
         pred = model.rk4(x0, u0, track.kappa, dt) if step == "rk4" else model.euler(x0, u0, track.kappa(x0[:, 5]), dt)
         Y = (x1 - pred)[:, 1:3]
         t0 = t[:-1][ok]
+        kept = None if keep is None else (keep[:-1] & keep[1:])[ok]
     Z = dyn_inputs(x0, u0, names)
     good = np.all(np.isfinite(Z), axis=1) & np.all(np.isfinite(Y), axis=1)
     # a car out of control (spinning) is not the dynamics the GPs compensate: leave it out
-    good &= in_control(x0)
+    good &= in_control(x0) if kept is None else kept
     if not run.meta.get("completed", True):
         good &= t0 < t[-1] - SPIN_HORIZON
     return Z[good], Y[good]
