@@ -10,21 +10,31 @@ silently used and never a reason to refuse the whole file.
 :func:`envelope` is a pure function of the columns (vectorised, no loop over samples). It returns
 a keep-mask and a small typed :class:`EnvelopeReport`.
 
-Rules (all on the recorded channels, SI units):
+Rules (all on the recorded channels, SI units), each on quantities that do not depend on the car's
+size, so that a 1:10 car at 3 m/s and a 790 kg car at 30 m/s are judged alike (issue 36):
 
-- **spin**: body slip ``|atan2(v_y, v_x)|`` above :data:`SPIN_SLIP` (20 deg), or the car pointing
-  more than :data:`SPIN_HEADING` (60 deg) away from the track direction. A large slide of a few
-  degrees is inside the envelope (it is where tire effects show).
-- **reversing**: ``v_x`` below ``-`` :data:`REVERSE_SPEED`.
-- **standstill**: ``v_x`` below :data:`STANDSTILL_SPEED` (pit stop, stop on track, launch): slip
-  angles are undefined near zero speed.
+- **spin**: body slip ``|atan2(v_y, |v_x|)|`` above :data:`SPIN_SLIP` (20 deg); or a yaw rate in
+  excess of the larger of the kinematic ones (``v_x tan(delta) / L`` of the steering, ``v_x kappa``
+  of the road) by more than :data:`SPIN_EXCESS_G` g of lateral acceleration
+  (``(|r| - r_kin) |v_x| > 1 g``: rotation no tire force sustains); or the car pointing more than
+  :data:`WRONG_WAY` (100 deg) away from the track direction, i.e. going the wrong way. Each must
+  hold over :data:`SUSTAIN_S` (a running majority), so one spike of a noisy ``v_y`` estimate is
+  not a spin. A large slide of a few degrees is inside the envelope (it is where tire effects
+  show). Moving slower than the standstill speed is never a spin (slip angles are undefined there).
+- **standstill**: ``|v_x|`` below :func:`standstill_speed`: a fraction of the recording's typical
+  moving speed and, when the wheelbase ``L`` is known, of the Froude speed ``sqrt(g L)`` (the
+  speed at which a car of that size starts to need its tires), never below :data:`STANDSTILL_FLOOR`.
+- **reversing**: ``v_x`` below minus half the standstill speed.
 - **gap**: a time step longer than :data:`GAP_FACTOR` times the median step. No sample is
   dropped for a gap (none was recorded), but it is reported, and any stage predicting over time
   must not cross it.
 
 Every excluded stretch is widened by :data:`MARGIN_S` seconds on both sides (the approach to a
 spin and the recovery after it are transients too), and kept islands shorter than
-:data:`MIN_KEEP_S` between exclusions are dropped as well.
+:data:`MIN_KEEP_S` between exclusions are dropped as well. With the wheelbase these times are in
+the car's own time scale ``sqrt(L / g)`` (0.5 s for a 2.5 m wheelbase, 0.18 s at 1:10): a
+Froude-scaled copy of a drive (lengths x lambda, times and speeds x sqrt(lambda)) loses exactly
+the same samples.
 """
 
 from __future__ import annotations
@@ -35,18 +45,31 @@ import numpy as np
 
 SPIN_SLIP = 0.35
 """Body slip [rad] above which a sample counts as a spin (20 deg; race-car slides stay below ~10)."""
-SPIN_HEADING = 1.05
-"""|e_psi| [rad] above which the car points too far from the track direction (60 deg)."""
-STANDSTILL_SPEED = 2.0
-"""v_x [m/s] below which a sample counts as standstill."""
-REVERSE_SPEED = 0.3
-"""-v_x [m/s] beyond which the car is reversing."""
+SPIN_EXCESS_G = 1.0
+"""Yaw rate beyond the kinematic one, as lateral acceleration ``(|r| - r_kin) |v_x|`` in g, above
+which the car rotates faster than any tire force explains (a spin starting)."""
+WRONG_WAY = 1.75
+"""|e_psi| [rad] above which the car points against the track direction (100 deg)."""
+SUSTAIN_S = 0.2
+"""A spin condition must hold for the majority of this many seconds around a sample."""
+STANDSTILL_TYPICAL = 0.15
+"""Standstill below this share of the recording's typical (median moving) speed ..."""
+STANDSTILL_FROUDE = 0.3
+"""... and below this share of the Froude speed ``sqrt(g L)`` of the car (L the wheelbase)."""
+STANDSTILL_FROUDE_FLOOR = 0.1
+"""Standstill at least below this share of the Froude speed (a car creeping through the pits is
+standing for a model of driving: 0.5 m/s for a 2.5 m wheelbase, 0.17 m/s at 1:10) ..."""
+STANDSTILL_FLOOR = 0.2
+"""... or, without the wheelbase, below this speed [m/s]."""
+G = 9.81
 GAP_FACTOR = 1.5
 """A time step longer than this multiple of the median step is a gap."""
 MARGIN_S = 0.5
-"""Seconds excluded on each side of a spin / standstill / reversing stretch."""
+"""Seconds excluded on each side of a spin / standstill / reversing stretch (reference car)."""
 MIN_KEEP_S = 1.0
-"""Kept stretches shorter than this between two exclusions are excluded too."""
+"""Kept stretches shorter than this between two exclusions are excluded too (reference car)."""
+REFERENCE_WHEELBASE = 2.5
+"""The car whose time scale the times above are given in [m of wheelbase] (sqrt(L/g) = 0.5 s)."""
 
 REASONS = ("kept", "standstill", "reversing", "spin")  # priority order: later wins within a stretch
 
@@ -88,6 +111,16 @@ class EnvelopeReport:
     source: str
     samples: int  # samples in the recording
     excluded: tuple[Exclusion, ...] = field(default_factory=tuple)
+    samples_moving: int = -1  # samples driving forward faster than the standstill speed (-1: not computed)
+    moving_kept: int = -1  # of those, the samples kept
+    standstill_speed: float = float("nan")  # the speed [m/s] below which the car stands
+
+    @property
+    def moving_kept_share(self) -> float:
+        """Share of the moving samples kept (NaN when not computed or none moving)."""
+        if self.samples_moving <= 0:
+            return float("nan")
+        return self.moving_kept / self.samples_moving
 
     @property
     def samples_excluded(self) -> int:
@@ -113,14 +146,43 @@ class EnvelopeReport:
     def to_dict(self) -> dict:
         return {"source": self.source, "samples": self.samples, "samples_excluded": self.samples_excluded,
                 "seconds_excluded": round(self.seconds_excluded, 3),
+                "samples_moving": self.samples_moving, "moving_kept": self.moving_kept,
+                "standstill_speed": round(self.standstill_speed, 3),
                 "excluded": [e.to_dict() for e in self.excluded]}
 
 
-def envelope(data: dict[str, np.ndarray], source: str = "<memory>") -> tuple[np.ndarray, EnvelopeReport]:
+def standstill_speed(vx: np.ndarray, wheelbase: float | None = None) -> float:
+    """The speed [m/s] below which a car stands: :data:`STANDSTILL_TYPICAL` of the recording's
+    typical moving speed (the median of ``|v_x|`` where it exceeds the floor) and, with the
+    wheelbase, :data:`STANDSTILL_FROUDE` of ``sqrt(g L)``: whichever is smaller, at least the floor
+    (:data:`STANDSTILL_FROUDE_FLOOR` of ``sqrt(g L)``, or :data:`STANDSTILL_FLOOR` without ``L``).
+    A 1:10 car (L 0.31 m, 3 m/s): 0.45 m/s; a 3 m wheelbase car at 30 m/s: 1.6 m/s."""
+    v = np.abs(np.asarray(vx, dtype=float))
+    moving = v[v > STANDSTILL_FLOOR]
+    typical = STANDSTILL_TYPICAL * float(np.median(moving)) if len(moving) else STANDSTILL_FLOOR
+    floor = STANDSTILL_FLOOR
+    if wheelbase is not None and wheelbase > 0:
+        froude = float(np.sqrt(G * wheelbase))
+        typical = min(typical, STANDSTILL_FROUDE * froude)
+        floor = STANDSTILL_FROUDE_FLOOR * froude
+    return max(typical, floor)
+
+
+def time_scale(wheelbase: float | None) -> float:
+    """Factor on the envelope's times: ``sqrt(L / g)`` over that of the 2.5 m reference car
+    (1 without the wheelbase)."""
+    if wheelbase is None or wheelbase <= 0:
+        return 1.0
+    return float(np.sqrt(wheelbase / REFERENCE_WHEELBASE))
+
+
+def envelope(data: dict[str, np.ndarray], source: str = "<memory>",
+             wheelbase: float | None = None) -> tuple[np.ndarray, EnvelopeReport]:
     """Keep-mask ``(n,)`` (True = inside the envelope) and the report of what was cut out.
 
     ``data`` holds at least the columns ``t, s, v_x, v_y, e_psi`` (a :class:`~gprace.io.runs.Run`'s
-    ``data``); pure function, the arrays are not modified.
+    ``data``); with ``yaw_rate``, ``delta`` and ``kappa`` the yaw-rate test runs too (``delta``
+    only with the ``wheelbase`` [m]). Pure function, the arrays are not modified.
     """
     t = np.asarray(data["t"], dtype=float)
     s = np.asarray(data["s"], dtype=float)
@@ -131,15 +193,29 @@ def envelope(data: dict[str, np.ndarray], source: str = "<memory>") -> tuple[np.
     if n < 2:
         return np.ones(n, dtype=bool), EnvelopeReport(source, n)
     dt = float(np.median(np.diff(t)))
+    v_stand = standstill_speed(vx, wheelbase)
+    ts = time_scale(wheelbase)
 
     code = np.zeros(n, dtype=np.int8)  # index into REASONS
-    code = np.where(vx < STANDSTILL_SPEED, 1, code)
-    code = np.where(vx < -REVERSE_SPEED, 2, code)
-    spin = (np.abs(np.arctan2(vy, np.maximum(np.abs(vx), 1e-9))) > SPIN_SLIP) | (np.abs(epsi) > SPIN_HEADING)
-    code = np.where(spin & (vx >= -REVERSE_SPEED), 3, code).astype(np.int8)
+    stand = np.abs(vx) < v_stand
+    code = np.where(stand, 1, code)
+    code = np.where(vx < -0.5 * v_stand, 2, code)
+    speed = np.maximum(np.abs(vx), 1e-9)
+    spin = np.abs(np.arctan2(vy, speed)) > SPIN_SLIP
+    if "yaw_rate" in data:
+        r_kin = np.zeros(n)
+        if "kappa" in data:
+            r_kin = np.abs(vx * np.asarray(data["kappa"], dtype=float))
+        if "delta" in data and wheelbase:
+            r_kin = np.maximum(r_kin, np.abs(vx * np.tan(np.asarray(data["delta"], dtype=float)) / wheelbase))
+        excess = (np.abs(np.asarray(data["yaw_rate"], dtype=float)) - r_kin) * speed
+        spin |= excess > SPIN_EXCESS_G * G
+    spin |= np.abs(epsi) > WRONG_WAY
+    spin = _sustained(spin, max(int(round(SUSTAIN_S * ts / max(dt, 1e-9))), 1)) & ~stand
+    code = np.where(spin & (vx >= -0.5 * v_stand), 3, code).astype(np.int8)
 
     # widen every flagged stretch by the margin (in samples), keeping the strongest reason
-    w = max(int(round(MARGIN_S / max(dt, 1e-9))), 0)
+    w = max(int(round(MARGIN_S * ts / max(dt, 1e-9))), 0)
     grown = code.copy()
     for k in range(1, w + 1):  # loop over the margin width (~10), not over samples
         grown[k:] = np.maximum(grown[k:], code[:-k])
@@ -147,7 +223,7 @@ def envelope(data: dict[str, np.ndarray], source: str = "<memory>") -> tuple[np.
     keep = grown == 0
 
     # drop short kept islands between exclusions (and at the ends next to one)
-    min_keep = max(int(round(MIN_KEEP_S / max(dt, 1e-9))), 1)
+    min_keep = max(int(round(MIN_KEEP_S * ts / max(dt, 1e-9))), 1)
     starts, ends = _runs(keep)
     if (~keep).any():
         short = (ends - starts + 1) < min_keep
@@ -157,15 +233,50 @@ def envelope(data: dict[str, np.ndarray], source: str = "<memory>") -> tuple[np.
 
     ex: list[Exclusion] = []
     xs, xe = _runs(~keep)
-    for a, b in zip(xs, xe):  # one entry per excluded stretch
-        reason = REASONS[int(np.max(grown[a : b + 1]))] if np.max(grown[a : b + 1]) > 0 else "standstill"
-        t1 = t[b + 1] if b + 1 < n else t[b] + dt
-        ex.append(Exclusion(reason, int(a), int(b), float(t[a]), float(t1), float(s[a]), float(s[b]), int(b - a + 1)))
+    for a0, b0 in zip(xs, xe):  # one entry per excluded stretch and reason (a spin, then standing)
+        g = np.maximum(grown[a0 : b0 + 1], 1)
+        cut = np.flatnonzero(np.diff(g)) + 1
+        pieces = [[a, b] for a, b in zip(np.r_[0, cut] + a0, np.r_[cut, len(g)] + a0 - 1)]
+        while len(pieces) > 1:  # a piece shorter than the margin joins its stronger neighbour
+            size = [b - a + 1 for a, b in pieces]
+            i = int(np.argmin(size))
+            if size[i] > w:
+                break
+            j = i - 1 if i == len(pieces) - 1 or (i > 0 and grown[pieces[i - 1][0]] >= grown[pieces[i + 1][0]]) else i + 1
+            lo, hi = min(pieces[i][0], pieces[j][0]), max(pieces[i][1], pieces[j][1])
+            grown[lo : hi + 1] = max(grown[pieces[i][0]], grown[pieces[j][0]])
+            pieces[min(i, j)] = [lo, hi]
+            del pieces[max(i, j)]
+        merged: list[list[int]] = []
+        for a, b in pieces:  # neighbours of one reason are one stretch
+            if merged and grown[merged[-1][0]] == grown[a]:
+                merged[-1][1] = b
+            else:
+                merged.append([a, b])
+        for a, b in merged:
+            reason = REASONS[int(grown[a : b + 1].max(initial=1))]
+            t1 = t[b + 1] if b + 1 < n else t[b] + dt
+            ex.append(Exclusion(reason, int(a), int(b), float(t[a]), float(t1), float(s[a]), float(s[b]), int(b - a + 1)))
     gaps = np.flatnonzero(np.diff(t) > GAP_FACTOR * dt)
     for g in gaps:
         ex.append(Exclusion("gap", int(g + 1), int(g + 1), float(t[g]), float(t[g + 1]), float(s[g]), float(s[g + 1]), 0))
     ex.sort(key=lambda e: e.t_start)
-    return keep, EnvelopeReport(source, n, tuple(ex))
+    moving = vx >= v_stand  # driving forward (reversing is not driving the lap)
+    return keep, EnvelopeReport(source, n, tuple(ex), int(moving.sum()), int((keep & moving).sum()), v_stand)
+
+
+def _sustained(flag: np.ndarray, w: int) -> np.ndarray:
+    """``flag`` where it holds for the majority of the ``w`` (odd, at least 1) samples centred on
+    each sample: a centred running count, so isolated spikes drop out and long stretches keep
+    their exact ends."""
+    w = w + 1 - w % 2
+    if w <= 1:
+        return flag.copy()
+    h = w // 2
+    c = np.concatenate([[0], np.cumsum(flag.astype(np.int64))])
+    i = np.arange(len(flag))
+    lo, hi = np.maximum(i - h, 0), np.minimum(i + h + 1, len(flag))
+    return (c[hi] - c[lo]) * 2 > (hi - lo)
 
 
 def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
