@@ -299,3 +299,25 @@ def update_dictionary(d: Dictionary | None, Znew: np.ndarray, Ynew: np.ndarray, 
     initial = (d.Z, d.Y) if d is not None and len(d.Z) else None
     Z, Y, stats = select_diverse(hyper, Znew, Ynew, M, initial=initial)
     return Dictionary(Z, Y, (d.n_seen if d else 0) + len(Znew)), stats.as_dict()
+
+
+def stream_step(hyper_path, previous, Znew: np.ndarray, Ynew: np.ndarray, kind: str, size: int, selection: str,
+                feature_set: str, seed: int, max_fit_points: int, select_seed: int) -> tuple[Dictionary, dict]:
+    """The select step of the loop: the hyperparameters fitted once, on the first data
+    (``hyper_path`` is written then and read afterwards), and the new samples streamed into the
+    previous dictionary (``previous``: a dataset artifact, or None at the first step). The caller
+    checks that there are enough samples to fit on. ``seed`` seeds the fit, ``select_seed`` the
+    random baseline's draw."""
+    from pathlib import Path
+
+    from gprace.io.artifacts import read_artifact
+
+    if not Path(hyper_path).exists():
+        gp0 = fit_hyper(Znew, Ynew, seed=seed, max_fit_points=max_fit_points)
+        save_predictor(hyper_path, gp0, kind, feature_set=feature_set)
+    hyper = load_predictor(hyper_path, kind).gp
+    old = None
+    if previous is not None:
+        a = read_artifact(previous, "dataset")
+        old = Dictionary(a.arrays["Z"], a.arrays["Y"], int(a.attrs["n_seen"]))
+    return update_dictionary(old, Znew, Ynew, size, selection, hyper.hyper_, seed=select_seed)
