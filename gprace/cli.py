@@ -36,6 +36,7 @@ COMMAND_MODULES = (
     "gprace.timetrial.commands",
     "gprace.diagnose.commands",
     "gprace.ingest.commands",
+    "gprace.learn.commands",
 )
 
 
