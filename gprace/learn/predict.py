@@ -173,13 +173,15 @@ def predict(plan, track, model, gp, dt: float, horizon: int, limits) -> Predicti
 def lap_bounds(run, length: float) -> list[tuple[int, int]]:
     """``[(first, end), ...]`` sample indices of the laps recorded whole: between two crossings of
     the line (the lap counter steps), or from the first sample when the recording starts on the
-    line (within 1 % of a lap, as gprace's own runs do)."""
+    line (within 1 % of a lap, as gprace's own runs do); a "lap" that covers less than 90 % of the
+    track (a start just behind the line, counted again just after it) is none."""
     lap = np.asarray(run["lap"]) if "lap" in run.data else np.zeros(run.n)
     idx = list(np.flatnonzero(np.diff(lap) > 0) + 1)
     s0 = float(np.mod(run["s"][0], length))
     if min(s0, length - s0) < 0.01 * length and (not idx or idx[0] > 0):
         idx = [0] + idx
-    return list(zip(idx[:-1], idx[1:]))
+    pos = np.mod(np.asarray(run["s"]), length) + lap * length  # continuous through the laps
+    return [(a, b) for a, b in zip(idx[:-1], idx[1:]) if pos[b] - pos[a] >= 0.9 * length]
 
 
 def full_laps(run, length: float) -> list[float]:

@@ -32,7 +32,7 @@ Folder (``--out DIR``)::
     iter_<k>/rec_<j>.h5             imported recordings
     iter_<k>/data_*.h5 gp_*.h5 plan.h5 raceline_tum.csv raceline_f1tenth.csv
     iter_<k>/gp_tracking.portable.h5 gp_tracking.card.json [candidates.h5 explore_reference.csv]
-    iter_<k>/prediction.h5 record.json
+    iter_<k>/prediction.h5 record.json stages.json (the stages' results, for resuming)
     .steps/iter_<k>.<stage>.done
 """
 
@@ -193,6 +193,10 @@ def choose_iteration(folder: Folder, sources: list[dict]) -> tuple[int, bool]:
     return (its[-1] + 1 if its else 1), True
 
 
+OTHER_TRACK = ("off track", "does not drive along", "never comes within")
+"""What the importer says of a recording of another circuit."""
+
+
 def import_recordings(paths: list[Path], track, settings: LearnSettings, log=None) -> tuple[list, bool]:
     """Frenet runs of ``paths`` on ``track`` (as its file gives it) and whether they drive it
     against the file's direction (then on the reversed track).
@@ -212,7 +216,7 @@ def import_recordings(paths: list[Path], track, settings: LearnSettings, log=Non
             try:
                 run, trk = import_recording(p, track=track, rmap=load_map(mp), dt=settings.dt, log=log)
             except InputError as exc:
-                if "off track" in str(exc) or "does not drive along" in str(exc):
+                if any(w in str(exc) for w in OTHER_TRACK):
                     raise InputError(f"recordings of different tracks: {p} is not a recording of track {track.name!r} "
                                      f"({str(exc).split(': ', 1)[-1]})") from None
                 raise
@@ -643,7 +647,6 @@ def learn(paths, settings: LearnSettings, out, progress=None) -> dict:
         }
         write_json(folder.it(k) / "record.json", record)
         folder.mark(k, "predict")
-        (folder.it(k) / "partial.json").unlink(missing_ok=True)
         adv("predict")
     else:
         for s in STAGES:
@@ -654,12 +657,12 @@ def learn(paths, settings: LearnSettings, out, progress=None) -> dict:
 
 
 def _partial(folder: Folder, k: int) -> dict:
-    p = folder.it(k) / "partial.json"
+    p = folder.it(k) / "stages.json"
     return read_json(p) if p.exists() else {}
 
 
 def _save_partial(folder: Folder, k: int, results: dict) -> None:
-    write_json(folder.it(k) / "partial.json", results)
+    write_json(folder.it(k) / "stages.json", results)
 
 
 # ------------------------------------------------------------------------------------------------
