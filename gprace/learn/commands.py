@@ -55,7 +55,7 @@ def summary_lines(rec: dict, mcap: Path | None = None) -> list[str]:
     g = rec["retrain"]
     lines.append("GP dictionaries: " + ", ".join(f"{kk} {v['dictionary']} points ({v['new']} new samples, variance x"
                                                  f"{max(v['var_scale']):.2f})" for kk, v in g.items()))
-    lim, p = rec["limits"], rec["plan"]
+    lim, p = rec["grip"], rec["plan"]
     lines.append(f"predicted lap time: {p['planned_lap_time']:.3f} s"
                  + (f" (re-plan FAILED, previous plan kept: {p['replan_failed']})" if p["replan_failed"] else ""))
     lines.append("friction ellipse [m/s^2] lateral/drive/brake: " + " / ".join(f"{v:.2f}" for v in lim["limits"])

@@ -193,6 +193,19 @@ def choose_iteration(folder: Folder, sources: list[dict]) -> tuple[int, bool]:
     return (its[-1] + 1 if its else 1), True
 
 
+def _is_raw(path: Path) -> bool:
+    """A raw recording (imported) rather than a gprace run: anything but an HDF5 run or a CSV with
+    Frenet columns (``s``, ``e_y``); the map decides what a raw file's columns mean."""
+    from gprace.ingest.readers import recording_format
+    from gprace.ingest.table import peek_names
+
+    if path.suffix.lower() in (".h5", ".hdf5"):
+        return False
+    if recording_format(path) == "csv":
+        return not {"s", "e_y"} <= set(peek_names(path))
+    return True
+
+
 OTHER_TRACK = ("off track", "does not drive along", "never comes within")
 """What the importer says of a recording of another circuit."""
 
@@ -204,14 +217,14 @@ def import_recordings(paths: list[Path], track, settings: LearnSettings, log=Non
     Raw recordings are imported (map: ``--map``, else ``<name>.map.toml`` beside the file, else the
     defaults); gprace runs (HDF5, Frenet CSV) are read as they are and must name this track.
     InputError (one line) for recordings of another track or driven the other way round."""
-    from gprace.ingest.dispatch import is_raw_recording, sidecar_map
+    from gprace.ingest.dispatch import sidecar_map
     from gprace.ingest.importer import import_recording
     from gprace.ingest.mapping import load_map
     from gprace.io.runs import read_run
 
     runs, direction, first = [], None, None
     for p in paths:
-        if is_raw_recording(p):
+        if _is_raw(p):
             mp = Path(settings.map_file) if settings.map_file else (sidecar_map(p) if sidecar_map(p).exists() else None)
             try:
                 run, trk = import_recording(p, track=track, rmap=load_map(mp), dt=settings.dt, log=log)
@@ -478,7 +491,7 @@ def stage_plan(c: Iteration, lim: dict) -> dict:
     plan.meta = {**plan.meta, "limits": [float(v) for v in limits], "iteration": c.k,
                  "replan_failed": info["replan_failed"]}
     plan.write(c.dir / "plan.h5")
-    return {"planned_lap_time": float(plan.lap_time), **info}
+    return {"planned_lap_time": float(plan.lap_time), "limits": plan.meta["limits"], **info}
 
 
 def stage_export(c: Iteration) -> dict:
@@ -619,8 +632,8 @@ def learn(paths, settings: LearnSettings, out, progress=None) -> dict:
             adv(name)
         if not folder.done(k, "plan"):
             console.info(f"learn: iteration {k}: plan (minimum-time NLP with the planning GP)")
-            results["limits"] = next_plan_limits(c, c.facts)
-            results["plan"] = stage_plan(c, results["limits"])
+            results["grip"] = next_plan_limits(c, c.facts)
+            results["plan"] = stage_plan(c, results["grip"])
             _save_partial(folder, k, results)
             folder.mark(k, "plan")
         adv("plan")
@@ -631,7 +644,7 @@ def learn(paths, settings: LearnSettings, out, progress=None) -> dict:
             folder.mark(k, "export")
         adv("export")
         console.info(f"learn: iteration {k}: predict (the GP's band along the lap)")
-        results["prediction"] = stage_predict(c, results["limits"]["limits"])
+        results["prediction"] = stage_predict(c, results["plan"]["limits"])
         record = {
             "version": LEARN_VERSION, "iteration": k, "gprace_version": __version__,
             "created": time.strftime("%Y-%m-%dT%H:%M:%S"), "out": str(folder.out),
@@ -639,7 +652,7 @@ def learn(paths, settings: LearnSettings, out, progress=None) -> dict:
                             "notes": list(r.meta.get("notes", []))}
                            for s, f, r in zip(sources if new else read_json(folder.it(k) / "sources.json")["recordings"],
                                               c.facts, c.runs())],
-            "completed": results["limits"]["completed"], "limits": results["limits"]["limits"],
+            "completed": results["grip"]["completed"], "limits": results["plan"]["limits"],
             "vehicle": {"name": vehicle.name, "config_hash": vehicle.digest(), "source": settings.vehicle},
             "track": {"name": track.name, "spec": settings.track, "reversed": bool(track.is_reversed),
                       "length": track.length, "hash": car_identity(vehicle, track, settings)["track_hash"]},

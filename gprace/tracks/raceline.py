@@ -242,12 +242,24 @@ def raceline_of_plan(plan, track, spacing: float | None = None) -> Raceline:
     m = max(int(round(Lp / h)), 8)
     s_out = np.linspace(0.0, Lp, m + 1)[:-1]
     u_out = np.interp(s_out, sp, u)
-    p, d1, d2 = spl(u_out), spl(u_out, 1), spl(u_out, 2)
+    p, d1 = spl(u_out), spl(u_out, 1)
     heading = np.arctan2(d1[:, 1], d1[:, 0])
-    kappa = (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.hypot(d1[:, 0], d1[:, 1]) ** 3
-    # the spline's second derivative wiggles between the plan's nodes (a curvature of 1/260 m on a
-    # straight of Norisring at 6 m nodes): averaged over five node spacings, as the first plan's is
-    kappa = periodic_mean(kappa, 5.0 * L / len(plan.s) * Lp / L / h)
+    # curvature from the plan's own heading of travel (centre-line heading + heading error +
+    # sideslip: smooth states of the plan) differentiated along the path; the spline's second
+    # derivative wiggles between the nodes (1/260 m on a straight of Norisring at 6 m nodes)
+    hc = np.unwrap(np.append(track.heading(plan.s), track.heading(plan.s[:1])))
+    turn = hc[-1] - hc[0]  # +-2 pi: the heading's turn round the loop
+    th = hc[:-1] + plan.e_psi + np.arctan2(plan.v_y, plan.v_x)
+    spn = np.interp(plan.s, u, sp)  # path arc length of the nodes
+    nxt_th, prv_th = np.roll(th, -1), np.roll(th, 1)
+    nxt_th[-1] += turn
+    prv_th[0] -= turn
+    nxt_s, prv_s = np.roll(spn, -1), np.roll(spn, 1)
+    nxt_s[-1] += Lp
+    prv_s[0] -= Lp
+    k_nodes = (nxt_th - prv_th) / (nxt_s - prv_s)
+    k_nodes = np.append(k_nodes, k_nodes[0])
+    kappa = np.interp(u_out, s, k_nodes)
     speed = np.hypot(plan.v_x, plan.v_y)
     v = np.interp(u_out, s, np.append(speed, speed[0]))
     e = np.interp(u_out, s, np.append(plan.e_y, plan.e_y[0]))
@@ -256,15 +268,6 @@ def raceline_of_plan(plan, track, spacing: float | None = None) -> Raceline:
     return Raceline(s=s_out, x=p[:, 0], y=p[:, 1], psi=wrap_angle(heading - 0.5 * np.pi), kappa=kappa, vx=v, ax=ax,
                     length=Lp, d_right=track.width_right(u_out) + e, d_left=track.width_left(u_out) - e,
                     source=f"plan of {plan.track}", meta={"lap_time": float(plan.lap_time)})
-
-
-def periodic_mean(a: np.ndarray, width: float) -> np.ndarray:
-    """Moving average of a periodic sequence over ``width`` samples (odd, at least 1)."""
-    w = max(int(round(width)) // 2, 0)
-    if w == 0:
-        return a
-    k = np.ones(2 * w + 1) / (2 * w + 1)
-    return np.convolve(np.concatenate([a[-w:], a, a[:w]]), k, mode="valid")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -326,8 +329,8 @@ def plan_of_raceline(rl: Raceline, track, model, ds: float | None = None):
     scaled to the centre line) the offset ``e_y``, the path's heading and curvature and the speed
     are interpolated from the raceline; the lateral velocity, yaw rate and steering are those of
     the nominal model's steady corner at that speed and path curvature (the raceline files do not
-    carry them), the body heading is the path heading minus the sideslip, and ``a_x`` the change
-    of speed plus the model's drag and rolling resistance.
+    carry them), the body heading is the path heading minus the sideslip, and ``a_x`` the command
+    that gives the raceline's change of speed in the nominal model.
     """
     from gprace.plan.plan import Plan, track_hash
     from gprace.plan.steady import steady_state_inputs
@@ -351,7 +354,6 @@ def plan_of_raceline(rl: Raceline, track, model, ds: float | None = None):
     heading = at(rl.heading, angle=True)
     kappa_p = at(rl.kappa)
     v = at(rl.vx)
-    p = model.params
     lim = model.vehicle.limits
     vy, r, delta = steady_state_inputs(model, v, kappa_p)
     beta = np.arctan2(vy, v)
@@ -361,7 +363,15 @@ def plan_of_raceline(rl: Raceline, track, model, ds: float | None = None):
     hn = L / len(sn)
     dt = hn * 0.5 * (1 / sdot + 1 / np.roll(sdot, -1))
     t = np.concatenate([[0.0], np.cumsum(dt)])
-    a_x = np.gradient(np.append(vx, vx[0]), t)[:-1] + p.cxw * vx**2 / p.m + p.crr * p.g
+    # the drive command that gives the raceline's change of speed in the model itself (drag,
+    # rolling resistance and the longitudinal part of the front tire force in a corner: at constant
+    # speed through the 1 m hairpin of the 1:10 loop that part alone is 0.25 m/s^2, and a car given
+    # a_x = 0 there stalled)
+    X = np.column_stack([vx, vy, r, epsi, e, sn])
+    U0 = np.column_stack([delta, np.zeros_like(sn)])
+    f0 = model.f(X, U0, smp.kappa)[:, 0]
+    gain = model.f(X, U0 + [0.0, 1.0], smp.kappa)[:, 0] - f0
+    a_x = (np.gradient(np.append(vx, vx[0]), t)[:-1] - f0) / np.where(np.abs(gain) > 1e-6, gain, 1.0)
     return Plan(s=sn, e_y=e, e_psi=epsi, v_x=vx, v_y=vy, yaw_rate=r, delta=np.clip(delta, -lim.steering_max, lim.steering_max),
                 a_x=np.clip(a_x, lim.accel_min, lim.accel_max), t=t[:-1], lap_time=float(t[-1]), track=trk.name,
                 track_length=L, track_hash=track_hash(trk), vehicle=model.vehicle.name, method="raceline",
@@ -398,3 +408,26 @@ def raceline_summary(rl: Raceline, track=None, half_width: float = 0.0) -> dict:
                     "e_y_min_m": float(on.e.min()), "e_y_max_m": float(on.e.max()),
                     "margin_min_m": float(min(ml.min(), mr.min())), "inside": bool(min(ml.min(), mr.min()) >= 0)})
     return out
+
+
+def load_plan(path, track: str | None, vehicle, ds: float | None = None):
+    """``(plan, track)``: a plan file (on ``track``, default the plan's own by name), or a raceline
+    CSV read as a plan (:func:`plan_of_raceline`) on ``track``, which a raceline needs; the track
+    is returned in the direction the plan drives it. ``vehicle``: a name, path or VehicleConfig."""
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import read_plan
+    from gprace.tracks import load_track
+
+    path = Path(path)
+    if path.suffix.lower() in (".csv", ".txt") and path.exists() and is_raceline(path):
+        if track is None:
+            raise InputError(f"{path}: a raceline holds no track; give the track it was planned on (--track)")
+        veh = load_vehicle(vehicle) if isinstance(vehicle, (str, Path)) else vehicle
+        plan = plan_of_raceline(read_raceline(path), load_track(track), NominalModel(veh), ds)
+        trk = load_track(track)
+        return plan, (trk.reversed() if plan.meta["reversed"] else trk)
+    plan = read_plan(path)
+    trk = load_track(track or plan.track)
+    plan.check_track(trk, str(path))
+    return plan, trk
