@@ -41,6 +41,7 @@ COMMAND_MODULES = (
     "gprace.timetrial.commands",
     "gprace.diagnose.commands",
     "gprace.ingest.commands",
+    "gprace.learn.commands",
 )
 
 

@@ -88,7 +88,7 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
         if not np.all(np.isfinite(comp)):
             raise SolverError("plan: the planning GP returned non-finite compensation")
     half = 0.5 * model.vehicle.width + settings.margin
-    lo_ey, hi_ey = -smp.wr + half, smp.wl - half
+    lo_ey, hi_ey = frenet_bounds(smp.kappa, -smp.wr + half, smp.wl - half)
     if np.any(lo_ey >= hi_ey):
         k = int(np.argmax(lo_ey >= hi_ey))
         raise ConfigError(f"plan: track {track.name!r} is narrower than the car plus margin at s = {smp.s[k]:.1f} m")
@@ -218,6 +218,20 @@ def ellipse_limits(model, settings: PlanSettings) -> tuple[float, float, float] 
     lim = model.vehicle.limits
     return (settings.grip * lateral_limit(model), settings.grip * lim.accel_max,
             -(settings.grip_brake or settings.grip) * lim.accel_min)
+
+
+FRENET_REACH = 0.75
+"""Share of the radius of the centre line's bend that ``e_y`` may reach on its inside."""
+
+
+def frenet_bounds(kappa: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lateral bounds kept inside the region where the Frenet frame is regular (``1 - kappa e_y
+    >= 1 - FRENET_REACH``). The frame is singular at the centre of curvature: on a track wider than
+    the radius of its bends (the INI F1TENTH hairpin: radius 0.47 m, 0.9 m to each border) a
+    minimum-time plan went through it (``1 - kappa e_y = -0.66``, progress counted backwards) and
+    claimed a lap of 6.9 s."""
+    reach = FRENET_REACH / np.maximum(np.abs(kappa), 1e-12)
+    return (np.where(kappa < 0, np.maximum(lo, -reach), lo), np.where(kappa > 0, np.minimum(hi, reach), hi))
 
 
 def _extra_opts() -> dict:

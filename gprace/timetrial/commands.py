@@ -63,7 +63,7 @@ def plan_cmd(
     track: str = typer.Option("gprace_ring", "--track", help="Track: shipped name or a CSV/TOML path."),
     vehicle: str = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle: shipped name or TOML path."),
     model: Path | None = typer.Option(None, "--model", help="Planning GP (gp_model, feature map 'planning')."),
-    warm_start: Path | None = typer.Option(None, "--warm-start", help="Previous plan of the same track (initial guess)."),
+    warm_start: Path | None = typer.Option(None, "--warm-start", help="Previous plan of the same track, or a raceline CSV (TUM or F1TENTH) on it (initial guess)."),
     curvature: bool = typer.Option(False, "--curvature", help="Write the GP-free minimum-curvature path instead."),
     ds: float = typer.Option(6.0, "--ds", help="Node spacing in metres."),
     grip: float | None = typer.Option(None, "--grip", help="Friction-ellipse margin: share of the model's limits (e.g. 0.9)."),
@@ -75,7 +75,7 @@ def plan_cmd(
     from gprace.console import console
     from gprace.errors import ConfigError
     from gprace.model import NominalModel
-    from gprace.plan import PlanSettings, curvature_plan, plan_min_time, read_plan
+    from gprace.plan import PlanSettings, curvature_plan, plan_min_time
     from gprace.io.artifacts import check_output
     from gprace.tracks import load_track
 
@@ -92,7 +92,11 @@ def plan_cmd(
         console.info(f"plan: minimum-curvature path on {nodes}")
         plan = curvature_plan(tr, m, ds=ds)
     else:
-        warm = read_plan(warm_start, tr) if warm_start else None
+        warm = None
+        if warm_start:  # a plan file, or a raceline CSV: then the lap is planned in its direction
+            from gprace.tracks.raceline import load_plan
+
+            warm, tr = load_plan(warm_start, track, m.vehicle, ds)
         mu = None
         if model is not None:
             from gprace.timetrial.learning import load_predictor
@@ -109,7 +113,7 @@ def plan_cmd(
 
 
 def run_cmd(
-    plan: Path = typer.Option(..., "--plan", help="Plan file (from gprace plan)."),
+    plan: Path = typer.Option(..., "--plan", help="Plan file (from gprace plan), or a raceline CSV (TUM or F1TENTH) with --track."),
     plant: str = typer.Option("audi_hidden", "--plant", help="Plant config: shipped name or TOML path."),
     track: str | None = typer.Option(None, "--track", help="Track (default: the plan's track by name)."),
     vehicle: str = typer.Option("audi_tt_cup", "--vehicle", help="The controller's nominal vehicle."),
@@ -133,10 +137,9 @@ def run_cmd(
     from gprace.io.runs import write_run
     from gprace.model import NominalModel
     from gprace.mpc.tracking import MPCSettings
-    from gprace.plan import read_plan
     from gprace.timetrial.drive import DriveSettings, drive
     from gprace.io.artifacts import check_output
-    from gprace.tracks import load_track
+    from gprace.tracks.raceline import load_plan
 
     check_output(output)
     if not 0.0 <= alpha <= 1.0:
@@ -148,9 +151,7 @@ def run_cmd(
     # checks radius, beta and the delay (at most the horizon)
     mpc = MPCSettings(solver=solver, beta=beta, explore_radius=radius, delay=known or 0.0)
     solvers.get(solver)  # an unknown name lists the registered ones
-    p0 = read_plan(plan)
-    tr = load_track(track or p0.track)
-    p0.check_track(tr, str(plan))
+    p0, tr = load_plan(plan, track, m.vehicle)  # a plan file, or a raceline CSV on --track
     gp = grid = None
     if model is not None:
         from gprace.timetrial.learning import load_predictor

@@ -55,7 +55,7 @@ def in_control(X: np.ndarray) -> np.ndarray:
 
 
 def features(run, model, track, kind: str, feature_set: str = "full", step: str = "rk4",
-             delay: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+             delay: float = 0.0, keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(Z (n, d), Y (n, 2))`` of one run for the ``tracking`` or ``planning`` GP (vectorised).
 
     Samples of a car out of control are left out, and so are the last ``SPIN_HORIZON`` seconds
@@ -64,6 +64,10 @@ def features(run, model, track, kind: str, feature_set: str = "full", step: str 
     recorded period (the tracking target: the residual of the delay-aware step the MPC predicts
     with; the input features: their mean over the period), and the first samples, whose acting
     inputs were sent before the recording, are left out.
+    ``keep`` (n,) replaces the in-control rule by a mask of usable samples (a recording's envelope,
+    :func:`gprace.io.envelope.envelope`: on a small track the heading to the centre line passes
+    0.5 rad in every hairpin, which says nothing about control); a sample pair or triple is used
+    when all its samples are kept.
     """
     from gprace.gp.features import dyn_feature_set, dyn_inputs
     from gprace.mpc import delay as D
@@ -83,6 +87,7 @@ def features(run, model, track, kind: str, feature_set: str = "full", step: str 
         xm, x0, xp, u0 = X[:-2][ok], X[1:-1][ok], X[2:][ok], U[1:-1][ok]
         Y = ((xp - xm) / (2 * dt) - model.f(x0, u0, track.kappa(x0[:, 5])))[:, 1:3]
         t0 = t[1:-1][ok]
+        kept = None if keep is None else (keep[:-2] & keep[1:-1] & keep[2:])[ok]
     else:
         ok = np.abs(np.diff(t) - dt) < 1e-6 * max(dt, 1.0)
         x0, u0, x1 = X[:-1][ok], U[:-1][ok], X[1:][ok]
@@ -95,10 +100,11 @@ def features(run, model, track, kind: str, feature_set: str = "full", step: str 
             pred = model.euler(x0, u0, track.kappa(x0[:, 5]), dt)
         Y = (x1 - pred)[:, 1:3]
         t0 = t[:-1][ok]
+        kept = None if keep is None else (keep[:-1] & keep[1:])[ok]
     Z = dyn_inputs(x0, u0, names)
     good = np.all(np.isfinite(Z), axis=1) & np.all(np.isfinite(Y), axis=1)
     # a car out of control (spinning) is not the dynamics the GPs compensate: leave it out
-    good &= in_control(x0)
+    good &= in_control(x0) if kept is None else kept
     if not run.meta.get("completed", True):
         good &= t0 < t[-1] - SPIN_HORIZON
     if delay > 0:
@@ -306,3 +312,25 @@ def update_dictionary(d: Dictionary | None, Znew: np.ndarray, Ynew: np.ndarray, 
     initial = (d.Z, d.Y) if d is not None and len(d.Z) else None
     Z, Y, stats = select_diverse(hyper, Znew, Ynew, M, initial=initial)
     return Dictionary(Z, Y, (d.n_seen if d else 0) + len(Znew)), stats.as_dict()
+
+
+def stream_step(hyper_path, previous, Znew: np.ndarray, Ynew: np.ndarray, kind: str, size: int, selection: str,
+                feature_set: str, seed: int, max_fit_points: int, select_seed: int) -> tuple[Dictionary, dict]:
+    """The select step of the loop: the hyperparameters fitted once, on the first data
+    (``hyper_path`` is written then and read afterwards), and the new samples streamed into the
+    previous dictionary (``previous``: a dataset artifact, or None at the first step). The caller
+    checks that there are enough samples to fit on. ``seed`` seeds the fit, ``select_seed`` the
+    random baseline's draw."""
+    from pathlib import Path
+
+    from gprace.io.artifacts import read_artifact
+
+    if not Path(hyper_path).exists():
+        gp0 = fit_hyper(Znew, Ynew, seed=seed, max_fit_points=max_fit_points)
+        save_predictor(hyper_path, gp0, kind, feature_set=feature_set)
+    hyper = load_predictor(hyper_path, kind).gp
+    old = None
+    if previous is not None:
+        a = read_artifact(previous, "dataset")
+        old = Dictionary(a.arrays["Z"], a.arrays["Y"], int(a.attrs["n_seen"]))
+    return update_dictionary(old, Znew, Ynew, size, selection, hyper.hyper_, seed=select_seed)

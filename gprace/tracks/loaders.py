@@ -10,6 +10,9 @@ files, shipped track names.
 * Two boundary polylines ``"inner.csv,outer.csv"`` (or a pair of paths): x, y (a third column,
   z, is ignored) in either order, direction and start; the centre line and widths are derived
   from them (:mod:`gprace.tracks.bounds`).
+* A raceline file with the distances to the borders (the INI F1TENTH waypoint CSV,
+  :mod:`gprace.tracks.raceline`): the raceline is the reference line, the distances the widths.
+  A TUM raceline has no widths: reading it as a track is an error that says so.
 * TOML: a segment description (:mod:`gprace.tracks.segments`).
 * A name without a suffix: a track shipped in ``gprace/data/configs/tracks/``.
 
@@ -116,6 +119,10 @@ def _load_cached(path: str, mtime_ns: int, size: int, smoothing: float | None) -
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix in (".csv", ".txt"):
+        from gprace.tracks.raceline import is_raceline, raceline_track, read_raceline
+
+        if is_raceline(p):  # an F1TENTH waypoint file carries its borders: a track of its own
+            return raceline_track(read_raceline(p))
         return load_tum_csv(p, smoothing=smoothing)
     if suffix == ".toml":
         return load_segment_toml(p)
