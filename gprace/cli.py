@@ -115,12 +115,14 @@ OUTPUTS: dict[str, dict[str, str]] = {
     "show": {"plot": FILE},
     "report": {"out": FILE, "png": FOLDER},
     "track show": {"plot": FILE},
+    "learn": {"out": RUN, "mcap": FILE},
 }
 INPUTS: dict[str, tuple[str, ...]] = {
     "plan": ("model", "warm_start"), "run": ("plan", "model", "candidates"), "select-data": ("inputs", "model"),
     "retrain": ("data",), "eval gp": ("model", "run"), "eval iterate": ("folder",), "h2h train":
     ("dataset", "hyper_model", "initial", "validation"), "h2h explore": ("init_model", "init_data"),
     "diagnose": ("recordings",), "import": ("recording", "map_file"), "show": ("file",), "report": ("folder",),
+    "learn": ("recordings", "map_file"), "eval learn": ("folder", "log", "map_file"),
 }
 
 

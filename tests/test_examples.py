@@ -57,7 +57,7 @@ def test_diagnose_recording_example(tmp_path):
     assert "diagnosis" in _sections(html)
     assert "residual along the track" in html.lower() or "Residual along the track" in html
     assert "residual-along-track plot not drawn" not in html
-    assert (tmp_path / "out" / "augmented.toml").read_text().count("road_grade") == 1
+    assert (tmp_path / "out" / "augmented.toml").read_text().count('name = "road_grade"') == 1
 
 
 @pytest.mark.slow
