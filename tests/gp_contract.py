@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from gprace.errors import ArtifactError, InputError
-from gprace.gp import load_model, make_gp, save_model
+from gprace.gp import load_model, make_gp, save_model, train_inputs
+from gprace.gp.base import TRAIN_INPUTS
 from gprace.io.artifacts import Artifact, write_artifact
 
 
@@ -123,6 +124,40 @@ class GPBackendContract:
         Zt, _ = smooth_data(n=40, seed=9)
         for x, y in zip(gp.predict(Zt), saved.gp.predict(Zt)):
             assert np.array_equal(x, y)
+
+    # -- training inputs --------------------------------------------------------------------------------
+    def test_training_inputs_are_kept_in_data_units(self, tmp_path):
+        """``train_inputs_`` is the ``Z`` given to fit, in its own units (not the normalised ones
+        the backend works in), read-only, independent of the caller's array, and stored."""
+        Z, Y = smooth_data(n=40)
+        Z = Z * np.array([300.0, 0.01, 1.0]) + np.array([2000.0, -5.0, 0.0])  # far from mean 0, std 1
+        gp = self.make()
+        with pytest.raises(InputError, match="not fitted"):
+            gp.train_inputs_
+        gp.fit(Z, Y)
+        kept = gp.train_inputs_
+        assert np.array_equal(kept, Z)
+        Z[0, 0] = -1.0  # the caller's array changes; the model's does not
+        assert kept[0, 0] != -1.0
+        with pytest.raises(ValueError):
+            kept[0, 0] = 0.0
+        loaded = load_model(save_model(tmp_path / "m.h5", gp)).gp
+        assert np.array_equal(loaded.train_inputs_, gp.train_inputs_)
+        assert np.array_equal(train_inputs(loaded), gp.train_inputs_)
+
+    def test_model_without_training_inputs_loads_and_says_so(self):
+        """A file from before the training inputs were stored predicts as before; asking for
+        the inputs is an InputError naming them."""
+        Z, Y = smooth_data(n=30)
+        gp = self.make().fit(Z, Y)
+        arrays = gp.to_arrays()
+        del arrays[TRAIN_INPUTS]
+        old = type(gp).from_arrays(arrays, gp.get_params())
+        for x, y in zip(gp.predict(Z[:5]), old.predict(Z[:5])):
+            assert np.array_equal(x, y)
+        with pytest.raises(InputError, match="training inputs"):
+            old.train_inputs_
+        assert TRAIN_INPUTS not in old.to_arrays()
 
     def test_load_wrong_kind(self, tmp_path):
         p = write_artifact(tmp_path / "d.h5", Artifact("dataset", arrays={"Z": np.zeros((2, 3))}))

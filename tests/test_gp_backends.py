@@ -33,3 +33,16 @@ def test_bad_setting_is_config_error():
         make_gp("exact", n_inducing=3)
     with pytest.raises(ConfigError, match="kernel"):
         make_gp("sparse", kernel="rq").fit([[0.0]], [[1.0]])
+
+
+def test_train_inputs_of_a_plugin_without_them_is_config_error():
+    """A plugin class of its own (not derived from GPBackend) without ``train_inputs_``: the
+    error names the backend and the attribute."""
+    from gprace.errors import ConfigError
+    from gprace.gp import train_inputs
+
+    class Bare:
+        NAME = "bare-gp"
+
+    with pytest.raises(ConfigError, match="bare-gp.*train_inputs_"):
+        train_inputs(Bare())

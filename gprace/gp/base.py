@@ -11,6 +11,12 @@ rest (input checks, scalers, the estimator contract, save/load):
   fitted on normalised data (inputs and outputs shifted to mean 0 and scaled to standard
   deviation 1; a constant column keeps scale 1). Hyperparameters live in log space, in the
   normalised units, within :data:`BOUNDS`.
+- ``train_inputs_``: the training inputs ``(n, d)`` in DATA units (the units of the ``Z`` given
+  to ``fit``, not the normalised units the backend works in), read-only. Kept by the base class
+  for every backend and stored with the model (array ``train/Z``), so a loaded model has them
+  too; what is built from "the data the GP has seen" (the exploration candidates of Algorithm 1)
+  reads them here, never from a backend's own (normalised, or inducing) points. A model file
+  written before they were stored loads and predicts, and this property raises InputError.
 - ``to_arrays()`` / ``from_arrays(arrays, params)``: the full learned state as named float
   arrays, so models are stored in HDF5 without pickle; :func:`save_model` / :func:`load_model`
   wrap them as an artifact of kind ``gp_model``.
@@ -30,10 +36,12 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from gprace.errors import ConfigError, InputError, at_row
+from gprace.errors import ArtifactError, ConfigError, InputError, at_row
 from gprace.gp.kernels import check_kernel, kernel
 
 ARTIFACT_KIND = "gp_model"
+TRAIN_INPUTS = "train/Z"
+"""Name of the training inputs (data units) among a model's arrays (absent in older files)."""
 
 BOUNDS: dict[str, tuple[float, float]] = {
     "length_scale": (1e-2, 1e2),
@@ -66,6 +74,22 @@ def check_training_data(Z: Any, Y: Any, where: str = "training data") -> tuple[n
     _check_finite(Z, f"{where}: input Z")
     _check_finite(Y, f"{where}: output Y")
     return Z, Y
+
+
+def _read_only(A: np.ndarray) -> np.ndarray:
+    A.setflags(write=False)
+    return A
+
+
+def _train_inputs_of(arrays: dict[str, np.ndarray], d: int) -> np.ndarray | None:
+    """The stored training inputs (None in a file from before they were kept); a wrong shape is
+    an ArtifactError naming the array."""
+    if TRAIN_INPUTS not in arrays:
+        return None
+    Z = np.array(arrays[TRAIN_INPUTS], dtype=float)
+    if Z.ndim != 2 or Z.shape[1] != d:
+        raise ArtifactError(f"GP state: {TRAIN_INPUTS} has shape {Z.shape}, expected (n, {d})")
+    return _read_only(Z)
 
 
 def _check_finite(A: np.ndarray, what: str) -> None:
@@ -250,6 +274,7 @@ class GPBackend(ABC):
         self.hyper_ = GPHyper(self.kernel, z_mean, z_scale, y_mean, y_scale,
                               np.asarray(log_ls, float), np.asarray(log_sf2, float), np.asarray(log_sn2, float))
         self.n_train_ = n
+        self._train_inputs = _read_only(Z.copy())
         self._fit_posterior(Zn, Yn)
         return self
 
@@ -310,6 +335,16 @@ class GPBackend(ABC):
         return np.exp(h.log_sn2) * h.y_scale**2
 
     @property
+    def train_inputs_(self) -> np.ndarray:
+        """Training inputs ``(n, d)`` in data units (read-only; see the module docstring)."""
+        self._fitted()
+        Z = getattr(self, "_train_inputs", None)
+        if Z is None:
+            raise InputError(f"{type(self).__name__}: this model file has no training inputs (written before "
+                             "they were stored); retrain it to use them")
+        return Z
+
+    @property
     def n_outputs_(self) -> int:
         return self._fitted().p
 
@@ -329,6 +364,8 @@ class GPBackend(ABC):
         h = self._fitted()
         out = h.to_arrays("hyper/")
         out["n_train"] = np.asarray(self.n_train_)
+        if getattr(self, "_train_inputs", None) is not None:
+            out[TRAIN_INPUTS] = np.array(self._train_inputs)
         for k, v in self._state_arrays().items():
             out["state/" + k] = np.asarray(v)
         return out
@@ -341,6 +378,7 @@ class GPBackend(ABC):
             raise InputError(f"GP model: settings do not fit backend {cls.NAME!r}: {exc}") from None
         gp.hyper_ = GPHyper.from_arrays(gp.kernel, arrays, "hyper/")
         gp.n_train_ = int(arrays.get("n_train", 0))
+        gp._train_inputs = _train_inputs_of(arrays, gp.hyper_.d)
         state = {k[len("state/"):]: v for k, v in arrays.items() if k.startswith("state/")}
         gp._load_state(state)
         return gp
@@ -430,6 +468,18 @@ class SavedGP:
     attrs: dict[str, Any] = field(default_factory=dict)
 
 
+def train_inputs(gp: Any) -> np.ndarray:
+    """``gp.train_inputs_`` (``(n, d)``, data units) of any backend; a ConfigError naming the
+    backend if it has none (a plugin class that neither derives from :class:`GPBackend` nor
+    provides the attribute)."""
+    try:
+        Z = gp.train_inputs_
+    except AttributeError:
+        name = getattr(gp, "NAME", "") or type(gp).__name__
+        raise ConfigError(f"GP backend {name!r} does not expose its training inputs (train_inputs_)") from None
+    return np.asarray(Z, dtype=float)
+
+
 def make_gp(backend: str, **settings: Any) -> GPBackend:
     """Instantiate a registered backend by name (``exact``, ``sparse`` or a plugin)."""
     from gprace.backends import gps
@@ -494,7 +544,6 @@ def load_model(path: str | Path) -> SavedGP:
     :func:`~gprace.io.artifacts.read_artifact` returns under their full names.
     """
     from gprace.backends import gps
-    from gprace.errors import ArtifactError
     from gprace.io.artifacts import read_artifact
 
     art = read_artifact(path, ARTIFACT_KIND)

@@ -167,9 +167,10 @@ def run_cmd(
             c = read_artifact(candidates, "candidates")
             grid = CandidateGrid(c.arrays["Z"], c.arrays["v"], c.arrays["scale"])
         else:
+            from gprace.gp import train_inputs
             from gprace.timetrial.iterate import make_grid
 
-            grid = make_grid(gp.gp, gp.gp.Z_ if hasattr(gp.gp, "Z_") else None, MPCSettings(), 7)
+            grid = make_grid(gp.gp, train_inputs(gp.gp), mpc, 7)  # the GP's data in data units, as the MPC's features
     settings = DriveSettings(laps=laps, mpc=mpc)
     plant_cfg = load_plant(plant)
     console.info(f"run: driving {plan} on {plant} for {laps:g} lap(s) with the tracking MPC"
