@@ -261,3 +261,42 @@ def test_mcap_reads_back_with_its_channels_and_schemas(looped, tmp_path):
     assert poses[k][0] == int(rec["t"][k] * 1e9)
     st = json.loads(states[k][1])
     assert st["v_x"] == pytest.approx(rec["v_x"][k]) and st["s"] == pytest.approx(rec["s"][k])
+
+
+def test_run_mcap_shows_the_plan_with_the_gp_band_and_the_lap(looped, tmp_path):
+    """``run --mcap`` with the iteration's tracking GP: the band along the plan is learn's prediction
+    of the same plan (same GP, step and horizon), and the car's poses are where its Frenet states
+    put it (converted by this test's own global-frame export)."""
+    from mcap.reader import make_reader
+
+    from gprace.cli import main
+    from gprace.io.runs import read_run
+    from gprace.learn.predict import Prediction
+
+    it, mc = looped["out"] / "iter_01", tmp_path / "r.mcap"
+    assert main(["run", "--plan", str(it / "plan.h5"), "--track", "h2h_loop", "--plant", str(looped["dir"] / "plant.toml"),
+                 "--vehicle", "barc_1_10", "--model", str(it / "gp_tracking.h5"), "--laps", "0.3",
+                 "-o", str(tmp_path / "r.h5"), "--mcap", str(mc)]) == 0
+    run = read_run(tmp_path / "r.h5")
+    with mc.open("rb") as f:
+        reader = make_reader(f)
+        summ = reader.get_summary()
+        topics = {c.topic: summ.schemas[c.schema_id].name for c in summ.channels.values()}
+        assert topics["/track"] == topics["/plan/plan"] == "foxglove.SceneUpdate"
+        assert topics["/plan/plan/path"] == "foxglove.PosesInFrame" and topics["/run/run/pose"] == "foxglove.PoseInFrame"
+        assert topics["/plan/plan/along"] == "gprace.PlanAlong" and topics["/run/run/state"] == "gprace.RunState"
+        along, poses = [], []
+        for _, channel, msg in reader.iter_messages(topics=["/plan/plan/along", "/run/run/pose"]):
+            if channel.topic.endswith("along"):
+                along.append((msg.log_time, json.loads(msg.data)))
+            else:
+                poses.append(msg.data)
+    pred = Prediction.read(it / "prediction.h5")
+    band = np.array([a["band"] for _, a in sorted(along, key=lambda x: x[0])])
+    np.testing.assert_allclose(band, pred.band, rtol=1e-6, atol=1e-9)
+    assert {"sigma_vy", "sigma_r", "use", "speed"} <= set(along[0][1])
+    assert len(poses) == run.n
+    g = np.genfromtxt(export_global(run, looped["track"], tmp_path / "g.csv"), delimiter=",", names=True)
+    for k in (0, run.n // 3, run.n - 1):
+        pos = _pb_fields(_pb_fields(_pb_fields(poses[k])[3][0])[1][0])  # PoseInFrame.pose.position
+        assert pos[1][0] == pytest.approx(g["x"][k], abs=5e-3) and pos[2][0] == pytest.approx(g["y"][k], abs=5e-3)
