@@ -77,7 +77,7 @@ def test_learn_bar_names_its_stages(monkeypatch, tmp_path):
         commands.learn_cmd([tmp_path / "x.csv"], "h2h_loop", "barc_1_10", tmp_path / "o", None, None, 0.05, 100, "full",
                            "diverse", 0, None, False)
     assert [n for n, _ in shown] == list(range(len(STAGES) + 1))
-    assert shown[0][1] == "learn: importing the recordings" and shown[3][1] == "learn: re-planning the lap (IPOPT)"
+    assert shown[1][1] == "learn: selecting the GPs' data" and shown[3][1] == "learn: re-planning the lap (IPOPT)"
     assert shown[-1][1] == "learn: done"
 
 

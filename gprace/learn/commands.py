@@ -32,7 +32,7 @@ def learn_cmd(
     check_output(mcap, "--mcap")
     st = LearnSettings(track=track, vehicle=vehicle, map_file=str(map_file) if map_file else None, dt=dt, alpha=alpha,
                        dictionary_size=dictionary, features=features, selection=selection, seed=seed)
-    with console.progress(f"learn: {STAGE_TEXT[STAGES[0]]}", total=len(STAGES), unit="stages") as bar:
+    with console.progress(f"learn: {len(recordings)} recording(s) -> {out}", total=len(STAGES), unit="stages") as bar:
 
         def stage_done(name: str) -> None:  # the bar names the stage being worked on
             i = STAGES.index(name) + 1
@@ -49,6 +49,7 @@ def learn_cmd(
     console.result("\n".join(summary_lines(rec, mcap)))
 
 
+# what learn's bar says while a stage runs
 STAGE_TEXT = {"import": "importing the recordings", "select": "selecting the GPs' data", "retrain": "retraining the GPs",
               "plan": "re-planning the lap (IPOPT)", "export": "writing the racelines and the portable GP",
               "predict": "predicting the band along the lap"}
