@@ -300,3 +300,26 @@ def test_run_mcap_shows_the_plan_with_the_gp_band_and_the_lap(looped, tmp_path):
     for k in (0, run.n // 3, run.n - 1):
         pos = _pb_fields(_pb_fields(_pb_fields(poses[k])[3][0])[1][0])  # PoseInFrame.pose.position
         assert pos[1][0] == pytest.approx(g["x"][k], abs=5e-3) and pos[2][0] == pytest.approx(g["y"][k], abs=5e-3)
+
+
+@pytest.mark.parametrize("laps, now, good", [
+    ((True, True), True, 3),  # every plan completed: the previous one
+    ((True, False), True, 3),  # plan 2 lost its lap (recordings of 3), plan 3 completed (these)
+    ((True, True), False, 2),  # plan 3 lost its lap now: plan 2
+    ((False, False), False, None),  # only lost laps: none (the curvature line)
+])
+def test_the_plan_after_a_lost_lap_is_never_the_lost_plan(tmp_path, laps, now, good):
+    """Iteration 4's warm start and fallback: the last plan that completed its lap when driven
+    (plan j is driven in the recordings of iteration j + 1; iteration 1 is the car's own line)."""
+    from gprace.learn.workflow import Folder, last_good_plan, write_json
+
+    folder = Folder(tmp_path)
+    for j, done in zip((1, 2, 3), (True, *laps)):
+        folder.it(j).mkdir()
+        write_json(folder.it(j) / "record.json", {"completed": done})
+
+    class C:
+        k = 4
+
+    C.folder = folder
+    assert last_good_plan(C, now) == good
