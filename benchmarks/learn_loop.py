@@ -13,8 +13,9 @@ A hidden-effects plant is driven through files, ``--rounds`` times in a row:
 
 Then ``iterate`` runs the same plant, track and seeds (one trial, ``--rounds`` iterations, alpha
 0) with what the file loop's controller has: iteration 0 the curvature plan at 0.7 (no
-shakedown), the vehicle's delay (none estimated), no run-time stability envelope and no
-never-worse guard (``BUILTIN``); the table compares laps and GP errors (normalised RMS on
+shakedown), the vehicle's delay (none estimated), no never-worse guard (``BUILTIN``; the
+stability envelope is on in both, ``run`` learns its band inside the lap, ``iterate`` from the
+last lap); the table compares laps and GP errors (normalised RMS on
 iterate's held-out weaving run, for both loops' GPs). Prints JSON. Tens of minutes on a 2-core
 machine; run with ``nice``; the two loops can run as two processes (``--no-iterate`` and
 ``--iterate-only``), and a last call without either prints the table from their files::
@@ -75,7 +76,7 @@ def gp_error(pred, Z, Y) -> tuple[float, float]:
     return float(np.mean(np.sqrt(np.mean(((mean - Y) / sd) ** 2, axis=0)))), float(np.min(coverage(pred, Z, Y)))
 
 
-BUILTIN = {"shakedown": False, "delay": 0.0, "envelope": False, "never_worse": False, "oracle": False}
+BUILTIN = {"shakedown": False, "delay": 0.0, "never_worse": False, "oracle": False}
 """iterate's settings that give it the file loop's controller (``run`` with a plan and a GP)."""
 
 

@@ -76,6 +76,8 @@ def test_learn_bar_names_its_stages(monkeypatch, tmp_path):
     with pytest.raises(SystemExit):
         commands.learn_cmd([tmp_path / "x.csv"], "h2h_loop", "barc_1_10", tmp_path / "o", None, None, 0.05, 100, "full",
                            "diverse", 0, None, False)
+    assert shown[1] == (None, "learn: importing the recordings")
+    del shown[1]
     assert [n for n, _ in shown] == list(range(len(STAGES) + 1))
     assert shown[1][1] == "learn: selecting the GPs' data" and shown[3][1] == "learn: re-planning the lap (IPOPT)"
     assert shown[-1][1] == "learn: done"

@@ -38,6 +38,7 @@ def learn_cmd(
             i = STAGES.index(name) + 1
             bar.update(completed=i, description=f"learn: {STAGE_TEXT[STAGES[i]]}" if i < len(STAGES) else "learn: done")
 
+        bar.update(description=f"learn: {STAGE_TEXT[STAGES[0]]}")  # the start line says what and where
         rec = learn(recordings, st, out, progress=stage_done)
     if mcap is not None:
         from gprace.learn.workflow import write_mcap
