@@ -3,17 +3,22 @@
 A hidden-effects plant is driven through files, ``--rounds`` times in a row:
 
 1. ``gprace run`` drives a lap (round 0: the nominal curvature plan at 0.7 of the model's limits,
-   as ``iterate``'s iteration 0; round k: the TUM raceline of learn's iteration k with its tracking
-   GP), seed k, as ``iterate``'s trial 0 uses;
+   as ``iterate``'s iteration 0 without the shakedown; round k: the TUM raceline of learn's
+   iteration k with its tracking GP), with the plant seed ``iterate``'s trial 0 uses in iteration k;
 2. the run is exported to a global-frame CSV by code of this script (the centre line sampled
    every 5 cm and interpolated, ``x = c + e_y n``, ``yaw = heading + e_psi``: a logger's file, not
    gprace's);
 3. ``gprace learn`` imports that CSV, retrains, re-plans and writes the next TUM raceline;
 4. back to 1 with the raceline.
 
-Then ``gprace iterate`` runs the same plant, track and seed (one trial, ``--rounds`` iterations,
-alpha 0) and the table compares laps and GP errors (normalised RMS on iterate's held-out weaving
-run, for both loops' GPs). Prints JSON. Minutes on a 2-core machine; run with ``nice``::
+Then ``iterate`` runs the same plant, track and seeds (one trial, ``--rounds`` iterations, alpha
+0) with what the file loop's controller has: iteration 0 the curvature plan at 0.7 (no
+shakedown), the vehicle's delay (none estimated), no never-worse guard (``BUILTIN``; the
+stability envelope is on in both, ``run`` learns its band inside the lap, ``iterate`` from the
+last lap); the table compares laps and GP errors (normalised RMS on
+iterate's held-out weaving run, for both loops' GPs). Prints JSON. Tens of minutes on a 2-core
+machine; run with ``nice``; the two loops can run as two processes (``--no-iterate`` and
+``--iterate-only``), and a last call without either prints the table from their files::
 
     nice python benchmarks/learn_loop.py --out /tmp/learn_loop [--track PATH] [--plant audi_hidden] [--rounds 3]
 """
@@ -71,6 +76,19 @@ def gp_error(pred, Z, Y) -> tuple[float, float]:
     return float(np.mean(np.sqrt(np.mean(((mean - Y) / sd) ** 2, axis=0)))), float(np.min(coverage(pred, Z, Y)))
 
 
+BUILTIN = {"shakedown": False, "delay": 0.0, "never_worse": False, "oracle": False}
+"""iterate's settings that give it the file loop's controller (``run`` with a plan and a GP)."""
+
+
+def builtin_loop(a, out: Path) -> dict:
+    """iterate with one trial, alpha 0, ``BUILTIN``; its summary (resumes from ``out``)."""
+    from gprace.timetrial.iterate import IterateSettings, iterate
+
+    st = IterateSettings(alphas=(0.0,), iterations=a.rounds, trials=1, plant=a.plant, track=a.track, vehicle=a.vehicle,
+                         seed=a.seed, **BUILTIN)
+    return iterate(st, out, workers=1)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, required=True)
@@ -80,7 +98,12 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-iterate", action="store_true", help="the file loop only")
+    ap.add_argument("--iterate-only", action="store_true", help="the built-in loop only")
     a = ap.parse_args()
+    if a.iterate_only:
+        a.out.mkdir(parents=True, exist_ok=True)
+        builtin_loop(a, a.out / "iterate")
+        return
 
     from gprace.config import load_vehicle
     from gprace.io.runs import read_run
@@ -108,7 +131,8 @@ def main() -> None:
         run_k = out / f"run{k}.h5"
         if not run_k.exists():
             extra = ["--model", str(out / "learn" / f"iter_{k:02d}" / "gp_tracking.h5")] if k else []
-            gprace("run", "--plan", str(plan_file), *common, "--plant", a.plant, "--seed", str(a.seed * 100 + k),
+            # iterate's trial 0 drives iteration k with plant seed (1000 seed + 1) 100 + k
+            gprace("run", "--plan", str(plan_file), *common, "--plant", a.plant, "--seed", str((a.seed * 1000 + 1) * 100 + k),
                    "-o", str(run_k), *extra)
         r = read_run(run_k).meta
         rows.append({"round": k, "plan": str(plan_file.name), "planned": r["planned_lap_time"], "driven": r["lap_time"],
@@ -120,12 +144,13 @@ def main() -> None:
             export_global(run_k, track, csv)
         res = gprace("learn", str(csv), *common, "--out", str(out / "learn"), "--dt", "0.05", "--seed", str(a.seed))
         rows[-1]["learn_planned"] = res.get("plan", {}).get("planned_lap_time")
+        rows[-1]["learn_replan_failed"] = res.get("plan", {}).get("replan_failed")
+        rows[-1]["learn_warm_start"] = res.get("plan", {}).get("warm_start")
         plan_file = out / "learn" / f"iter_{k + 1:02d}" / "raceline_tum.csv"
     table = {"file_loop": rows, "seconds_file_loop": time.perf_counter() - t0}
     if not a.no_iterate:
         t1 = time.perf_counter()
-        summ = gprace("iterate", "--trials", "1", "--iterations", str(a.rounds), "--alpha", "0", "--plant", a.plant,
-                      *common, "--seed", str(a.seed), "--workers", "1", "--out", str(out / "iterate"))
+        summ = builtin_loop(a, out / "iterate")
         table["seconds_iterate"] = time.perf_counter() - t1
         it = {r["iteration"]: r for r in summ.get("rows", [])}
         held = read_run(out / "iterate" / "heldout.h5")

@@ -139,3 +139,23 @@ def test_a_raceline_of_another_track_is_refused():
 def test_formats_are_the_published_ones():
     assert FORMATS["tum"] == ("s_m", "x_m", "y_m", "psi_rad", "kappa_radpm", "vx_mps", "ax_mps2")
     assert FORMATS["f1tenth"][-2:] == ("d_right_iqp", "d_left_iqp")
+
+
+@pytest.mark.parametrize("command", [
+    ["track", "show", "{f}"],
+    ["run", "--plan", "{f}", "--track", "{t}", "--vehicle", "audi_tt_cup", "--plant", "audi_nominal", "-o", "{d}/r.h5"],
+    ["plan", "--warm-start", "{f}", "--track", "{t}", "--vehicle", "audi_tt_cup", "--ds", "0.5", "-o", "{d}/p.h5"],
+])
+def test_every_reader_of_a_raceline_refuses_wrong_columns_in_one_line(tmp_path, capsys, command):
+    """The IPZ20 waypoints with a renamed speed column, given where gprace reads racelines: exit 2,
+    one error line naming the column, nothing written."""
+    from gprace.cli import main
+
+    lines = (INI / "IPZ20_wp.csv").read_text().splitlines()
+    f = tmp_path / "wp.csv"
+    f.write_text("\n".join([lines[0].replace("vx_mps", "speed_mps")] + lines[1:]) + "\n")
+    args = [a.format(f=f, t=INI / "centerline.csv", d=tmp_path) for a in command]
+    assert main(args) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and err[0].startswith("error:") and "missing vx_mps; unexpected speed_mps" in err[0]
+    assert not (tmp_path / "r.h5").exists() and not (tmp_path / "p.h5").exists()

@@ -32,8 +32,14 @@ def learn_cmd(
     check_output(mcap, "--mcap")
     st = LearnSettings(track=track, vehicle=vehicle, map_file=str(map_file) if map_file else None, dt=dt, alpha=alpha,
                        dictionary_size=dictionary, features=features, selection=selection, seed=seed)
-    with console.progress(f"learn: {len(recordings)} recording(s) -> {out}", total=len(STAGES)) as bar:
-        rec = learn(recordings, st, out, progress=lambda name: bar.advance())
+    with console.progress(f"learn: {len(recordings)} recording(s) -> {out}", total=len(STAGES), unit="stages") as bar:
+
+        def stage_done(name: str) -> None:  # the bar names the stage being worked on
+            i = STAGES.index(name) + 1
+            bar.update(completed=i, description=f"learn: {STAGE_TEXT[STAGES[i]]}" if i < len(STAGES) else "learn: done")
+
+        bar.update(description=f"learn: {STAGE_TEXT[STAGES[0]]}")  # the start line says what and where
+        rec = learn(recordings, st, out, progress=stage_done)
     if mcap is not None:
         from gprace.learn.workflow import write_mcap
 
@@ -42,6 +48,12 @@ def learn_cmd(
         console.json(rec)
         return
     console.result("\n".join(summary_lines(rec, mcap)))
+
+
+# what learn's bar says while a stage runs
+STAGE_TEXT = {"import": "importing the recordings", "select": "selecting the GPs' data", "retrain": "retraining the GPs",
+              "plan": "re-planning the lap (IPOPT)", "export": "writing the racelines and the portable GP",
+              "predict": "predicting the band along the lap"}
 
 
 def summary_lines(rec: dict, mcap: Path | None = None) -> list[str]:

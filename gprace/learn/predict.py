@@ -166,6 +166,22 @@ def predict(plan, track, model, gp, dt: float, horizon: int, limits) -> Predicti
                       lap_time=float(plan.lap_time), track_length=float(track.length))
 
 
+def plan_along(plan, track, model=None, gp=None, dt: float = 0.05, horizon: int = 15, limits=None) -> tuple[dict, np.ndarray | None]:
+    """What an MCAP shows along a plan (:mod:`gprace.io.foxglove`): per node ``s, x, y, speed``;
+    with a tracking GP the band and the GP's standard deviations (:func:`lateral_band`, the band is
+    also returned); with friction limits the ellipse's use. ``(along, band or None)``."""
+    x, y = track.to_global(plan.s, plan.e_y)
+    along = {"s": plan.s, "x": x, "y": y, "speed": np.hypot(plan.v_x, plan.v_y)}
+    band = None
+    if gp is not None:
+        b = lateral_band(plan, track, model, gp, dt, horizon)
+        band = b["band"]
+        along.update(b)
+    if limits is not None and len(limits) == 3:
+        along["use"] = grip_use(plan, limits)
+    return along, band
+
+
 # ------------------------------------------------------------------------------------------------
 # a recorded lap against the prediction
 

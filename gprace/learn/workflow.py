@@ -459,34 +459,75 @@ def next_plan_limits(c: Iteration, facts: list[dict]) -> dict:
     previous = c.folder.record(c.k - 1)["limits"] if c.k > 1 else measured
     if not np.all(np.isfinite(measured)):
         raise InputError("the recordings hold too few usable samples to measure the car's envelope")
-    limits = G.next_limits(np.asarray(previous), measured, completed, util, cap, c.st.widen, failed=failed, border_hits=hits)
+    # the first iteration does not know the limits the car's own plan asked for: the measured
+    # envelope holds transients above them, so a completed lap is planned at it, not widened (on
+    # Norisring the lap planned at 10.4 m/s^2 lateral measured 12.03; widened to 12.63, the second
+    # GP plan at those limits spun the car, iterate widened from the plan's 10.4 to 11.96)
+    widen = 0.0 if c.k == 1 and completed else c.st.widen
+    limits = G.next_limits(np.asarray(previous), measured, completed, util, cap, widen, failed=failed, border_hits=hits)
+    shown = grip_shown(c, completed)
+    if shown is not None:  # never plan corners faster than the grip the car has shown (as iterate)
+        limits[0] = min(limits[0], max(shown * lateral_cap(c.model, 1.0)[0][0], float(np.asarray(previous)[0])))
     return {"limits": limits.tolist(), "previous": list(map(float, previous)), "measured": measured.tolist(),
             "cap": cap.tolist(), "utilisation": util, "border_hits": hits, "completed": completed, "failed": failed,
-            "note": note}
+            "grip_shown": shown, "note": note}
+
+
+def grip_shown(c: Iteration, completed: bool) -> float | None:
+    """The weakest axle's grip against the nominal tire (:func:`gprace.timetrial.shakedown.axle_grip`,
+    in-control samples) over the recordings of every iteration whose laps completed (``completed``:
+    this iteration's), or None. ``iterate`` caps its lateral limit with it (a BMW with a worn rear
+    spun at the hairpin without it); learn applies the same rule."""
+    from gprace.io.runs import read_run
+    from gprace.timetrial.learning import in_control
+    from gprace.timetrial.shakedown import axle_grip
+
+    ratios: list[float] = []
+    for j in range(1, c.k + 1):
+        if not (completed if j == c.k else c.folder.record(j)["completed"]):
+            continue
+        runs = c.runs() if j == c.k else [read_run(p) for p in sorted(c.folder.it(j).glob("rec_*.h5"))]
+        for run in runs:
+            X = run.states()
+            ratios += list(axle_grip(X, run.inputs(), run.dt, c.model, in_control(X)).values())
+    ratios = [r for r in ratios if np.isfinite(r)]
+    return float(min(ratios)) if ratios else None
+
+
+def last_good_plan(c: Iteration, completed: bool) -> int | None:
+    """The last iteration before ``c.k`` whose plan completed its lap when driven (plan ``j`` was
+    driven in the recordings of iteration ``j + 1``; ``completed``: this iteration's), or None."""
+    good = [j for j in range(1, c.k) if (c.folder.record(j + 1)["completed"] if j + 1 < c.k else completed)]
+    return good[-1] if good else None
 
 
 def stage_plan(c: Iteration, lim: dict) -> dict:
-    """The minimum-time plan with the planning GP inside the new limits (warm start: the previous
-    plan, else the curvature-optimal line at the limits); a failed solve keeps the previous plan."""
+    """The minimum-time plan with the planning GP inside the new limits, warm-started from the last
+    plan that completed its lap (none: the curvature-optimal line at the limits). A failed solve
+    writes that plan again; a plan that lost its lap is never written again (as in ``iterate``:
+    measured on Norisring, a lost lap narrowed the limits, the lost plan was an infeasible warm
+    start, IPOPT stopped at 1500 iterations and the lost plan was driven again)."""
     from gprace.plan import PlanSettings, curvature_plan, plan_min_time, read_plan
     from gprace.timetrial import learning as L
 
     track, model = c.track, c.model
-    prev = c.previous()
+    good = last_good_plan(c, lim["completed"])
     limits = lim["limits"]
-    warm = read_plan(prev / "plan.h5", track) if prev is not None else curvature_plan(
+    warm = read_plan(c.folder.it(good) / "plan.h5", track) if good is not None else curvature_plan(
         track, model, ds=c.ds, speed_scale=1.0, margin=c.margin, a_lat=limits[0])
     speeds = [f["speed_p5"] for f in c.facts]
     v_low = float(min(3.0, 0.5 * np.nanmin(speeds))) if np.any(np.isfinite(speeds)) else 3.0
     gp_plan = L.load_predictor(c.dir / "gp_planning.h5", "planning")
-    info = {"replan_failed": ""}
+    info = {"replan_failed": "", "warm_start": "curvature" if good is None else f"iteration {good}"}
     try:
         plan = plan_min_time(track, model, PlanSettings(ds=c.ds, limits=tuple(limits), margin=c.margin, v_low=max(v_low, 0.1)),
                              warm=warm, mu_plan=lambda X, U: gp_plan.at(X, U)[0])
     except SolverError as exc:
         plan = warm
         info["replan_failed"] = str(exc)
-        console.warn(f"learn: the re-plan failed ({exc}); the {'previous' if prev else 'curvature'} plan is written again")
+        console.warn(f"learn: the re-plan failed ({exc}); "
+                     + (f"the plan of iteration {good} (the last that completed its lap)" if good is not None
+                        else "the curvature-optimal line at the limits") + " is written instead")
         limits = plan.meta.get("limits", limits)
     plan.meta = {**plan.meta, "limits": [float(v) for v in limits], "iteration": c.k,
                  "replan_failed": info["replan_failed"]}

@@ -38,6 +38,8 @@ DICTIONARY = typer.Option(1000, "--dictionary-size", help="GP dictionary size M 
 FEATURES = typer.Option("full", "--features", help="GP inputs: full (v_x, v_y, yaw_rate, delta, a_x) or paper (v_y, yaw_rate, delta).")
 SEED = typer.Option(0, "--seed", help="Base seed.")
 WORKERS = typer.Option(2, "--workers", help="Parallel trials.")
+MCAP = typer.Option(None, "--mcap", help="Also write the recorded and planned laps, the GP's band (where a GP drove) and "
+                    "the track as MCAP (Foxglove schemas).")
 DELAY = typer.Option(None, "--delay", help="Total steering and measurement delay [s] the MPC predicts over "
                      "(default: the vehicle's known delays, else estimated in the shakedown).")
 
@@ -127,6 +129,7 @@ def run_cmd(
     delay: float | None = DELAY,
     seed: int = typer.Option(0, "--seed", help="Seed of the plant's sensor noise."),
     output: Path = typer.Option(..., "--output", "-o", help="Run file to write (.h5)."),
+    mcap: Path | None = MCAP,
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
 ) -> None:
     """Drive a plan on a plant with the (GP-compensated, exploring) tracking MPC; record a run."""
@@ -142,6 +145,7 @@ def run_cmd(
     from gprace.tracks.raceline import load_plan
 
     check_output(output)
+    check_output(mcap, "--mcap")
     if not 0.0 <= alpha <= 1.0:
         raise ConfigError(f"--alpha must be in [0, 1], got {alpha}")
     if laps <= 0:
@@ -177,6 +181,10 @@ def run_cmd(
                  + (" and the tracking GP" if gp is not None else "") + (f", exploring (alpha {alpha:g})" if alpha > 0 else ""))
     run = drive(p0, plant_cfg, tr, m, settings, gp=gp, grid=grid, alpha=alpha, seed=seed)
     write_run(run, output)
+    if mcap is not None:  # also for a lost lap: where it went is what an engineer looks at
+        from gprace.io.foxglove import write_plan_run
+
+        write_plan_run(mcap, tr, p0, run, m, gp, mpc.dt, mpc.N, [f"gprace run {plan} on {plant}: {run.meta['reason'] or 'completed'}"])
     mt = run.meta
     if as_json:
         console.json({"output": str(output), **{k: mt[k] for k in ("lap_time", "planned_lap_time", "completed", "reason",
@@ -209,6 +217,7 @@ def iterate_cmd(
     seed: int = SEED,
     workers: int = WORKERS, executor: str = EXECUTOR, scheduler: str | None = SCHEDULER,
     out: Path = typer.Option(Path("iterate_out"), "--out", help="Folder for every artifact (rerun to resume)."),
+    mcap: Path | None = MCAP,
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """The iterative double-GP time trial with active exploration (resumable)."""
@@ -220,7 +229,22 @@ def iterate_cmd(
     from gprace.executor import check_execution
 
     check_execution(executor, workers, scheduler)
-    summary = iterate(st, out, executor=executor, workers=workers, scheduler=scheduler)
+    from gprace.io.artifacts import check_output
+
+    check_output(mcap, "--mcap")
+    from gprace.errors import RunFailedError
+
+    failed = None
+    try:
+        summary = iterate(st, out, executor=executor, workers=workers, scheduler=scheduler)
+    except RunFailedError as exc:  # a failed trial: the MCAP still shows the finished laps
+        failed = exc
+    if mcap is not None:
+        from gprace.io.foxglove import write_iterate
+
+        write_iterate(out, mcap)
+    if failed is not None:
+        raise failed
     _print_summary(summary, as_json)
 
 

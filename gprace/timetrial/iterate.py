@@ -169,8 +169,20 @@ class Steps:
 
 def iterate(settings: IterateSettings, out: str | Path, executor: str = "local", workers: int = 1,
             scheduler: str | None = None, progress=None) -> dict:
-    """Run (or resume) the experiment in ``out``; return the summary."""
-    return iterate_many([(settings, out)], executor, workers, scheduler)[0]
+    """Run (or resume) the experiment in ``out``; return the summary. On a terminal one bar counts
+    the laps driven (:func:`lap_markers`), with an ETA; it moves while the trials run in other processes."""
+    laps = lap_markers(settings, Path(out))
+    with console.polled(f"iterate: {len(laps)} laps", len(laps), lambda: sum(p.exists() for p in laps), unit="laps"):
+        return iterate_many([(settings, out)], executor, workers, scheduler)[0]
+
+
+def lap_markers(settings: IterateSettings, out: Path) -> list[Path]:
+    """The step markers of every lap an experiment drives: its reference runs, each trial's
+    iterations 0..N (``t<j>_i<i>_drive``) and the oracle lap; a lap is done when its marker exists."""
+    steps = out / ".steps"
+    refs = [name for name in REFERENCE_RUNS if name != "calib" or settings.calib_weave > 0]
+    trials = [f"t{j}_i{i}_drive" for j in range(settings.trials) for i in range(settings.iterations + 1)]
+    return [steps / f"{name}.done" for name in refs + trials + ["oracle"]]
 
 
 def iterate_many(experiments, executor: str = "local", workers: int = 1, scheduler: str | None = None) -> list[dict]:
