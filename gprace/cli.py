@@ -101,8 +101,8 @@ FILE, FOLDER, RUN = "file", "folder", "run"
 OUTPUTS: dict[str, dict[str, str]] = {
     "simulate": {"output": FILE, "csv": FILE},
     "plan": {"output": FILE},
-    "run": {"output": FILE},
-    "iterate": {"out": RUN},
+    "run": {"output": FILE, "mcap": FILE},
+    "iterate": {"out": RUN, "mcap": FILE},
     "eval timetrial": {"out": RUN},
     "eval head2head": {"out": RUN},
     "h2h collect": {"out": RUN},
