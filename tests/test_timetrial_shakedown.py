@@ -251,6 +251,30 @@ def test_plan_safety_refuses_a_plan_beyond_the_grip_bound():
     assert last_good([{**recs[0], "status": "good"}, {**recs[1], "status": "slower"}]) == 0
 
 
+def test_the_way_back_never_returns_to_a_level_that_lost_the_car():
+    """A lap lost at the same limits as the good lap before it: the way back goes below them (by
+    ``widen``), and the plan it starts from is the last good one clear of the lost level."""
+    from gprace.timetrial.grip import below_failed, clear_of, next_limits
+    from gprace.timetrial.guard import last_good
+
+    good, lost = [8.0, 3.4, 4.4], [9.1, 3.5, 4.8]
+    assert below_failed(lost, [lost], 0.05) == pytest.approx(np.multiply(lost, 0.95))
+    assert below_failed(good, [lost], 0.05) == pytest.approx(good)  # below on some axis: untouched
+    once = below_failed(lost, [lost], 0.05)
+    assert below_failed(once, [lost], 0.05) == pytest.approx(once)  # idempotent: the cut level is clear
+    assert clear_of(good, [lost]) and clear_of(once, [lost]) and not clear_of(lost, [lost])
+    # next_limits keeps the same rule (a widening from a good lap stops below the lost level)
+    wide = next_limits(np.multiply(lost, 0.97), np.multiply(lost, 0.97), True, 0.1, np.full(3, 99.0), 0.05,
+                       failed=[lost])
+    assert np.all(wide <= np.multiply(lost, 0.95) + 1e-12)
+    recs = [{"completed": True, "status": "good", "limits": good},
+            {"completed": True, "status": "good", "limits": lost},
+            {"completed": False, "status": "lost", "limits": lost}]
+    assert last_good(recs) == 1
+    assert last_good(recs, clear=lambda lim: clear_of(lim, [lost])) == 0
+    assert last_good(recs[1:], clear=lambda lim: clear_of(lim, [lost])) == 0  # none clear: the last good
+
+
 @pytest.mark.parametrize("args", [["iterate", "--delay", "1.5"], ["iterate", "--delay", "-0.1"]])
 def test_a_delay_longer_than_the_horizon_is_bad_input(capsys, tmp_path, args):
     from gprace.cli import main
