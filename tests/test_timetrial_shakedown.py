@@ -297,4 +297,8 @@ def test_a_vehicle_delay_longer_than_the_horizon_is_bad_input(capsys, tmp_path):
     assert main(["iterate", "--vehicle", str(car), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "longer than the MPC horizon" in err[0], err
+    # run names the vehicle's delays as the vehicle's (not as --delay), before it reads the plan
+    assert main(["run", "--plan", str(tmp_path / "none.h5"), "--vehicle", str(car), "-o", str(tmp_path / "r.h5")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--vehicle" in err[0] and "actuator_delay" in err[0], err
     assert not out.exists()
