@@ -95,6 +95,39 @@ def test_shakedown_completes_iteration0_on_the_corners_of_the_distribution(stadi
     assert np.all(share >= 0.3)  # it backs off, it does not stop
 
 
+# the same corners on the ``randomized`` plant itself (its own physics: relaxation, actuator rate
+# limit, measurement delay); the parameters the issue does not name are drawn (car seed 0)
+RANDOMIZED_CORNERS = {
+    "lowest grip, longest lag": {"grip_front": 0.8, "grip_rear": 0.8, "steering_lag": 0.08},
+    "highest CoG, combined slip": {"cog_height": 0.6, "combined_slip": True},
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("corner", sorted(RANDOMIZED_CORNERS))
+def test_shakedown_completes_iteration0_on_the_randomized_corners(stadium, corner):
+    """The shakedown as ``iterate`` starts it without a calibration run (the delay prior), on the
+    ``randomized`` corners: the lap completes and the limits end inside (0.3, 1] of nominal."""
+    from gprace.config import PlantConfig, load_plant, load_vehicle
+    from gprace.model import NominalModel
+    from gprace.mpc.tracking import MPCSettings
+    from gprace.plan import racing_line
+    from gprace.timetrial import grip as G
+    from gprace.timetrial.drive import DriveSettings, drive
+    from gprace.timetrial.shakedown import DELAY_PRIOR, Shakedown, ShakedownSettings
+
+    vehicle = load_vehicle("audi_tt_cup")
+    plant = PlantConfig(kind="randomized", vehicle=vehicle, noise=load_plant("audi_nominal").noise,
+                        options=RANDOMIZED_CORNERS[corner])
+    m = NominalModel(vehicle)
+    nominal = G.nominal_cap(m, 1.0)
+    sh = Shakedown(racing_line(stadium, m, 6.0), m, nominal, ShakedownSettings(every=1.0), 0.05, delay=DELAY_PRIOR)
+    run = drive(sh.plan(), plant, stadium, m, DriveSettings(mpc=MPCSettings(delay=DELAY_PRIOR)), seed=3, supervisor=sh)
+    assert run.meta["completed"], (corner, run.meta["reason"], sh.log)
+    share = sh.limits / nominal
+    assert np.all(share > 0.3) and np.all(share <= 1.0)
+
+
 def test_delay_is_estimated_from_the_yaw_response(stadium):
     """A steering lag of 80 ms, and the same run with its measurements two periods late: the dead
     time is read within a quarter period, the total delay the MPC predicts over within 25 ms."""
