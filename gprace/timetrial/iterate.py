@@ -367,7 +367,9 @@ def oracle_lap(settings: IterateSettings, out: Path | None = None) -> dict:
     if not settings.oracle:
         return {"known": False, "why": "not computed (oracle = false)"}
     effects = [e for e in approx.effects if make_effect(e).n_states == 0]
+    # the MPC predicts over the steering lag and the measurement delay the plant's physics say
     lag = sum(float(e.params.get("tau", 0.0)) for e in approx.effects if e.name == "steering_lag")
+    lag += float(getattr(approx, "delay_periods", 0.0)) * MPCSettings().dt
     vehicle = approx.vehicle or load_vehicle(settings.vehicle)
     truth = NominalModel(vehicle, effects)
     track = load_track(settings.track)
