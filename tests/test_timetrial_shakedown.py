@@ -95,6 +95,39 @@ def test_shakedown_completes_iteration0_on_the_corners_of_the_distribution(stadi
     assert np.all(share >= 0.3)  # it backs off, it does not stop
 
 
+# the same corners on the ``randomized`` plant itself (its own physics: relaxation, actuator rate
+# limit, measurement delay); the parameters the issue does not name are drawn (car seed 0)
+RANDOMIZED_CORNERS = {
+    "lowest grip, longest lag": {"grip_front": 0.8, "grip_rear": 0.8, "steering_lag": 0.08},
+    "highest CoG, combined slip": {"cog_height": 0.6, "combined_slip": True},
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("corner", sorted(RANDOMIZED_CORNERS))
+def test_shakedown_completes_iteration0_on_the_randomized_corners(stadium, corner):
+    """The shakedown as ``iterate`` starts it without a calibration run (the delay prior), on the
+    ``randomized`` corners: the lap completes and the limits end inside (0.3, 1] of nominal."""
+    from gprace.config import PlantConfig, load_plant, load_vehicle
+    from gprace.model import NominalModel
+    from gprace.mpc.tracking import MPCSettings
+    from gprace.plan import racing_line
+    from gprace.timetrial import grip as G
+    from gprace.timetrial.drive import DriveSettings, drive
+    from gprace.timetrial.shakedown import DELAY_PRIOR, Shakedown, ShakedownSettings
+
+    vehicle = load_vehicle("audi_tt_cup")
+    plant = PlantConfig(kind="randomized", vehicle=vehicle, noise=load_plant("audi_nominal").noise,
+                        options=RANDOMIZED_CORNERS[corner])
+    m = NominalModel(vehicle)
+    nominal = G.nominal_cap(m, 1.0)
+    sh = Shakedown(racing_line(stadium, m, 6.0), m, nominal, ShakedownSettings(every=1.0), 0.05, delay=DELAY_PRIOR)
+    run = drive(sh.plan(), plant, stadium, m, DriveSettings(mpc=MPCSettings(delay=DELAY_PRIOR)), seed=3, supervisor=sh)
+    assert run.meta["completed"], (corner, run.meta["reason"], sh.log)
+    share = sh.limits / nominal
+    assert np.all(share > 0.3) and np.all(share <= 1.0)
+
+
 def test_delay_is_estimated_from_the_yaw_response(stadium):
     """A steering lag of 80 ms, and the same run with its measurements two periods late: the dead
     time is read within a quarter period, the total delay the MPC predicts over within 25 ms."""
@@ -251,6 +284,30 @@ def test_plan_safety_refuses_a_plan_beyond_the_grip_bound():
     assert last_good([{**recs[0], "status": "good"}, {**recs[1], "status": "slower"}]) == 0
 
 
+def test_the_way_back_never_returns_to_a_level_that_lost_the_car():
+    """A lap lost at the same limits as the good lap before it: the way back goes below them (by
+    ``widen``), and the plan it starts from is the last good one clear of the lost level."""
+    from gprace.timetrial.grip import below_failed, clear_of, next_limits
+    from gprace.timetrial.guard import last_good
+
+    good, lost = [8.0, 3.4, 4.4], [9.1, 3.5, 4.8]
+    assert below_failed(lost, [lost], 0.05) == pytest.approx(np.multiply(lost, 0.95))
+    assert below_failed(good, [lost], 0.05) == pytest.approx(good)  # below on some axis: untouched
+    once = below_failed(lost, [lost], 0.05)
+    assert below_failed(once, [lost], 0.05) == pytest.approx(once)  # idempotent: the cut level is clear
+    assert clear_of(good, [lost]) and clear_of(once, [lost]) and not clear_of(lost, [lost])
+    # next_limits keeps the same rule (a widening from a good lap stops below the lost level)
+    wide = next_limits(np.multiply(lost, 0.97), np.multiply(lost, 0.97), True, 0.1, np.full(3, 99.0), 0.05,
+                       failed=[lost])
+    assert np.all(wide <= np.multiply(lost, 0.95) + 1e-12)
+    recs = [{"completed": True, "status": "good", "limits": good},
+            {"completed": True, "status": "good", "limits": lost},
+            {"completed": False, "status": "lost", "limits": lost}]
+    assert last_good(recs) == 1
+    assert last_good(recs, clear=lambda lim: clear_of(lim, [lost])) == 0
+    assert last_good(recs[1:], clear=lambda lim: clear_of(lim, [lost])) == 0  # none clear: the last good
+
+
 @pytest.mark.parametrize("args", [["iterate", "--delay", "1.5"], ["iterate", "--delay", "-0.1"]])
 def test_a_delay_longer_than_the_horizon_is_bad_input(capsys, tmp_path, args):
     from gprace.cli import main
@@ -273,4 +330,8 @@ def test_a_vehicle_delay_longer_than_the_horizon_is_bad_input(capsys, tmp_path):
     assert main(["iterate", "--vehicle", str(car), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "longer than the MPC horizon" in err[0], err
+    # run names the vehicle's delays as the vehicle's (not as --delay), before it reads the plan
+    assert main(["run", "--plan", str(tmp_path / "none.h5"), "--vehicle", str(car), "-o", str(tmp_path / "r.h5")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--vehicle" in err[0] and "actuator_delay" in err[0], err
     assert not out.exists()

@@ -24,7 +24,8 @@ class Approximation:
 
     ``known``: whether gprace knows them at all; then ``vehicle`` (effects empty) with the
     catalogue ``effects`` is the nominal-model car closest to the plant, ``exact`` when it *is* the
-    plant, and ``missing`` names what the nominal model cannot hold. ``why`` says why not known.
+    plant, and ``missing`` names what the nominal model cannot hold (``delay_periods``: the
+    measurement delay among them). ``why`` says why not known.
     """
 
     known: bool
@@ -33,6 +34,9 @@ class Approximation:
     exact: bool = False
     missing: tuple[str, ...] = ()
     why: str = ""
+    delay_periods: float = 0.0
+    """Age of the plant's measurements [control periods] (a controller that knows the plant
+    predicts over it, as over a steering lag)."""
 
 
 class Plant(ABC):

@@ -384,4 +384,5 @@ def approximation(car: DrawnCar, vehicle: VehicleConfig) -> Approximation:
     missing += ["longitudinal friction limit of each wheel"] * bool(p.combined)
     missing += ["drive on the front axle"] * (p.drive_rear < 1.0)
     veh = vehicle.model_copy(update={"yaw_inertia": p.iz, "drag_coefficient": p.cxw, "effects": ()})
-    return Approximation(known=True, vehicle=veh, effects=tuple(effects), exact=False, missing=tuple(missing))
+    return Approximation(known=True, vehicle=veh, effects=tuple(effects), exact=False, missing=tuple(missing),
+                         delay_periods=float(car.delay))

@@ -152,6 +152,10 @@ def run_cmd(
         raise ConfigError(f"--laps must be positive, got {laps}")
     m = NominalModel(load_vehicle(vehicle))
     known = m.vehicle.known_delay if delay is None else delay
+    if delay is None and known is not None:  # the vehicle's delays: named as the vehicle's, not as --delay
+        from gprace.mpc.delay import check
+
+        check(known, MPCSettings().N, MPCSettings().dt, f"--vehicle {vehicle}: actuator_delay + measurement_delay")
     # checks radius, beta and the delay (at most the horizon)
     mpc = MPCSettings(solver=solver, beta=beta, explore_radius=radius, delay=known or 0.0)
     solvers.get(solver)  # an unknown name lists the registered ones

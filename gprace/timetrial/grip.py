@@ -99,8 +99,23 @@ def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, uti
         held = (np.isfinite(util) and util >= hold) or border_hits > 0 or interventions > 0
         step = widening(util, widen, widen_max if widen_max is not None else widen, hold)
         out = base if held else base * (1.0 + step)
+    return np.minimum(below_failed(out, failed, widen), cap)
+
+
+def below_failed(limits, failed=(), widen: float = 0.05) -> np.ndarray:
+    """``limits`` kept below each of the ``failed`` limits (plans whose laps were lost) by
+    ``widen``: limits at or above a failed level on every axis are cut to ``(1 - widen)`` of it.
+    Idempotent; limits it leaves unchanged are clear of every failed level (:func:`clear_of`)."""
+    out = np.asarray(limits, dtype=float).copy()
     for f in failed:
         f = np.asarray(f, dtype=float)
-        if np.all(out >= f * (1.0 - widen)):
+        if f.shape == out.shape and np.all(out >= f * (1.0 - widen)):
             out = np.minimum(out, f * (1.0 - widen))
-    return np.minimum(out, cap)
+    return out
+
+
+def clear_of(limits, failed=(), widen: float = 0.05) -> bool:
+    """Whether ``limits`` stay below every failed level (:func:`below_failed` leaves them as they are)."""
+    if limits is None or len(limits) == 0:
+        return not failed
+    return bool(np.allclose(below_failed(limits, failed, widen), np.asarray(limits, dtype=float)))

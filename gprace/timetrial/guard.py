@@ -6,7 +6,9 @@
   by whether they were completed.
 * **The way back** (:func:`last_good`): after a lost or slower lap the next iteration re-plans from
   the last good lap's plan and limits (no widening), with all data kept: the GPs have learned from
-  the bad lap too.
+  the bad lap too. A level that lost the car is not driven again: the way back stays below every
+  lost lap's limits (:func:`gprace.timetrial.grip.below_failed`), and the plan it starts from (and
+  drives again when the new one is not predicted safe) is the last good one clear of them.
 * **Predicted safe** (:func:`plan_safety`): a GP plan is driven only if the models the loop has
   (the nominal model with the planning GP's compensation, the tracking MPC's grip bound) predict
   that it is drivable:
@@ -45,9 +47,14 @@ def lap_status(record: dict, earlier: list[dict], tolerance: float) -> str:
     return "good"
 
 
-def last_good(records: list[dict]) -> int | None:
-    """Index of the last record whose lap was good (None if none was)."""
+def last_good(records: list[dict], clear=None) -> int | None:
+    """Index of the last record whose lap was good (None if none was); with ``clear`` (a predicate
+    on a record's ``limits``) the last good one whose limits it accepts, else the last good one."""
     good = [k for k, r in enumerate(records) if r.get("status", "good" if r["completed"] else "lost") == "good"]
+    if clear is not None:
+        safe = [k for k in good if clear(records[k].get("limits"))]
+        if safe:
+            return safe[-1]
     return good[-1] if good else None
 
 

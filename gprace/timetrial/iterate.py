@@ -379,7 +379,9 @@ def oracle_lap(settings: IterateSettings, out: Path | None = None) -> dict:
     if not settings.oracle:
         return {"known": False, "why": "not computed (oracle = false)"}
     effects = [e for e in approx.effects if make_effect(e).n_states == 0]
+    # the MPC predicts over the steering lag and the measurement delay the plant's physics say
     lag = sum(float(e.params.get("tau", 0.0)) for e in approx.effects if e.name == "steering_lag")
+    lag += float(getattr(approx, "delay_periods", 0.0)) * MPCSettings().dt
     vehicle = approx.vehicle or load_vehicle(settings.vehicle)
     truth = NominalModel(vehicle, effects)
     track = load_track(settings.track)
@@ -682,12 +684,15 @@ def _replan(c: _Chain, i: int) -> None:
     records = [c.record(k) for k in range(i)]
     rec = records[-1]
     back = st.never_worse and rec.get("status", "good") != "good"
+    failed = [r["limits"] for r in records if not r["completed"] and r.get("limits")]
     ref = guard.last_good(records) if st.never_worse else None
-    failed = [r["limits"] for r in records if not r["completed"]]
     if back and ref is not None:
-        # a lost or slower lap: the last good plan's limits again (no widening); the data stay
-        limits = np.asarray(records[ref]["limits"] or c.cap, float)
-        source = f"back to iteration {ref}"
+        # a lost or slower lap: the last good plan's limits again (no widening), but never a level
+        # that lost the car (measured: a randomized BMW lost at [9.1, 3.5, 4.8] m/s^2 and sent back
+        # to the same limits was lost again three iterations later); the data stay
+        limits = G.below_failed(records[ref]["limits"] or c.cap, failed, st.widen)
+        source = f"back to iteration {ref}" + ("" if G.clear_of(records[ref]["limits"], failed, st.widen)
+                                               else ", below the limits of the lost laps")
     else:
         last = read_plan(c.dir(i - 1) / "plan.h5", track)
         limits = G.next_limits(last.meta.get("limits", c.cap), rec["envelope"], rec["completed"], rec["utilisation"],
@@ -697,6 +702,8 @@ def _replan(c: _Chain, i: int) -> None:
         shown = _grip_shown(c, i)
         if shown is not None:  # never plan corners faster than the grip the car has shown
             limits[0] = min(limits[0], max(shown * G.nominal_cap(model, 1.0)[0], np.asarray(last.meta.get("limits", limits))[0]))
+    if st.never_worse:  # the plan started from, and driven again if the new one is unsafe: clear of the lost laps
+        ref = guard.last_good(records, clear=lambda lim: G.clear_of(lim, failed, st.widen))
     good = [k for k in range(i - 1, -1, -1) if records[k]["completed"]]
     start = ref if ref is not None else (good[0] if good else None)
     warm = read_plan(c.dir(start) / "plan.h5", track) if start is not None else None
