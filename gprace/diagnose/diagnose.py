@@ -38,7 +38,7 @@ from gprace.config import EffectConfig, VehicleConfig
 from gprace.diagnose import calibrate as cal, core, crossval as cv_, locate, name as nm, screen as scr
 from gprace.diagnose.core import CHANNELS, DYNAMIC, TESTED
 from gprace.diagnose.laps import wrap_runs
-from gprace.diagnose.profiles import at_bound, leading, window_or_profile
+from gprace.diagnose.profiles import leading, window_or_profile
 from gprace.diagnose.result import DiagnosisResult, residual_profile
 from gprace.errors import InputError
 from gprace.io.envelope import EnvelopeReport, envelope
@@ -556,13 +556,6 @@ def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_stru
     cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV) for f in _slots(cands, PRESCREEN_KEEP)),
                    key=lambda f: f.cost)
     top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in _slots(cands, nm.SCREEN_TOP)]
-    pressed = [f.name for f in top if f.profile is not None and at_bound(f)]
-    if pressed:  # IAC, a fold of 1.45 laps: a "bank" of -0.6 rad over a fifth of a road course
-        log(f"diagnose: round {rnd + 1}: {', '.join(pressed)} pressed against the catalogue's bound somewhere "
-            "on the lap: the error it would absorb is something else, not a candidate")
-        top = [f for f in top if f.name not in pressed]
-        if not top:
-            return None, {}, []
     cv = {f.name: _cv_channels(replace(ctx, prob=prob), [f]) for f in top}
     top = window_or_profile(top, cv, ctx.bid)  # parsimony: the window unless the profile is better
     return min(top, key=lambda f: cv[f.name].mean()), cv, top

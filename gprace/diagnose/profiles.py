@@ -375,16 +375,6 @@ def interval(prob, fit, starts: np.ndarray) -> None:
 # selection helpers for the naming stage
 
 
-def at_bound(fit) -> bool:
-    """Does a profile fit press any knot against the catalogue's bound (a bank of 0.6 rad, a
-    grade of 0.3 rad: beyond the steepest tracks)? Then the error it absorbs is something else,
-    as for a calibrated parameter pressed against its plausible range."""
-    spec = EFFECTS[fit.name].params["values"]
-    v = fit.profile.neutral + np.asarray(fit.x, dtype=float)
-    tol = 1e-6 * (spec.upper - spec.lower)
-    return bool(np.any(v <= spec.lower + tol) or np.any(v >= spec.upper - tol))
-
-
 def family(name: str) -> str:
     """The window effect a profile belongs with (the name itself for every other effect)."""
     return getattr(EFFECTS[name], "window_of", None) or name
