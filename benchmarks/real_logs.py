@@ -128,24 +128,43 @@ def heldout_by_lap(run, vehicle, H: int, log) -> dict:
     return out
 
 
-def in_bounds(rep: dict) -> bool:
-    """Calibrated parameters inside their stated ranges and named effects inside the catalogue's."""
+def in_bounds(rep: dict, vehicle) -> tuple[bool, list[str], list[str]]:
+    """Calibrated parameters inside their stated ranges and what a car can have
+    (``calibrate.possible``); named and partial effects inside the catalogue's bounds (a profile:
+    every knot value). Returns (all inside, what is outside, plausibility notes: a value a real car
+    could have but few do, e.g. a radius of gyration beyond ``config.K_PLAUSIBLE``)."""
+    from gprace.config import K_PLAUSIBLE, MU_PLAUSIBLE
     from gprace.diagnose import calibrate as cal
     from gprace.model import EFFECTS
 
-    ok = True
+    out, notes = [], []
+
+    def check(what, v, lo, hi):
+        if not lo - 1e-9 * abs(lo) <= v <= hi + 1e-9 * abs(hi):
+            out.append(f"{what} {v:.6g} outside [{lo:.6g}, {hi:.6g}]")
+
     for p in (rep.get("calibration") or {}).get("parameters", []):
         q = cal.BY_NAME[p["name"]]
-        nom = p["nominal"]
-        if q.name == "drag_coefficient":
-            continue  # bounded by the recording's top speed; the fit enforces it
-        lo, hi = (q.lower * nom, q.upper * nom) if q.relative else (q.lower, q.upper)
-        ok &= lo - 1e-9 * abs(lo) <= p["value"] <= hi + 1e-9 * abs(hi)
-    for e in rep["effects"]:
+        nom, v = p["nominal"], p["value"]
+        pa, pb = cal.possible(vehicle, q.name)
+        check(q.name + " (possible)", v, pa, pb)
+        if q.name != "drag_coefficient":  # bounded by the recording's top speed; the fit enforces it
+            check(q.name, v, *((q.lower * nom, q.upper * nom) if q.relative else (q.lower, q.upper)))
+        if q.name == "yaw_inertia":
+            k = (v / vehicle.mass) ** 0.5 / vehicle.wheelbase
+            if not K_PLAUSIBLE[0] <= k <= K_PLAUSIBLE[1]:
+                notes.append(f"yaw_inertia: radius of gyration {k:.2f} x wheelbase (usual {K_PLAUSIBLE[0]} to {K_PLAUSIBLE[1]})")
+        if q.name == "peak_friction" and not MU_PLAUSIBLE[0] <= v <= MU_PLAUSIBLE[1]:
+            notes.append(f"peak_friction {v:.3g} (usual {MU_PLAUSIBLE[0]} to {MU_PLAUSIBLE[1]})")
+    for e in rep["effects"] + rep.get("partial_effects", []):
+        spec = EFFECTS[e["name"]].params
         for k, p in e["parameters"].items():
-            spec = EFFECTS[e["name"]].params[k]
-            ok &= k.startswith("s_") or spec.lower <= p["value"] <= spec.upper
-    return bool(ok)
+            if not k.startswith("s_"):
+                check(f"{e['name']}.{k}", p["value"], spec[k].lower, spec[k].upper)
+        if e.get("profile"):
+            for v in e["profile"]["value"]:
+                check(f"{e['name']}.values", v, spec["values"].lower, spec["values"].upper)
+    return not out, out, notes
 
 
 def row(key: str, runs_dir: Path | None, H: int, log) -> dict:
@@ -179,16 +198,19 @@ def row(key: str, runs_dir: Path | None, H: int, log) -> dict:
                                    "nominal": p["nominal"], "changed": p["changed"], "at_bound": p["at_bound"]}
                        for p in cal.get("parameters", [])},
         "not_identified": [n["name"] for n in cal.get("not_identified", [])],
-        "named": {e["name"]: {k: round(p["value"], 6) for k, p in e["parameters"].items()} for e in rep["effects"]},
+        "named": {e["name"]: ({k: round(p["value"], 6) for k, p in e["parameters"].items()} or "profile")
+                  for e in rep["effects"]},
         "withdrawn": [n for n in rep["notes"] if "not named" in n],
         "explained_share": rep["explained_share"],
         "heldout_in_sample_cv": {c["name"]: {k: c.get(k) for k in ("heldout_rmse_nominal", "heldout_rmse_calibrated",
                                                                    "heldout_rmse_augmented")}
                                  for c in rep["channels"] if c["name"] in ("v_x", "v_y", "yaw_rate")},
-        "in_bounds": in_bounds(rep),
+        "partial": {e["name"]: ({k: round(p["value"], 6) for k, p in e["parameters"].items()} or "profile")
+                    for e in rep.get("partial_effects", [])},
         "cpu_s": round(cpu, 2), "wall_s": round(wall, 2), "cpu_s_per_10k_samples": round(cpu / rep["samples"] * 1e4, 2),
         "diagnosed_samples": rep["samples"], "load_1min": round(os.getloadavg()[0], 2), "import_s": round(t_import, 2),
     }
+    out["in_bounds"], out["outside_bounds"], out["plausibility_notes"] = in_bounds(rep, vehicle)
     log(f"{key}: cross-validating the diagnosis by lap")
     out["heldout"] = heldout_by_lap(run, vehicle, H, log)
     falls = {ch: out["heldout"].get(ch, {}).get("fall") for ch in allowed}

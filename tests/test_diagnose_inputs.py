@@ -304,3 +304,27 @@ def test_linearised_fold_refit_is_exact_for_a_linear_parameter(audi, norisring):
         g = nm.refit(ctx.prob, f, sub[ctx.fold[::max(1, len(ctx.eval_w) // crossval.FIT_WINDOWS)] != fo], max_nfev=50)
         ref[te] = np.mean(ctx.prob.residuals(ctx.prob.model([g.effect()]), ctx.eval_w[te]) ** 2, axis=1)
     np.testing.assert_allclose(lin.mean(axis=0), ref.mean(axis=0), rtol=1e-4)
+
+
+def test_calibration_bounds_stay_inside_what_a_car_can_have(audi):
+    """The stated ranges (inertia x0.2..5, mu x0.5..2) meet what VehicleConfig refuses: a radius of
+    gyration beyond half the car's diagonal, a mu above 3. The bounds stop there, so a calibrated
+    vehicle at any bound still loads (before, a heavy-ended car's inertia x5 or slicks' mu x2
+    made the augmented vehicle itself invalid)."""
+    from gprace.diagnose import calibrate as cal
+
+    k_max = 0.5 * np.hypot(audi.length, audi.width)
+    veh = audi.model_copy(update={"yaw_inertia": audi.mass * (0.9 * k_max) ** 2, "mu": 1.7})
+    params = [cal.BY_NAME["yaw_inertia"], cal.BY_NAME["peak_friction"]]
+    lo, hi = cal.bounds(veh, params, 30.0)
+    for z in (lo, hi):
+        v = cal.values(veh, params, z)
+        assert audi.mass * (0.1 * audi.wheelbase) ** 2 <= v["yaw_inertia"] <= audi.mass * k_max**2
+        assert 0.05 <= v["peak_friction"] <= 3.0
+        cal.with_values(veh, v)  # validates: no ValueError
+    v_hi = cal.values(veh, params, hi)
+    assert v_hi["yaw_inertia"] == pytest.approx(audi.mass * k_max**2, rel=1e-6)  # x1.23 here, not x5
+    assert v_hi["peak_friction"] == pytest.approx(3.0, rel=1e-6)  # not 3.4
+    # a car far from the limits keeps its stated ranges
+    lo0, hi0 = cal.bounds(audi, [cal.BY_NAME["steering_offset"]], 30.0)
+    assert (lo0[0], hi0[0]) == (-0.1, 0.1)

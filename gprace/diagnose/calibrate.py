@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from gprace.config import G, VehicleConfig
+from gprace.config import G, K_POSSIBLE_MIN, MU_POSSIBLE, VehicleConfig
 from gprace.diagnose.core import DYNAMIC, batched_least_squares, errors, lag_states, predict
 from gprace.diagnose.locate import blocks
 from gprace.model import State
@@ -154,8 +154,22 @@ def from_coord(p: CalParam, z: np.ndarray | float, nominal: float) -> np.ndarray
     return v * (nominal if p.relative else 1.0)
 
 
+def possible(vehicle: VehicleConfig, name: str) -> tuple[float, float]:
+    """The values of a parameter that a car can have at all (what ``VehicleConfig`` refuses
+    beyond): a yaw inertia whose radius of gyration lies between what the wheels alone give and
+    half the car's diagonal, a peak friction among the tire-road ratios that exist. A calibrated
+    value stays inside them, so the calibrated vehicle always loads."""
+    if name == "yaw_inertia":
+        L, k_max = vehicle.wheelbase, 0.5 * float(np.hypot(vehicle.length, vehicle.width))
+        return vehicle.mass * (K_POSSIBLE_MIN * L) ** 2, vehicle.mass * k_max**2
+    if name == "peak_friction":
+        return MU_POSSIBLE
+    return -np.inf, np.inf
+
+
 def bounds(vehicle: VehicleConfig, params: list[CalParam], v_top: float) -> tuple[np.ndarray, np.ndarray]:
-    """Bounds of the fitted coordinates."""
+    """Bounds of the fitted coordinates: the parameter's stated range (:data:`PARAMS`) inside
+    what is possible for the car (:func:`possible`; the nominal value always is)."""
     lo, hi = [], []
     for p in params:
         upper = p.upper
@@ -163,6 +177,8 @@ def bounds(vehicle: VehicleConfig, params: list[CalParam], v_top: float) -> tupl
             upper = max(DRAG_DECEL_G * vehicle.mass * G / max(v_top, 1.0) ** 2, 1.5 * vehicle.drag_coefficient)
         nom = nominal_value(vehicle, p)
         a, b = (p.lower * nom, upper * nom) if p.relative else (p.lower, upper)
+        pa, pb = possible(vehicle, p.name)
+        a, b = max(a, min(pa * (1 + 1e-9), nom)), min(b, max(pb * (1 - 1e-9), nom))
         lo.append(float(to_coord(p, a, nom))), hi.append(float(to_coord(p, b, nom)))
     return np.array(lo), np.array(hi)
 

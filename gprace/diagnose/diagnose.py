@@ -504,9 +504,11 @@ def _joint_with_calibration(prob: nm.Problem, c: Calibrated, top: list, cv: dict
     that gained, the calibration block it was fitted with."""
     lo, hi = cal.bounds(prob.vehicle, c.fit.params, cal.v_top(prob.data))
     joint = {}
-    for f in sorted(top, key=lambda g: cv[g.name].mean())[:JOINT_TOP]:
-        if f.profile is not None:  # a profile keeps its own fit (its smoothing is chosen inside it)
-            continue
+    # a profile keeps its own fit (its smoothing is chosen inside it) and takes none of the
+    # JOINT_TOP places: a bank profile mimicking what a calibrated stiffness left of a downforce
+    # would otherwise keep the downforce from giving the stiffness back
+    scalar = [f for f in sorted(top, key=lambda g: cv[g.name].mean()) if f.profile is None]
+    for f in scalar[:JOINT_TOP]:
         blocks = [cv_.calibration_block(c.fit.params, c.fit.x, lo, hi), cv_.effect_block(f, prob.data)]
         blocks = cv_.joint_fit(prob, blocks, ctx.fit_w, max_nfev=JOINT_ROUND_NFEV)
         lj = cv_.cv_losses(prob, blocks, ctx.eval_w, ctx.fold)
@@ -551,12 +553,23 @@ def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_stru
     cands.sort(key=lambda f: f.cost)
     # only the most promising continue to the full screening fit, warm-started
     # (a window and its profile share one slot: profiles.leading)
-    cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV) for f in leading(cands, PRESCREEN_KEEP)),
+    cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV) for f in _slots(cands, PRESCREEN_KEEP)),
                    key=lambda f: f.cost)
-    top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in leading(cands, nm.SCREEN_TOP)]
+    top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in _slots(cands, nm.SCREEN_TOP)]
     cv = {f.name: _cv_channels(replace(ctx, prob=prob), [f]) for f in top}
     top = window_or_profile(top, cv, ctx.bid)  # parsimony: the window unless the profile is better
     return min(top, key=lambda f: cv[f.name].mean()), cv, top
+
+
+def _slots(cands: list, k: int) -> list:
+    """The candidates carried on: the profiles among the ``k`` leading families
+    (:func:`~gprace.diagnose.profiles.leading`) and, beside them, the ``k`` leading scalar
+    effects. A profile follows anything that repeats at the same place lap after lap (a driver's
+    speed, hence a downforce), so the profiles must not crowd the scalar effects out: with two
+    profiles among the first three, a downforce behind a calibrated stiffness was never
+    cross-validated nor refitted with the calibration, and a bank profile was named in its place."""
+    prof = [f for f in leading(cands, k) if f.profile is not None]
+    return sorted(leading([f for f in cands if f.profile is None], k) + prof, key=lambda f: f.cost)
 
 
 def fit(ctx: Ctx, named: Named) -> Named:
