@@ -40,6 +40,7 @@ losing data (a step interrupted half-way is simply redone: it rewrites the same 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from dataclasses import dataclass, field
@@ -172,8 +173,9 @@ def iterate(settings: IterateSettings, out: str | Path, executor: str = "local",
     """Run (or resume) the experiment in ``out``; return the summary. On a terminal one bar counts
     the laps driven (:func:`lap_markers`), with an ETA; it moves while the trials run in other processes."""
     laps = lap_markers(settings, Path(out))
-    with console.polled(f"iterate: {len(laps)} laps", len(laps), lambda: sum(p.exists() for p in laps), unit="laps"):
-        return iterate_many([(settings, out)], executor, workers, scheduler)[0]
+    bar = lambda: console.polled(f"iterate: {len(laps)} laps", len(laps), lambda: sum(p.exists() for p in laps),  # noqa: E731
+                                 unit="laps")
+    return iterate_many([(settings, out)], executor, workers, scheduler, bar=bar)[0]
 
 
 def lap_markers(settings: IterateSettings, out: Path) -> list[Path]:
@@ -185,16 +187,14 @@ def lap_markers(settings: IterateSettings, out: Path) -> list[Path]:
     return [steps / f"{name}.done" for name in refs + trials + ["oracle"]]
 
 
-def iterate_many(experiments, executor: str = "local", workers: int = 1, scheduler: str | None = None) -> list[dict]:
+def iterate_many(experiments, executor: str = "local", workers: int = 1, scheduler: str | None = None,
+                 bar=None) -> list[dict]:
     """Run (or resume) several experiments ``[(settings, out), ...]`` with all their trials in one batch.
 
     Experiments on the same plant, track and seed share the held-out run and the oracle lap (the
-    first computes them, the others copy them).
+    first computes them, the others copy them). ``bar``: a context manager factory (a progress
+    bar) entered once every experiment is checked, so a refusal stays one line.
     """
-    import shutil
-
-    from gprace.executor import run_batch
-
     tasks: list[dict] = []
     references: list[dict] = []
     prepared: list[tuple[IterateSettings, Path, Path | None]] = []
@@ -205,6 +205,16 @@ def iterate_many(experiments, executor: str = "local", workers: int = 1, schedul
         references += refs
         tasks += trials
         prepared.append((settings, out, share))
+    with bar() if bar is not None else contextlib.nullcontext():
+        return _run_prepared(prepared, references, tasks, executor, workers, scheduler)
+
+
+def _run_prepared(prepared, references, tasks, executor, workers, scheduler) -> list[dict]:
+    """The reference runs, then the trials and the oracle lap, then the summaries (iterate_many)."""
+    import shutil
+
+    from gprace.executor import run_batch
+
     # the reference runs of all experiments in one batch first (each a lap or two of simulate)
     done = run_batch(_reference_task, references, executor=executor, workers=workers, scheduler=scheduler,
                      label=f"iterate: {len(references)} reference run(s)") if references else []
