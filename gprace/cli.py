@@ -112,6 +112,7 @@ OUTPUTS: dict[str, dict[str, str]] = {
     "retrain": {"output": FILE},
     "diagnose": {"output": FILE, "plot": FILE},
     "import": {"output": FILE},
+    "learn": {"out": RUN, "mcap": FILE},
     "show": {"plot": FILE},
     "report": {"out": FILE, "png": FOLDER},
     "track show": {"plot": FILE},
@@ -121,6 +122,7 @@ INPUTS: dict[str, tuple[str, ...]] = {
     "retrain": ("data",), "eval gp": ("model", "run"), "eval iterate": ("folder",), "h2h train":
     ("dataset", "hyper_model", "initial", "validation"), "h2h explore": ("init_model", "init_data"),
     "diagnose": ("recordings",), "import": ("recording", "map_file"), "show": ("file",), "report": ("folder",),
+    "learn": ("recordings", "map_file"), "eval learn": ("folder", "log", "map_file"),
 }
 
 
@@ -190,10 +192,19 @@ def main(argv: list[str] | None = None) -> int:
     Ctrl-C and SIGTERM end the command with exit 130 and one line saying what was kept and how to
     go on (:mod:`gprace.interrupt`, :meth:`gprace.io.outputs.Outputs.interrupted_line`).
     """
+    if argv is not None:  # a caller's own process (tests, scripts): return the code
+        return _main([str(a) for a in argv], process=False)
+    # the command is the process (the `gprace` script): end it as soon as the command has ended
+    code = _main(sys.argv[1:], process=True)
+    interrupt.exit_process(code, lambda: console.error(
+        "interrupted; the command had finished before the signal: everything it wrote is complete"))
+    return code  # not reached
+
+
+def _main(argv: list[str], process: bool) -> int:
     debug = os.environ.get("GPRACE_DEBUG") == "1"
-    argv = [str(a) for a in (sys.argv[1:] if argv is None else argv)]
     _RUN.update(line=shlex.join(["gprace", *argv]), outputs=None)
-    with interrupt.handled():
+    with interrupt.handled(process):
         try:
             cmd = typer.main.get_command(registered())
             _prepare(cmd)

@@ -302,10 +302,10 @@ def test_eval_is_one_group_and_evaluate_its_hidden_old_name(capsys, tmp_path):
 
     root = typer.main.get_command(app)
     ev, old = root.commands["eval"], root.commands["evaluate"]
-    assert sorted(ev.commands) == ["gp", "head2head", "iterate", "timetrial"]
+    assert sorted(ev.commands) == ["gp", "head2head", "iterate", "learn", "timetrial"]
     assert old.hidden and not ev.hidden and sorted(old.commands) == sorted(ev.commands)
     panels = {n: c.rich_help_panel for n, c in ev.commands.items()}
-    assert panels["head2head"] == panels["timetrial"] != panels["gp"] == panels["iterate"]
+    assert panels["head2head"] == panels["timetrial"] != panels["gp"] == panels["iterate"] == panels["learn"]
     assert main(["--help"]) == 0
     listed = capsys.readouterr().out
     assert "│ eval " in listed and "evaluate" not in listed.split("│ eval ")[0]
