@@ -13,6 +13,7 @@ from __future__ import annotations
 import functools
 import importlib
 import os
+import re
 import shlex
 import sys
 from pathlib import Path
@@ -166,6 +167,12 @@ def _guard(cmd, path: str, quiet) -> None:
         cmd.params.append(quiet)
 
 
+_UNIT = re.compile(r"(?<!\\)\[")
+"""An opening bracket in a help text: a unit (``[m]``, ``[s]``) or a list (``[v_y, yaw_rate,
+delta]``). The help is rendered as rich markup, which takes such a bracket for a style and drops
+it with its content; no help text uses markup, so every bracket is escaped."""
+
+
 def _prepare(cmd, path: str = "", quiet=None) -> None:
     """Every command of the tree: flags shown without a value type, then the guard of :func:`_guard`.
 
@@ -177,6 +184,8 @@ def _prepare(cmd, path: str = "", quiet=None) -> None:
     for p in [*getattr(cmd, "params", ()), *([help_opt] if help_opt is not None else [])]:
         if getattr(p, "is_flag", False) and p.metavar is None:
             p.metavar = ""
+        if getattr(p, "help", None):  # brackets ("[m]", "[v_y, yaw_rate, delta]") are text, not rich markup
+            p.help = _UNIT.sub(r"\\[", p.help)
     subs = getattr(cmd, "commands", None)
     if not path:  # the root's -q, also accepted after any subcommand (the same option object)
         quiet = next((p for p in cmd.params if p.name == "quiet"), None)
