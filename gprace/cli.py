@@ -13,6 +13,7 @@ from __future__ import annotations
 import functools
 import importlib
 import os
+import re
 import shlex
 import sys
 from pathlib import Path
@@ -112,6 +113,7 @@ OUTPUTS: dict[str, dict[str, str]] = {
     "retrain": {"output": FILE},
     "diagnose": {"output": FILE, "plot": FILE},
     "import": {"output": FILE},
+    "learn": {"out": RUN, "mcap": FILE},
     "show": {"plot": FILE},
     "report": {"out": FILE, "png": FOLDER},
     "track show": {"plot": FILE},
@@ -166,6 +168,12 @@ def _guard(cmd, path: str, quiet) -> None:
         cmd.params.append(quiet)
 
 
+_UNIT = re.compile(r"(?<!\\)\[")
+"""An opening bracket in a help text: a unit (``[m]``, ``[s]``) or a list (``[v_y, yaw_rate,
+delta]``). The help is rendered as rich markup, which takes such a bracket for a style and drops
+it with its content; no help text uses markup, so every bracket is escaped."""
+
+
 def _prepare(cmd, path: str = "", quiet=None) -> None:
     """Every command of the tree: flags shown without a value type, then the guard of :func:`_guard`.
 
@@ -177,6 +185,8 @@ def _prepare(cmd, path: str = "", quiet=None) -> None:
     for p in [*getattr(cmd, "params", ()), *([help_opt] if help_opt is not None else [])]:
         if getattr(p, "is_flag", False) and p.metavar is None:
             p.metavar = ""
+        if getattr(p, "help", None):  # brackets ("[m]", "[v_y, yaw_rate, delta]") are text, not rich markup
+            p.help = _UNIT.sub(r"\\[", p.help)
     subs = getattr(cmd, "commands", None)
     if not path:  # the root's -q, also accepted after any subcommand (the same option object)
         quiet = next((p for p in cmd.params if p.name == "quiet"), None)
@@ -192,10 +202,19 @@ def main(argv: list[str] | None = None) -> int:
     Ctrl-C and SIGTERM end the command with exit 130 and one line saying what was kept and how to
     go on (:mod:`gprace.interrupt`, :meth:`gprace.io.outputs.Outputs.interrupted_line`).
     """
+    if argv is not None:  # a caller's own process (tests, scripts): return the code
+        return _main([str(a) for a in argv], process=False)
+    # the command is the process (the `gprace` script): end it as soon as the command has ended
+    code = _main(sys.argv[1:], process=True)
+    interrupt.exit_process(code, lambda: console.error(
+        "interrupted; the command had finished before the signal: everything it wrote is complete"))
+    return code  # not reached
+
+
+def _main(argv: list[str], process: bool) -> int:
     debug = os.environ.get("GPRACE_DEBUG") == "1"
-    argv = [str(a) for a in (sys.argv[1:] if argv is None else argv)]
     _RUN.update(line=shlex.join(["gprace", *argv]), outputs=None)
-    with interrupt.handled():
+    with interrupt.handled(process):
         try:
             cmd = typer.main.get_command(registered())
             _prepare(cmd)

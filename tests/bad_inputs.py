@@ -80,6 +80,7 @@ class Outcome:
     left_behind: list[str]
     stdout: str = ""
     extra: list[str] = field(default_factory=list)  # what a case's own check after the run found wrong
+    signalled: bool = True  # False: the command had ended before the drawn moment of its interrupt
 
     @property
     def one_line(self) -> bool:
@@ -98,6 +99,8 @@ class Outcome:
         if isinstance(expect, OneOf):
             each = [self.problems(e) for e in expect.options]
             return [] if any(not b for b in each) else [" / ".join(b[0] for b in each if b)]
+        if isinstance(expect, Interrupted) and not self.signalled:  # no signal was sent: a finished run
+            return self.problems(Accepted(notes=("",)))
         bad = list(self.extra)
         notes = [ln for ln in self.stderr if ln.startswith(("error:", "warning:"))]
         if self.internal_error or self.traceback:
@@ -562,7 +565,8 @@ def interrupting(wait_for: str, delay: float, sig: int, group: bool) -> Callable
                                  stderr=subprocess.PIPE, text=True, start_new_session=True)
             lines, done = _lines_until(p, wait_for)
             time.sleep(delay)
-            if p.poll() is None:
+            sent = p.poll() is None
+            if sent:
                 os.killpg(p.pid, sig) if group else p.send_signal(sig)
             try:
                 p.wait(300)
@@ -570,23 +574,31 @@ def interrupting(wait_for: str, delay: float, sig: int, group: bool) -> Callable
                 if p.poll() is None:
                     os.killpg(p.pid, signal.SIGKILL)
         done.wait(30)  # the reader has taken every line once stderr closed
-        return _outcome(p.returncode, "\n".join(lines), stdout.read_text(), Path("/nonexistent"))
+        res = _outcome(p.returncode, "\n".join(lines), stdout.read_text(), Path("/nonexistent"))
+        res.signalled = sent
+        return res
 
     return run
 
 
 def beside_a_first_run(first: list, wait_for: str) -> Callable[[list, Path], Outcome]:
     """Start ``first`` (a real run into the same folder), and once it printed ``wait_for`` run the
-    case's command beside it; the first is interrupted afterwards."""
+    case's command beside it; the first is interrupted afterwards. The first is stopped
+    (SIGSTOP, its lock held) while the second runs, so a short first run cannot end before the
+    second looks at the folder (it did once in 280 cases on a loaded machine)."""
 
     def run(argv: list, out_dir: Path) -> Outcome:
         p = _popen(first, out_dir.parent)
         try:
             _lines_until(p, wait_for)
+            if p.poll() is not None:
+                return Outcome(-1, [f"probe: the first run ended before the second began (exit {p.returncode})"], [])
+            os.killpg(p.pid, signal.SIGSTOP)
             r = subprocess.run([sys.executable, "-c", ENTRY, *map(str, argv)], cwd=out_dir.parent, capture_output=True,
                                text=True, timeout=1800)
         finally:
             if p.poll() is None:
+                os.killpg(p.pid, signal.SIGCONT)
                 os.killpg(p.pid, signal.SIGINT)
             try:
                 p.wait(120)
@@ -643,10 +655,12 @@ def in_read_only(argv: list, out_dir: Path) -> Outcome:
 
 
 def long_recording(folder: Path) -> Path:
-    """A recording long enough for a diagnosis (0.7 laps of gprace_ring, weaving), made once per folder."""
+    """A recording long enough for a diagnosis (1.5 laps of gprace_ring, weaving: diagnose and
+    select-data run for some seconds after their first line, the span an interrupt is drawn in),
+    made once per folder."""
     path = folder / "long.csv"
     if not path.exists():
-        res = run_cli(["-q", "simulate", "--track", "gprace_ring", "--laps", "0.7", "--weave", "0.3", "-o", path],
+        res = run_cli(["-q", "simulate", "--track", "gprace_ring", "--laps", "1.5", "--weave", "0.3", "-o", path],
                       folder / "none")
         assert res.code == 0, res.stderr
     return path
@@ -913,3 +927,235 @@ def ingest_cases(rng: np.random.Generator, per_class: int = 1) -> list[Case]:
                  Accepted(notes=("reference line", "lap")), after=_s_continuous, owner="ingest"),
         ]
     return cases
+
+
+# ------------------------------------------------------------------------------------------------
+# the bad-input lines of issues 36 (real logs), 37 (time trial on unseen cars) and 39 (learn from
+# files), probed from outside: each class with ``per_class`` seeded variants. Owners: "ingest"
+# (the importer and track readers), "diagnose", "timetrial", "learn".
+
+MAPPABLE = ("t", "x", "y", "yaw", "v_x", "v_y", "yaw_rate", "delta", "a_x")
+RANGES = ("grip_front", "grip_rear", "downforce", "cog_height", "steering_lag", "relaxation_length", "yaw_inertia",
+          "drag", "measurement_delay")
+
+
+def _write_log(folder: Path, cols: list[str], data: np.ndarray, name: str = "log.csv") -> Path:
+    p = folder / name
+    p.write_text(",".join(cols) + "\n" + "".join(",".join(f"{v:.10g}" for v in r) + "\n" for r in data))
+    return p
+
+
+def _map_lacking(base: Path, folder: Path, quantity: str, name: str) -> tuple[Path, Path]:
+    """The global log and a map that reads ``quantity`` from column ``name``, which the log lacks."""
+    cols, data = global_log(base, folder)
+    m = folder / "map.toml"
+    m.write_text(f'[columns]\n{quantity} = "{name}"\n')
+    return _write_log(folder, cols, data), m
+
+
+def _clock_backwards(base: Path, folder: Path, row: int, back: float) -> Path:
+    """The global log whose clock jumps back by ``back`` periods after sample ``row`` (from 0)."""
+    cols, data = global_log(base, folder)
+    dt = float(np.median(np.diff(data[:, 0])))
+    data[row + 1:, 0] -= (1.0 + back) * dt
+    return _write_log(folder, cols, data)
+
+
+def _parked(base: Path, folder: Path, rng_seed: int, frenet: bool) -> Path:
+    """A recording in which the car never moves (sensor noise only): a raw log, or a Frenet run."""
+    r = np.random.default_rng(rng_seed)
+    if frenet:
+        header, data = read_table(base)
+        col = {h: i for i, h in enumerate(header)}
+        n = len(data)
+        data[:, col["s"]] = 50.0 + 0.005 * r.standard_normal(n)
+        for q, sd in (("v_x", 0.01), ("v_y", 0.01), ("yaw_rate", 0.001), ("a_x", 0.02), ("e_y", 0.002), ("e_psi", 0.001)):
+            data[:, col[q]] = sd * r.standard_normal(n)
+        return write_table(folder / "parked.csv", header, data)
+    cols, data = global_log(base, folder)
+    n = len(data)
+    for q in ("x", "y", "yaw"):
+        data[:, cols.index(q)] = data[0, cols.index(q)] + 0.002 * r.standard_normal(n)
+    for q in ("v_x", "v_y", "yaw_rate", "a_x", "delta"):
+        data[:, cols.index(q)] = 0.005 * r.standard_normal(n)
+    return _write_log(folder, cols, data, "parked.csv")
+
+
+def _crossing_bounds(folder: Path, start: float, span: float, push: float) -> str:
+    """Both borders of circle_100 as headerless x, y files, the inner one pushed ``push`` widths
+    outwards over ``span`` of the lap from ``start`` (shares of the lap): they cross there."""
+    from gprace.tracks import load_track
+
+    tr = load_track("circle_100")
+    s = np.linspace(0.0, tr.length, 400, endpoint=False)
+    wl, wr = tr.width_left(s), tr.width_right(s)
+    d = np.mod(s / tr.length - start, 1.0)
+    bump = np.where(d < span, np.sin(np.pi * d / span) ** 2, 0.0)
+    lx, ly = tr.to_global(s, wl * (1.0 - (1.0 + push) * 2.0 * bump))
+    rx, ry = tr.to_global(s, -wr)
+    a, b = folder / "inner.csv", folder / "outer.csv"
+    np.savetxt(a, np.column_stack([lx, ly]), delimiter=",", fmt="%.6f")
+    np.savetxt(b, np.column_stack([rx, ry]), delimiter=",", fmt="%.6f")
+    return f"{a},{b}"
+
+
+def _randomized_plant(folder: Path, options: str) -> Path:
+    p = folder / "plant.toml"
+    p.write_text(f'kind = "randomized"\nvehicle = "audi_tt_cup"\n[options]\nseed = 3\n{options}\n')
+    return p
+
+
+def _raceline(folder: Path, fmt: str, spoil: str, pick: int) -> Path:
+    """A raceline of circle_100 written by gprace's own writer in ``fmt``, its header spoilt: a
+    column dropped, renamed or added (``pick`` chooses which)."""
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import curvature_plan
+    from gprace.tracks import load_track
+    from gprace.tracks.raceline import FORMATS, raceline_of_plan, write_raceline
+
+    tr = load_track("circle_100")
+    plan = curvature_plan(tr, NominalModel(load_vehicle("audi_tt_cup")), ds=5.0, speed_scale=0.7)
+    p = write_raceline(folder / f"raceline_{fmt}.csv", raceline_of_plan(plan, tr), fmt)
+    lines = p.read_text().splitlines()
+    at = next(i for i, ln in enumerate(lines) if "s_m" in ln)
+    sep = "; " if fmt == "tum" else ","
+    names = lines[at].lstrip("# ").split(sep)
+    free = [c for c in FORMATS[fmt] if c not in ("s_m", "x_m", "y_m")]
+    victim = free[pick % len(free)]
+    j = names.index(victim)
+    if spoil == "dropped":
+        names.pop(j)
+        lines[at + 1:] = [sep.join(v for k, v in enumerate(ln.split(sep)) if k != j) for ln in lines[at + 1:]]
+    elif spoil == "renamed":
+        names[j] = victim.split("_")[0] + "_speed"
+    else:  # an unexpected column added
+        names.append("lap_count")
+        lines[at + 1:] = [ln + sep + "1" for ln in lines[at + 1:]]
+    lines[at] = ("# " if fmt == "tum" else "") + sep.join(names)
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+def _others_learn_folder(folder: Path, vehicle: str, track: str = "circle_100") -> Path:
+    """An --out folder holding learn iterations of ``vehicle`` (its identity, by learn's writer)."""
+    from gprace.config import load_vehicle
+    from gprace.learn.workflow import LearnSettings, car_identity, write_json
+    from gprace.tracks import load_track
+
+    theirs = folder / "theirs"
+    theirs.mkdir(exist_ok=True)
+    st = LearnSettings(track=track, vehicle=vehicle)
+    write_json(theirs / "learn.json", car_identity(load_vehicle(vehicle), load_track(track), st))
+    return theirs
+
+
+def _iterate_folder(folder: Path) -> Path:
+    theirs = folder / "theirs"
+    theirs.mkdir(exist_ok=True)
+    _iterate_json(theirs, "settings.json")
+    return theirs
+
+
+def _untouched(*names: str) -> Callable[[Path, Outcome], list[str]]:
+    """After a refusal into another run's folder: it holds what it held (``names``), no lock."""
+
+    def check(folder: Path, res: Outcome) -> list[str]:
+        have = sorted(p.name for p in (folder / "theirs").iterdir())
+        return [] if have == sorted(names) else [f"the other run's folder now holds {have}"]
+
+    return check
+
+
+def later_cases(rng: np.random.Generator, per_class: int = 3) -> list[Case]:
+    """The bad-input lines of issues 36, 37 and 39 as classes with ``per_class`` seeded variants."""
+    o, C, out = _out, Case, []
+    for _ in range(per_class):
+        # issue 36: a map naming a column the file lacks; a clock running backwards; boundary files
+        # that cross; a recording with no moving sample
+        q = str(rng.choice(MAPPABLE))
+        name = f"{rng.choice(['gyro', 'Pos', 'chan', 'vel'])}_{int(rng.integers(100))}"
+
+        def lacking(f, b, q=q, name=name):
+            log, m = _map_lacking(b, f, q, name)
+            return ["import", log, "--map", m, "--track", "circle_100", "-o", o(f) / "r.h5"]
+
+        out.append(C("import", f"map names a column the file lacks ({q} = {name!r})", lacking,
+                     Refused((f"'{name}'", "lacks")), owner="ingest"))
+        row, back = int(rng.integers(3, 100)), float(rng.uniform(0.0, 20.0))
+        out.append(C("import", f"clock running backwards after row {row + 1}", lambda f, b, row=row, back=back: [
+            "import", _clock_backwards(b, f, row, back), "--track", "circle_100", "-o", o(f) / "r.h5"],
+            Refused(("backwards", f"row {row + 2}")), owner="ingest"))
+        start, span, push = float(rng.uniform(0, 1)), float(rng.uniform(0.05, 0.3)), float(rng.uniform(0.1, 1.0))
+        cmd = str(rng.choice(["track show", "import", "plan"]))
+        argv = {"track show": lambda f, b, t: ["track", "show", t],
+                "import": lambda f, b, t: ["import", _log_text(b, f), "--track", t, "-o", o(f) / "r.h5"],
+                "plan": lambda f, b, t: ["plan", "--curvature", "--track", t, "-o", o(f) / "p.h5"]}[cmd]
+        out.append(C(cmd, "boundary files that cross", lambda f, b, a=argv, st=start, sp=span, pu=push: a(
+            f, b, _crossing_bounds(f, st, sp, pu)), Refused(("cross",)), owner="ingest"))
+        seed, frenet = int(rng.integers(1000)), bool(rng.random() < 0.5)
+        out.append(C("diagnose" if frenet else "import", "no moving sample", (lambda f, b, s=seed: [
+            "diagnose", _parked(b, f, s, True), "--vehicle", "audi_tt_cup", "-o", o(f) / "car.toml"]) if frenet else (
+            lambda f, b, s=seed: ["import", _parked(b, f, s, False), "--track", "circle_100", "-o", o(f) / "r.h5"]),
+            Refused(("no moving sample",)), owner="diagnose" if frenet else "ingest"))
+        # issue 37: a randomized plant with an unknown key; a range upside down; a delay longer than
+        # the MPC horizon
+        key = f"{rng.choice(['grip', 'lag', 'aero', 'tyre'])}_{rng.choice(['max', 'rear', 'x'])}{int(rng.integers(10))}"
+        cmd = str(rng.choice(["simulate", "iterate"]))
+        go = {"simulate": lambda f, p: ["simulate", "--plant", p, "--laps", "0.05", "-o", o(f) / "r.h5"],
+              "iterate": lambda f, p: ["iterate", "--plant", p, "--iterations", "1", "--trials", "1", "--out", o(f)]}[cmd]
+        out.append(C(cmd, f"randomized plant unknown key {key}", lambda f, b, go=go, key=key: go(
+            f, _randomized_plant(f, f"{key} = 1.0")), Refused(("plant.toml", key, "unknown key")), owner="timetrial"))
+        rk = str(rng.choice(RANGES))
+        lo = float(rng.uniform(0.05, 0.9))
+        hi = lo + float(rng.uniform(0.01, 0.5))
+        out.append(C(cmd, f"randomized plant range upside down ({rk})", lambda f, b, go=go, rk=rk, lo=lo, hi=hi: go(
+            f, _randomized_plant(f, f"{rk} = [{hi:.3f}, {lo:.3f}]")), Refused(("plant.toml", rk, "upside down")),
+            owner="timetrial"))
+        delay = float(rng.uniform(1.05, 30.0))  # the default horizon: 20 x 0.05 s = 1 s
+        how = str(rng.choice(["--delay", "vehicle measurement_delay", "vehicle actuator_delay"]))
+        if how == "--delay":
+            argv = lambda f, b, d=delay: ["iterate", "--delay", f"{d:.3f}", "--out", o(f)]  # noqa: E731
+        else:
+            field_ = how.split()[1]
+            argv = lambda f, b, d=delay, k=field_: ["iterate", "--vehicle", vehicle_file(  # noqa: E731
+                f, "mu = 1.5", f"mu = 1.5\n{k} = {d:.3f}"), "--out", o(f)]
+        out.append(C("iterate", f"delay {delay:.2f} s beyond the horizon ({how})", argv,
+                     Refused(("longer than the MPC horizon",)), owner="timetrial"))
+        # issue 39: recordings of different tracks to learn; a raceline whose columns do not match
+        # its format; an --out folder holding another car's iterations
+        shift = float(rng.uniform(150.0, 2000.0)) * np.exp(1j * rng.uniform(0, 2 * np.pi))
+        first_other = bool(rng.random() < 0.5)
+
+        def different(f, b, shift=shift, first_other=first_other):
+            cols, data = global_log(b, f)
+            data[:, 1] += shift.real
+            data[:, 2] += shift.imag
+            mine, other = _log_text(b, f), _write_log(f, cols, data, "far.csv")
+            recs = [other, mine] if first_other else [mine, other]
+            return ["learn", *recs, "--track", "circle_100", "--vehicle", "audi_tt_cup", "--out", o(f)]
+
+        out.append(C("learn", f"recordings of different tracks (moved {abs(shift):.0f} m)", different,
+                     Refused(("recordings of different tracks",)), owner="learn"))
+        fmt, spoil, pick = str(rng.choice(["tum", "f1tenth"])), str(rng.choice(["dropped", "renamed", "added"])), \
+            int(rng.integers(100))
+        cmd = str(rng.choice(["track show", "run", "plan"]))
+        argv = {"track show": lambda f, r: ["track", "show", r],
+                "run": lambda f, r: ["run", "--plan", r, "--track", "circle_100", "-o", o(f) / "r.h5"],
+                "plan": lambda f, r: ["plan", "--warm-start", r, "--track", "circle_100", "-o", o(f) / "p.h5"]}[cmd]
+        out.append(C(cmd, f"{fmt} raceline, a column {spoil}", lambda f, b, a=argv, fmt=fmt, sp=spoil, pk=pick: a(
+            f, _raceline(f, fmt, sp, pk)), Refused(("columns do not match", f"{fmt} raceline")), owner="learn"))
+        other = str(rng.choice(["barc_1_10", "bmw_320i"]))
+        out.append(C("learn", f"--out holds the iterations of {other}", lambda f, b, v=other: [
+            "learn", b, "--track", "circle_100", "--vehicle", "audi_tt_cup", "--out", _others_learn_folder(f, v)],
+            Refused(("--out", f"iterations of car {other!r}")), after=_untouched("learn.json"), owner="learn"))
+    # gprace runs (Frenet CSV) of two tracks: once (while it is accepted it runs a whole learn)
+    first_other = bool(rng.random() < 0.5)
+    out.append(C("learn", "runs of different tracks", lambda f, b, first_other=first_other: [
+        "learn", *([long_recording(b.parent), b] if first_other else [b, long_recording(b.parent)]),
+        "--track", "circle_100", "--vehicle", "audi_tt_cup", "--out", o(f)],
+        Refused(("recordings of different tracks",)), owner="learn"))
+    out.append(C("learn", "--out holds an iterate experiment", lambda f, b: [
+        "learn", b, "--track", "circle_100", "--vehicle", "audi_tt_cup", "--out", _iterate_folder(f)],
+        Refused(("--out", "iterate experiment")), after=_untouched("settings.json"), owner="learn"))
+    return out

@@ -3,6 +3,8 @@ the culprit), before any file is written; no confident wrong answer."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 
 import pytest
@@ -305,7 +307,7 @@ def test_eval_is_one_group_and_evaluate_its_hidden_old_name(capsys, tmp_path):
     assert sorted(ev.commands) == ["gp", "head2head", "iterate", "learn", "timetrial"]
     assert old.hidden and not ev.hidden and sorted(old.commands) == sorted(ev.commands)
     panels = {n: c.rich_help_panel for n, c in ev.commands.items()}
-    assert panels["head2head"] == panels["timetrial"] != panels["gp"] == panels["iterate"]
+    assert panels["head2head"] == panels["timetrial"] != panels["gp"] == panels["iterate"] == panels["learn"]
     assert main(["--help"]) == 0
     listed = capsys.readouterr().out
     assert "│ eval " in listed and "evaluate" not in listed.split("│ eval ")[0]
@@ -518,3 +520,42 @@ def test_race_tables_count_and_place_failed_races(capsys, tmp_path):
     assert main(["show", str(tmp_path / "table.json"), "--json"]) == 0
     res = strict(capsys.readouterr().out)["results"]
     assert res["explore: failed races"] == failed_races_text(RacingRow(**row))
+
+
+def test_a_signal_after_the_command_is_one_line_and_exit_130_not_a_silent_kill():
+    """Python's own shutdown of a command's process took about a second (freeing every module);
+    a SIGTERM in that second killed it without a word (exit -15). The CLI now ends the process
+    itself once the command has ended: a signal after the command is noted and turned into exit
+    130 and one line; without one the command's code stands."""
+    import subprocess
+    import sys
+
+    code = ("import os, signal, sys\n"
+            "from gprace import interrupt\n"
+            "with interrupt.handled(process=True):\n"
+            "    pass\n"
+            "if sys.argv[1] == 'late':\n"
+            "    os.kill(os.getpid(), signal.SIGTERM)\n"
+            "    os.kill(os.getpid(), signal.SIGINT)\n"
+            "interrupt.exit_process(int(sys.argv[2]), lambda: print('error: interrupted; finished', file=sys.stderr))\n"
+            "print('not reached')\n")
+    for when, given, want, lines in (("late", 0, 130, ["error: interrupted; finished"]), ("none", 0, 0, []),
+                                     ("late", 2, 2, []), ("none", 2, 2, [])):
+        r = subprocess.run([sys.executable, "-c", code, when, str(given)], capture_output=True, text=True, timeout=60)
+        assert (r.returncode, r.stderr.splitlines(), r.stdout) == (want, lines, ""), (when, given, r)
+
+
+def test_brackets_in_help_texts_are_shown():
+    """Help texts are rendered as rich markup, which dropped a unit (`resampled to [s]` read
+    `resampled to .`) or a list of inputs with its brackets."""
+    import re
+
+    from gprace.cli import main
+
+    for argv, needle in ((["learn", "--help"], "[s]"), (["import", "--help"], "track [m]"),
+                         (["select-data", "--help"], "[v_y, yaw_rate, delta]")):
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            assert main(argv) == 0
+        text = re.sub(r"\s*│\s*", " ", buf.getvalue())
+        assert needle in text and "\\[" not in text, (argv, needle)

@@ -215,3 +215,49 @@ def test_a_dictionary_larger_than_the_data_keeps_all_of_it_at_the_cost_of_the_da
     Zs, Ys, _ = selection.select_diverse(hyper, Z, Y, 300, outlier_kappa=None)
     assert made == [300, 300] and len(Zb) == 300 and st.inserted == 300
     np.testing.assert_array_equal(Zb, Zs)
+
+
+def test_show_tells_the_kinds_of_learn_apart(made, tmp_path, capsys):
+    """The files of issue 39 (racelines in both formats, the portable GP and its card, the MCAP of
+    --mcap, a learn folder and its JSON) and the inputs beside them (a centre line, an x/y path,
+    the configuration TOMLs), each written by its real writer, get a kind of their own."""
+    from gprace.config import configs_dir, load_vehicle
+    from gprace.gp.export import export_gp
+    from gprace.io.foxglove import write_runs
+    from gprace.io.runs import read_run
+    from gprace.learn.workflow import LearnSettings, car_identity, write_json
+    from gprace.model import NominalModel
+    from gprace.plan import curvature_plan
+    from gprace.timetrial.learning import load_predictor
+    from gprace.tracks import load_track
+    from gprace.tracks.raceline import raceline_of_plan, write_raceline
+
+    tr, d = load_track("circle_100"), tmp_path
+    plan = curvature_plan(tr, NominalModel(load_vehicle("audi_tt_cup")), ds=5.0, speed_scale=0.7)
+    rl = raceline_of_plan(plan, tr)
+    files = {write_raceline(d / "a_tum.csv", rl, "tum"): "raceline", write_raceline(d / "a_f1.csv", rl, "f1tenth"): "raceline"}
+    try:
+        export_gp(load_predictor(made / "model.h5", "tracking"), d / "gp.portable.h5", d / "gp.card.json", dt=0.05)
+        files |= {d / "gp.portable.h5": "portable_gp", d / "gp.card.json": "portable_gp_card"}
+    except Exception as exc:  # noqa: BLE001 -- the model of `made` must export; say why if not
+        pytest.fail(f"the portable GP could not be written: {exc}")
+    files[write_runs(d / "laps.mcap", tr, {"lap": read_run(made / "run.h5")})] = "foxglove_mcap"
+    out = d / "learned"
+    (out / "iter_01").mkdir(parents=True)
+    write_json(out / "learn.json", car_identity(load_vehicle("audi_tt_cup"), tr, LearnSettings(track="circle_100",
+                                                                                                 vehicle="audi_tt_cup")))
+    write_json(out / "iter_01" / "sources.json", {"recordings": [{"path": "lap.csv", "sha256": "0" * 64}]})
+    files |= {out: "learn_folder", out / "learn.json": "learn_identity", out / "iter_01" / "sources.json": "learn_sources"}
+    smp = tr.sample(5.0)
+    np.savetxt(d / "centre.csv", np.column_stack([smp.x, smp.y, tr.width_right(smp.s), tr.width_left(smp.s)]),
+               delimiter=",", header="x_m,y_m,w_tr_right_m,w_tr_left_m", fmt="%.4f")
+    np.savetxt(d / "path.csv", np.column_stack([smp.x, smp.y]), delimiter=",", header="x_m,y_m", fmt="%.4f")
+    files |= {d / "centre.csv": "track", d / "path.csv": "polyline"}
+    (d / "map.toml").write_text('[columns]\nyaw_rate = "gyro_z"\n')
+    files |= {configs_dir() / "vehicles" / "audi_tt_cup.toml": "vehicle_config", configs_dir() / "plants" / "audi_hidden.toml":
+              "plant_config", configs_dir() / "tracks" / "circle_100.toml": "track_config", d / "map.toml": "recording_map"}
+    for path, kind in files.items():
+        assert main(["show", str(path), "--json"]) == 0, capsys.readouterr().err
+        assert json.loads(capsys.readouterr().out)["kind"] == kind, path
+    assert main(["show", str(out / "iter_01")]) == 2  # a folder that is not a learn folder: the report's
+    assert "gprace report" in capsys.readouterr().err

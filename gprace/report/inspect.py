@@ -90,6 +90,8 @@ def open_artifact(path: str | Path, kind: str | tuple[str, ...] | None = None, a
     path = Path(path)
     f = _open_h5(path)
     with f:
+        if "kind" not in f.attrs and str(_decode(f.attrs.get("format", ""))) == "gprace portable GP":
+            return _describe_portable(path, f)
         if "kind" not in f.attrs:
             raise ArtifactError(f"{path}: not a gprace artifact (no 'kind' attribute)")
         got = str(_decode(f.attrs["kind"]))
@@ -142,7 +144,24 @@ def _entries_have(*keys: str) -> Callable[[Any], bool]:
 # Every JSON gprace writes or prints, by the keys its writer always sets (most specific first); what
 # a command prints with --json is ``<command>_result``. ``gprace show`` names the kind, the report
 # files them by it. A test writes each and checks that none is taken for another.
+def _learn_sources(o: Any) -> bool:
+    recs = o.get("recordings") if isinstance(o, dict) and set(o) == {"recordings"} else None
+    return isinstance(recs, list) and all(isinstance(r, dict) and {"path", "sha256"} <= set(r) for r in recs)
+
+
+LEARN_STAGES = ("select", "retrain", "grip", "plan", "exports", "prediction")
+
+
 JSON_KINDS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
+    ("portable_gp_card", _has("format", "kernel", "dictionary_size", "inputs", "formulas"),
+     "learn: iter_NN/gp_tracking.card.json"),
+    ("learn_record", _has("iteration", "recordings", "limits", "grip", "plan", "prediction"),
+     "learn: iter_NN/record.json; gprace learn --json"),
+    ("learn_identity", _has("vehicle_hash", "track_hash", "track_spec", "settings"), "learn: learn.json"),
+    ("learn_sources", _learn_sources, "learn: iter_NN/sources.json"),
+    ("learn_stages", lambda o: isinstance(o, dict) and bool(o) and set(o) <= set(LEARN_STAGES),
+     "learn: iter_NN/stages.json"),
+    ("eval_learn_result", _has("iteration", "log", "predicted_lap_s", "left_band"), "gprace eval learn --json"),
     ("diagnosis", _has("verdict", "channels"), "gprace diagnose --json"),
     ("h2h_table", lambda o: isinstance(o, dict) and bool({"racing", "ey_error"} & set(o)), "eval head2head: table.json"),
     ("timetrial_summary", _has("rows", "by_iteration"), "iterate: summary.json"),
@@ -189,6 +208,13 @@ def describe(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
+    if path.is_dir() and (path / "learn.json").is_file():
+        return _describe_learn_folder(path)
+    suffix = path.suffix.lower()
+    if suffix == ".mcap" and path.is_file():
+        channels = _mcap_channels(path)
+        if any(schema.startswith("gprace.") for _, schema, _ in channels):  # written by --mcap: to look at
+            return _describe_mcap(path, channels)
     from gprace.ingest.dispatch import is_raw_recording
 
     if is_raw_recording(path):  # ROS bag / MCAP, MDF4, global-frame CSV: read through the importer
@@ -197,17 +223,128 @@ def describe(path: str | Path) -> dict[str, Any]:
         return {**_describe_csv(path), "format": f"{recording_format(path)} recording (imported)"}
     if path.is_dir():
         raise InputError(f"{path}: is a folder; use `gprace report {path}` for a folder")
-    suffix = path.suffix.lower()
-    if suffix == ".csv":
-        return _describe_csv(path)
+    if suffix in (".csv", ".txt"):
+        return _describe_table(path) or _describe_csv(path)
     if suffix == ".json":
         return _describe_json(path)
+    if suffix == ".toml":
+        return _describe_toml(path)
     return _describe_h5(path)
+
+
+def _info(path: Path, fmt: str, kind: str, results: dict[str, Any], arrays: dict | None = None) -> dict[str, Any]:
+    """The common layout of :func:`describe` for a file that is not an HDF5 artifact."""
+    return {"path": str(path), "format": fmt, "kind": kind, **{k: "" for k in RESERVED[1:]}, "attrs": {},
+            "arrays": arrays or {}, "groups": {}, "results": results}
+
+
+EXPLORE_REFERENCE = ("s_m", "x_m", "y_m", "vx_mps", "explore")
+"""Columns every exploration reference of ``learn --alpha`` has (``explore_reference.csv``)."""
+
+
+def _describe_table(path: Path) -> dict[str, Any] | None:
+    """A CSV that is not a run: a raceline (TUM or F1TENTH), an exploration reference, a track's
+    centre line; None for anything else (read as a run)."""
+    from gprace.ingest.table import peek_names
+    from gprace.tracks.raceline import is_raceline, raceline_summary, read_raceline
+
+    try:
+        names = [str(c).strip() for c in peek_names(path)]
+    except InputError:
+        names = []
+    if set(EXPLORE_REFERENCE) <= set(names):
+        data = np.genfromtxt(path, delimiter=",", names=True)
+        explore = np.asarray(data["explore"], dtype=float)
+        return _info(path, "csv", "explore_reference", {
+            "points": int(explore.size), "columns": names, "explored_share": float(np.mean(explore > 0)) if explore.size else 0.0,
+            "speed_max_mps": float(np.nanmax(data["vx_mps"])) if explore.size else None})
+    if is_raceline(path):  # a raceline with wrong columns: read_raceline says what is wrong
+        rl = read_raceline(path)
+        return _info(path, f"csv ({rl.fmt} raceline)", "raceline", raceline_summary(rl))
+    if {"s", "e_y"} <= set(names) or not names:
+        return None
+    try:  # a centre line (TUM, with or without header): what `track show` says of it
+        from gprace.tracks import load_track
+
+        trk = load_track(path)
+        return _info(path, "csv", "track", {"name": trk.name, "closed": bool(trk.closed), "length_m": float(trk.length),
+                                            "more": f"gprace track show {path}"})
+    except (GpraceError, OSError, ValueError):
+        pass
+    try:  # x, y points only: a path (TUM's racelines) or one border of a track
+        from gprace.tracks.bounds import read_polyline
+
+        xy = read_polyline(path)
+    except (GpraceError, OSError, ValueError):
+        return None
+    return _info(path, "csv", "polyline", {"points": len(xy), "length_m": float(np.sum(np.hypot(*np.diff(xy[:, :2], axis=0).T))),
+                                           "use": "a path or one border: --track INNER.csv,OUTER.csv takes two borders"})
+
+
+def _mcap_channels(path: Path) -> list[tuple[str, str, int]]:
+    """``(topic, schema, messages)`` of every channel of an MCAP file ([] when it is none)."""
+    from gprace.ingest.mcap_fast import Unsupported, scan
+
+    try:
+        channels, msgs = scan(path)
+    except (Unsupported, OSError, ValueError, IndexError, KeyError):  # not an MCAP gprace can scan
+        return []
+    return sorted((topic, schema, len(msgs.get(cid, ([], []))[0])) for cid, (topic, schema, _) in channels.items())
+
+
+def _describe_mcap(path: Path, channels: list[tuple[str, str, int]]) -> dict[str, Any]:
+    """An MCAP written by ``--mcap`` (recorded and planned laps, GP band, track) for Foxglove."""
+    return _info(path, "mcap", "foxglove_mcap", {
+        "channels": len(channels), "messages": sum(n for *_, n in channels),
+        **{topic: f"{schema} ({n} messages)" for topic, schema, n in channels}})
+
+
+def _describe_learn_folder(path: Path) -> dict[str, Any]:
+    """An ``--out`` folder of ``gprace learn``: its car and track and each iteration's prediction."""
+    ident = json.loads((path / "learn.json").read_text())
+    res: dict[str, Any] = {"vehicle": ident.get("vehicle"), "track": ident.get("track"),
+                           "track_reversed": ident.get("track_reversed")}
+    its = sorted(p for p in path.glob("iter_[0-9]*") if (p / "sources.json").exists())
+    res["iterations"] = len(its)
+    for it in its:
+        rec_path = it / "record.json"
+        if not rec_path.exists():
+            res[it.name] = "unfinished (rerun learn with its recordings to finish it)"
+            continue
+        rec = json.loads(rec_path.read_text())
+        plan = rec.get("plan") or {}
+        res[it.name] = (f"{len(rec.get('recordings', []))} recording(s), predicted lap "
+                        f"{_short(plan.get('planned_lap_time'))} s, exports {', '.join(rec.get('exports', []))}")
+    return _info(path, "folder", "learn_folder", res)
+
+
+def _describe_toml(path: Path) -> dict[str, Any]:
+    """A configuration TOML: vehicle, plant, segment track or recording map (by its keys)."""
+    import tomllib
+
+    try:
+        obj = tomllib.loads(path.read_text(encoding="utf-8-sig"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"{path}: not a TOML file ({exc})") from None
+    keys = set(obj)
+    if "kind" in keys and "vehicle" in keys:
+        kind, res = "plant_config", {"plant kind": obj["kind"], "vehicle": obj["vehicle"]}
+    elif {"mass", "l_f", "l_r"} <= keys:
+        kind, res = "vehicle_config", {k: obj[k] for k in ("name", "mass", "l_f", "l_r", "mu") if k in obj}
+    elif "segments" in keys:
+        kind, res = "track_config", {"segments": len(obj["segments"]), "more": f"gprace track show {path}"}
+    elif keys & {"columns", "units", "topics", "signs", "layout"}:
+        kind, res = "recording_map", {"tables": sorted(k for k in keys if isinstance(obj[k], dict))}
+    else:
+        kind, res = "toml", {"keys": sorted(keys)[:30]}
+    return _info(path, "toml", kind, res)
 
 
 def _describe_h5(path: Path) -> dict[str, Any]:
     f = _open_h5(path)
     with f:
+        if "kind" not in f.attrs and str(_decode(f.attrs.get("format", ""))) == "gprace portable GP":
+            return _describe_portable(path, f)
         if "kind" not in f.attrs:
             raise ArtifactError(f"{path}: not a gprace artifact (no 'kind' attribute)")
         info: dict[str, Any] = {"path": str(path), "format": "hdf5", "kind": str(_decode(f.attrs["kind"]))}
@@ -227,6 +364,20 @@ def _describe_h5(path: Path) -> dict[str, Any]:
         info["results"] = key_results(art)
     except ODD_PAYLOAD as exc:  # a summary must not fail on an odd payload
         info["results"] = {"error": f"could not summarise the {art.kind!r} payload: {exc}"}
+    return info
+
+
+def _describe_portable(path: Path, f) -> dict[str, Any]:
+    """The portable GP of ``learn`` (:mod:`gprace.gp.export`): one HDF5 file beside its JSON card."""
+    attrs = {k: _decode(v) for k, v in f.attrs.items()}
+    arrays = {k: {"shape": list(v.shape), "dtype": str(v.dtype)} for k, v in _walk(f)}
+    res: dict[str, Any] = {"inputs": attrs.get("inputs"), "kernel": attrs.get("kernel"),
+                           "dictionary_size": int(f["Z"].shape[0]) if "Z" in f else None}
+    card = Path(str(path).removesuffix(".portable.h5") + ".card.json")
+    if card.is_file():
+        res["card"] = str(card)
+    info = _info(path, "hdf5", "portable_gp", res, arrays)
+    info["attrs"] = attrs
     return info
 
 
