@@ -117,7 +117,6 @@ OUTPUTS: dict[str, dict[str, str]] = {
     "show": {"plot": FILE},
     "report": {"out": FILE, "png": FOLDER},
     "track show": {"plot": FILE},
-    "learn": {"out": RUN, "mcap": FILE},
 }
 INPUTS: dict[str, tuple[str, ...]] = {
     "plan": ("model", "warm_start"), "run": ("plan", "model", "candidates"), "select-data": ("inputs", "model"),

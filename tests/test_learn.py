@@ -323,3 +323,17 @@ def test_the_plan_after_a_lost_lap_is_never_the_lost_plan(tmp_path, laps, now, g
 
     C.folder = folder
     assert last_good_plan(C, now) == good
+
+
+def test_learn_refuses_a_frenet_csv_of_another_track_in_one_line(tmp_path, capsys):
+    """A gprace run saved as CSV names no track: its recorded curvature along s tells (issue 39)."""
+    from gprace.cli import main
+
+    ring = tmp_path / "ring.csv"
+    assert main(["-q", "simulate", "--track", "gprace_ring", "--laps", "0.3", "-o", str(ring)]) == 0
+    capsys.readouterr()
+    out = tmp_path / "lo"
+    assert main(["learn", str(ring), "--track", "circle_100", "--vehicle", "audi_tt_cup", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "different tracks" in err[0] and "curvature" in err[0], err
+    assert not out.exists()

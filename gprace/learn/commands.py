@@ -32,6 +32,9 @@ def learn_cmd(
     check_output(mcap, "--mcap")
     st = LearnSettings(track=track, vehicle=vehicle, map_file=str(map_file) if map_file else None, dt=dt, alpha=alpha,
                        dictionary_size=dictionary, features=features, selection=selection, seed=seed)
+    from gprace.learn.workflow import check_inputs
+
+    check_inputs(recordings, st, out)  # before the start line: a refusal is one line
     with console.progress(f"learn: {len(recordings)} recording(s) -> {out}", total=len(STAGES), unit="stages") as bar:
 
         def stage_done(name: str) -> None:  # the bar names the stage being worked on

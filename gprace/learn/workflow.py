@@ -39,6 +39,7 @@ Folder (``--out DIR``)::
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from pathlib import Path
 from typing import Any, ClassVar
@@ -210,6 +211,38 @@ OTHER_TRACK = ("off track", "does not drive along", "never comes within")
 """What the importer says of a recording of another circuit."""
 
 
+CURVATURE_MISMATCH = 0.2
+"""A run is of another track when its curvature along s differs from the track's by more than
+this share of the track's typical curvature (90th percentile of |kappa|), in the median."""
+
+
+def _check_run_track(path: Path, run, track) -> None:
+    """A gprace run must be of ``track``: by the track name and lap length it names, and by the
+    curvature it recorded (a Frenet CSV names neither)."""
+    name = str(run.meta.get("track_name") or run.meta.get("track") or "")
+    if name and Path(name).stem != track.name and name != track.name:
+        raise InputError(f"recordings of different tracks: {path} was driven on {name!r}, not on {track.name!r}")
+    length = run.meta.get("track_length")
+    if length and abs(float(length) - track.length) > 1e-3 * track.length:
+        raise InputError(f"recordings of different tracks: {path} has a lap of {float(length):.1f} m, "
+                         f"track {track.name!r} {track.length:.1f} m")
+    _check_curvature(path, run, track.reversed() if run.meta.get("track_reversed", False) else track)
+
+
+def _check_curvature(path: Path, run, track) -> None:
+    """A gprace run is checked by its ``kappa`` column too: the curvature it recorded along s must
+    be the track's (a run of another circuit fails by far)."""
+    if "kappa" not in run.data or "s" not in run.data:
+        return
+    s = np.mod(np.asarray(run["s"], dtype=float), track.length)
+    k_run, k_trk = np.asarray(run["kappa"], dtype=float), np.asarray(track.kappa(s), dtype=float)
+    typical = max(float(np.percentile(np.abs(k_trk), 90)), 1e-4)
+    off = float(np.nanmedian(np.abs(k_run - k_trk)))
+    if not off <= CURVATURE_MISMATCH * typical:
+        raise InputError(f"recordings of different tracks: {path}: its curvature along s differs from track "
+                         f"{track.name!r}'s by {off:.3g} 1/m in the median (the track's typical curvature {typical:.3g} 1/m)")
+
+
 def import_recordings(paths: list[Path], track, settings: LearnSettings, log=None) -> tuple[list, bool]:
     """Frenet runs of ``paths`` on ``track`` (as its file gives it) and whether they drive it
     against the file's direction (then on the reversed track).
@@ -238,13 +271,7 @@ def import_recordings(paths: list[Path], track, settings: LearnSettings, log=Non
                 run.meta["map_file"] = str(mp)
         else:
             run = read_run(p)
-            name = str(run.meta.get("track_name") or run.meta.get("track") or "")
-            if name and Path(name).stem != track.name and name != track.name:
-                raise InputError(f"recordings of different tracks: {p} was driven on {name!r}, not on {track.name!r}")
-            length = run.meta.get("track_length")
-            if length and abs(float(length) - track.length) > 1e-3 * track.length:
-                raise InputError(f"recordings of different tracks: {p} has a lap of {float(length):.1f} m, "
-                                 f"track {track.name!r} {track.length:.1f} m")
+            _check_run_track(p, run, track)
             rev = bool(run.meta.get("track_reversed", False))
             if abs(run.dt - settings.dt) > 1e-6 * settings.dt:
                 raise InputError(f"{p}: recorded every {run.dt:g} s; learn at that period (--dt {run.dt:g})")
@@ -609,12 +636,11 @@ def stage_predict(c: Iteration, limits) -> dict:
 # the command
 
 
-def learn(paths, settings: LearnSettings, out, progress=None) -> dict:
-    """Run (or resume) the iteration of ``paths`` in ``out``; returns its record."""
-    from gprace import __version__
+def check_inputs(paths, settings: LearnSettings, out):
+    """``(paths, folder, vehicle, track)`` once the recordings exist, ``out`` can be a learn folder
+    and the vehicle and the closed track load (before the command's start line: a refusal is one line)."""
     from gprace.config import load_vehicle
     from gprace.io.artifacts import check_folder
-    from gprace.model import NominalModel
     from gprace.tracks import load_track
 
     paths = [Path(p) for p in paths]
@@ -624,22 +650,36 @@ def learn(paths, settings: LearnSettings, out, progress=None) -> dict:
         if not p.exists():
             raise InputError(f"{p}: no such file")
     check_folder(out)
-    folder = Folder(Path(out))
     vehicle = load_vehicle(settings.vehicle)
-    model = NominalModel(vehicle)
     track0 = load_track(settings.track)
     if not track0.closed:
         raise InputError(f"--track {settings.track}: an open track; learning a lap needs a closed one")
+    from gprace.io.runs import read_run
+
+    for p in paths:  # gprace runs name their track (raw logs: when they are imported)
+        if not _is_raw(p):
+            _check_run_track(p, read_run(p), track0)
+    folder = Folder(Path(out))
+    if (folder.out / "learn.json").exists():
+        check_identity(folder, car_identity(vehicle, track0.reversed() if read_json(folder.out / "learn.json").get(
+            "track_reversed") else track0, settings))
+    else:
+        check_identity(folder, car_identity(vehicle, track0, settings))  # refuses an iterate folder
+    return paths, folder, vehicle, track0
+
+
+def learn(paths, settings: LearnSettings, out, progress=None) -> dict:
+    """Run (or resume) the iteration of ``paths`` in ``out``; returns its record."""
+    from gprace import __version__
+    from gprace.model import NominalModel
+
+    paths, folder, vehicle, track0 = check_inputs(paths, settings, out)
+    model = NominalModel(vehicle)
     sources = [{"path": str(p), "sha256": file_sha(p)} for p in paths]
     k, new = choose_iteration(folder, sources)
     done = (not new) and folder.finished(k)
-    if (folder.out / "learn.json").exists():
-        ident = read_json(folder.out / "learn.json")
-        track = track0.reversed() if ident.get("track_reversed") else track0
-        check_identity(folder, car_identity(vehicle, track, settings))
-    else:
-        check_identity(folder, car_identity(vehicle, track0, settings))  # refuses an iterate folder
-        track = None
+    learned = folder.out / "learn.json"  # the direction earlier iterations learned in (checked above)
+    track = (track0.reversed() if read_json(learned).get("track_reversed") else track0) if learned.exists() else None
     adv = progress or (lambda name: None)
     c = None
     if not done:
@@ -650,7 +690,12 @@ def learn(paths, settings: LearnSettings, out, progress=None) -> dict:
         if not folder.done(k, "import"):
             console.info(f"learn: iteration {k}: importing {len(paths)} recording(s)")
             c = Iteration(settings, folder, k, track or track0, model)
-            stage_import(c, paths, track0, None if track is None else bool(track.is_reversed))
+            try:
+                stage_import(c, paths, track0, None if track is None else bool(track.is_reversed))
+            except InputError:
+                if new:  # a refused recording leaves no iteration behind
+                    shutil.rmtree(folder.it(k), ignore_errors=True)
+                raise
             folder.mark(k, "import")
         adv("import")
         if track is None:
