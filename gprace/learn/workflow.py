@@ -656,9 +656,12 @@ def check_inputs(paths, settings: LearnSettings, out):
         raise InputError(f"--track {settings.track}: an open track; learning a lap needs a closed one")
     from gprace.io.runs import read_run
 
-    for p in paths:  # gprace runs name their track (raw logs: when they are imported)
+    for p in paths:  # gprace runs name their track
         if not _is_raw(p):
             _check_run_track(p, read_run(p), track0)
+    raw = [p for p in paths if _is_raw(p)]
+    if raw:  # a raw log shows its track only when imported: once here, silently (seconds), so that
+        import_recordings(raw, track0, settings)  # another track or direction is refused before any line
     folder = Folder(Path(out))
     if (folder.out / "learn.json").exists():
         check_identity(folder, car_identity(vehicle, track0.reversed() if read_json(folder.out / "learn.json").get(
