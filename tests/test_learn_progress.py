@@ -66,7 +66,7 @@ def test_learn_bar_names_its_stages(monkeypatch, tmp_path):
         shown.append((completed, description))
         yield Bar()
 
-    def fake_learn(paths, st, out, progress=None):
+    def fake_learn(paths, st, out, progress=None, checked=None):
         for s in STAGES:
             progress(s)
         raise SystemExit(0)

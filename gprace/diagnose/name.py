@@ -366,18 +366,6 @@ def folds(data: Dataset, starts: np.ndarray, k_max: int = 4) -> np.ndarray:
     return inv % 3
 
 
-def cv_channel_losses(prob: Problem, fit: Fit, starts: np.ndarray, fold: np.ndarray, fit_stride: int) -> np.ndarray:
-    """Held-out (m, 3) per-window, per-channel normalised MSE of ``fit``'s effect, refitted
-    without each fold (warm start from the full fit)."""
-    out = np.empty((len(starts), 3))
-    for f in np.unique(fold):
-        tr = starts[fold != f][::fit_stride]
-        te = fold == f
-        ff = refit(prob, fit, tr, max_nfev=10)
-        out[te] = np.mean(prob.residuals(prob.model([ff.effect()]), starts[te]) ** 2, axis=1)
-    return out
-
-
 def gain_test(l0: np.ndarray, l1: np.ndarray, bid: np.ndarray) -> tuple[float, float]:
     """(relative gain, paired block t-statistic) of loss l1 against l0.
 

@@ -34,7 +34,7 @@ def learn_cmd(
                        dictionary_size=dictionary, features=features, selection=selection, seed=seed)
     from gprace.learn.workflow import check_inputs
 
-    check_inputs(recordings, st, out)  # before the start line: a refusal is one line
+    checked = check_inputs(recordings, st, out)  # before the start line: a refusal is one line
     with console.progress(f"learn: {len(recordings)} recording(s) -> {out}", total=len(STAGES), unit="stages") as bar:
 
         def stage_done(name: str) -> None:  # the bar names the stage being worked on
@@ -42,7 +42,7 @@ def learn_cmd(
             bar.update(completed=i, description=f"learn: {STAGE_TEXT[STAGES[i]]}" if i < len(STAGES) else "learn: done")
 
         bar.update(description=f"learn: {STAGE_TEXT[STAGES[0]]}")  # the start line says what and where
-        rec = learn(recordings, st, out, progress=stage_done)
+        rec = learn(recordings, st, out, progress=stage_done, checked=checked)
     if mcap is not None:
         from gprace.learn.workflow import write_mcap
 

@@ -39,10 +39,9 @@ Folder (``--out DIR``)::
 from __future__ import annotations
 
 import json
-import shutil
 import time
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -366,23 +365,19 @@ class Iteration:
         return min(0.3, 0.25 * self.model.vehicle.width)
 
 
-def stage_import(c: Iteration, paths: list[Path], track0, learned: bool | None) -> bool:
-    """Import the recordings on the track as its file gives it (``track0``); ``learned``: the
-    direction earlier iterations learned in (None: none yet). Returns the direction."""
+def stage_import(c: Iteration, checked: Checked) -> None:
+    """Write the recordings :func:`check_inputs` imported (and the importer's notes)."""
     from gprace.io.runs import write_run
 
-    runs, rev = import_recordings(paths, track0, c.st, log=console.info)
-    if learned is not None and rev != learned:
-        raise InputError(f"{paths[0]} drives track {track0.name!r} the other way round than the iterations in "
-                         f"{c.folder.out}; use another --out")
-    for j, run in enumerate(runs):
+    for note in checked.notes:
+        console.info(note)
+    for j, run in enumerate(checked.runs):
         write_run(run, c.dir / f"rec_{j}.h5")
-    return rev
 
 
 def stage_select(c: Iteration) -> None:
     """Both GPs' dictionaries: this iteration's usable samples streamed into the previous ones."""
-    from gprace.io.artifacts import Artifact, read_artifact, write_artifact
+    from gprace.io.artifacts import Artifact, write_artifact
     from gprace.learn.predict import full_laps
     from gprace.timetrial import learning as L
 
@@ -636,9 +631,24 @@ def stage_predict(c: Iteration, limits) -> dict:
 # the command
 
 
-def check_inputs(paths, settings: LearnSettings, out):
-    """``(paths, folder, vehicle, track)`` once the recordings exist, ``out`` can be a learn folder
-    and the vehicle and the closed track load (before the command's start line: a refusal is one line)."""
+class Checked(NamedTuple):
+    """What :func:`check_inputs` found: the recordings imported onto ``track`` (as its file gives
+    it) and whether they drive it the other way round."""
+
+    paths: list[Path]
+    folder: Folder
+    vehicle: Any
+    track: Any
+    runs: list
+    reversed: bool
+    notes: list[str]
+
+
+def check_inputs(paths, settings: LearnSettings, out) -> Checked:
+    """Refuse, before the command's start line (a refusal is one line): recordings that do not
+    exist, an ``out`` that is not this car's learn folder, a vehicle or open track that does not
+    load, recordings of another track or driven the other way round than earlier iterations. The
+    recordings are imported here, once (a raw log shows its track only when imported)."""
     from gprace.config import load_vehicle
     from gprace.io.artifacts import check_folder
     from gprace.tracks import load_track
@@ -654,29 +664,26 @@ def check_inputs(paths, settings: LearnSettings, out):
     track0 = load_track(settings.track)
     if not track0.closed:
         raise InputError(f"--track {settings.track}: an open track; learning a lap needs a closed one")
-    from gprace.io.runs import read_run
-
-    for p in paths:  # gprace runs name their track
-        if not _is_raw(p):
-            _check_run_track(p, read_run(p), track0)
-    raw = [p for p in paths if _is_raw(p)]
-    if raw:  # a raw log shows its track only when imported: once here, silently (seconds), so that
-        import_recordings(raw, track0, settings)  # another track or direction is refused before any line
     folder = Folder(Path(out))
-    if (folder.out / "learn.json").exists():
-        check_identity(folder, car_identity(vehicle, track0.reversed() if read_json(folder.out / "learn.json").get(
-            "track_reversed") else track0, settings))
-    else:
-        check_identity(folder, car_identity(vehicle, track0, settings))  # refuses an iterate folder
-    return paths, folder, vehicle, track0
+    learned = folder.out / "learn.json"
+    was = bool(read_json(learned).get("track_reversed")) if learned.exists() else None
+    check_identity(folder, car_identity(vehicle, track0.reversed() if was else track0, settings))  # refuses an iterate folder
+    notes: list[str] = []
+    runs, rev = import_recordings(paths, track0, settings, log=notes.append)
+    if was is not None and rev != was:
+        raise InputError(f"{paths[0]} drives track {track0.name!r} the other way round than the iterations in "
+                         f"{folder.out}; use another --out")
+    return Checked(paths, folder, vehicle, track0, runs, rev, notes)
 
 
-def learn(paths, settings: LearnSettings, out, progress=None) -> dict:
-    """Run (or resume) the iteration of ``paths`` in ``out``; returns its record."""
+def learn(paths, settings: LearnSettings, out, progress=None, checked: Checked | None = None) -> dict:
+    """Run (or resume) the iteration of ``paths`` in ``out`` (``checked``: what
+    :func:`check_inputs` found, if the caller checked already); returns its record."""
     from gprace import __version__
     from gprace.model import NominalModel
 
-    paths, folder, vehicle, track0 = check_inputs(paths, settings, out)
+    checked = checked or check_inputs(paths, settings, out)
+    paths, folder, vehicle, track0 = checked.paths, checked.folder, checked.vehicle, checked.track
     model = NominalModel(vehicle)
     sources = [{"path": str(p), "sha256": file_sha(p)} for p in paths]
     k, new = choose_iteration(folder, sources)
@@ -691,21 +698,13 @@ def learn(paths, settings: LearnSettings, out, progress=None) -> dict:
             write_json(folder.it(k) / "sources.json", {"recordings": sources})
         # 1. import: the track's direction comes from the recordings
         if not folder.done(k, "import"):
-            console.info(f"learn: iteration {k}: importing {len(paths)} recording(s)")
+            console.info(f"learn: iteration {k}: {len(paths)} recording(s) imported")
             c = Iteration(settings, folder, k, track or track0, model)
-            try:
-                stage_import(c, paths, track0, None if track is None else bool(track.is_reversed))
-            except InputError:
-                if new:  # a refused recording leaves no iteration behind
-                    shutil.rmtree(folder.it(k), ignore_errors=True)
-                raise
+            stage_import(c, checked)
             folder.mark(k, "import")
         adv("import")
         if track is None:
-            from gprace.io.runs import read_run
-
-            rev = bool(read_run(folder.it(k) / "rec_0.h5").meta.get("track_reversed", False))
-            track = track0.reversed() if rev else track0
+            track = track0.reversed() if checked.reversed else track0
             write_json(folder.out / "learn.json", car_identity(vehicle, track, settings))
         c = Iteration(settings, folder, k, track, model)
         stages = {"select": lambda: stage_select(c), "retrain": lambda: stage_retrain(c)}
