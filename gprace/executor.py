@@ -138,14 +138,17 @@ def run_batch(
 
 def _local(fn: Callable[[Any], Any], tasks: Sequence[Any], workers: int, done: Callable[[TaskResult], None]) -> None:
     pool = ProcessPoolExecutor(max_workers=workers, initializer=interrupt.worker_init)
+    finished = False
     try:
         futs = [pool.submit(_call, fn, i, t) for i, t in enumerate(tasks)]
         for fut in as_completed(futs):
             done(fut.result())
-    except BaseException:
-        _stop_workers(pool)
-        raise
-    pool.shutdown()
+        finished = True
+    finally:
+        if finished:
+            pool.shutdown()
+        else:  # Ctrl-C or a failure in the caller's callback: the workers must not run on
+            _stop_workers(pool)
 
 
 def _stop_workers(pool: ProcessPoolExecutor) -> None:
@@ -183,17 +186,18 @@ def _dask(fn: Callable[[Any], Any], tasks: Sequence[Any], scheduler: str | None,
         raise InputError(f"cannot reach Dask scheduler {scheduler}: {exc}") from None
     stop = f"gprace-stop-{uuid.uuid4().hex}"
     futs = []
+    finished = False
     try:
         futs = [client.submit(_call, fn, i, t, stop, pure=False) for i, t in enumerate(tasks)]
         for fut in dask_completed(futs):
             done(fut.result())
-    except BaseException:
-        # running tasks cannot be killed from here: they read the event before they record anything
-        try:
-            Event(stop, client=client).set()
-            client.cancel(futs, force=True)
-        except Exception:  # noqa: BLE001 -- a lost scheduler: its tasks are gone anyway; the interrupt goes on
-            pass
-        raise
+        finished = True
     finally:
+        if not finished:
+            # running tasks cannot be killed from here: they read the event before they record anything
+            try:
+                Event(stop, client=client).set()
+                client.cancel(futs, force=True)
+            except interrupt.LOST_SCHEDULER:  # its tasks are gone anyway; the interrupt goes on
+                pass
         client.close()

@@ -46,6 +46,9 @@ class _Quiet:
         return False
 
 
+#: What a Dask scheduler that went away raises (connection closed, timed out, client shut down).
+LOST_SCHEDULER = (OSError, TimeoutError, EOFError, RuntimeError)
+
 def requested() -> bool:
     """Was this process (or, in a Dask task, its command) interrupted?"""
     if _state["flag"]:
@@ -178,7 +181,7 @@ def task_stop(name: str, every: float = 1.0) -> Callable[[], bool]:
             seen["at"] = time.monotonic()
             try:
                 seen["set"] = bool(Event(name).is_set())
-            except Exception:  # noqa: BLE001 -- no scheduler reachable: nobody can have asked to stop
+            except LOST_SCHEDULER:  # no scheduler reachable: nobody can have asked to stop
                 seen["set"] = False
         return seen["set"]
 

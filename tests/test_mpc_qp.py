@@ -122,3 +122,20 @@ def test_unconstrained_is_lqr(name):
         x = A @ x + B @ uk
     assert np.allclose(r.u, np.array(us), atol=1e-5, rtol=1e-5)
     assert np.allclose(r.eps, 0.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", BACKENDS)
+def test_nonfinite_problem_is_a_failed_solve_and_a_bad_shape_is_raised(qps, name):
+    """One status table for every backend (issue 40): a model that blew up (NaN in the dynamics)
+    is a counted FAILED solve with the same message everywhere; a problem of the wrong shape is a
+    bug in the caller and is raised, not hidden as a failed solve."""
+    pb = _problem(seed=2)
+    pb.c[5, 1] = np.nan
+    r = qps[name].solve(pb)
+    assert r.status is QPStatus.FAILED and "non-finite problem data" in r.message
+    assert np.all(np.isnan(r.u))
+    bad = _problem(seed=2)
+    bad.A = bad.A[:, :5, :]  # 5 of 6 state rows
+    with pytest.raises((ValueError, IndexError, RuntimeError)):
+        qps[name].solve(bad)
+    assert qps[name].solve(_problem(seed=2)).status is QPStatus.SOLVED  # the backend is still usable

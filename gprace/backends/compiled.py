@@ -83,7 +83,8 @@ def _compiled(generate, name: str, what: str, flags: tuple[str, ...] = FLAGS,
         return None
     try:
         return _build(generate, name, cc, what, flags, link)
-    except Exception as exc:  # noqa: BLE001 -- a failed build only costs speed
+    except (OSError, RuntimeError, subprocess.SubprocessError) as exc:  # a failed build only costs speed
+        # (a compiler that fails or is missing, a cache folder that cannot be written, CasADi's code generation)
         console.warn(f"compiling the {what} {name!r} failed ({str(exc).splitlines()[0][:200]}); it runs interpreted")
         return None
 

@@ -29,6 +29,7 @@ import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
 from scipy.optimize import minimize
 
+from gprace.errors import SolverError
 from gprace.gp.base import GPBackend, best_start, optimisation_bounds
 from gprace.gp.fastkernel import Points, kernel_dot
 from gprace.gp.inducing import kmeanspp_indices
@@ -193,6 +194,6 @@ def _exact_init(kernel_name: str, theta0: np.ndarray, Z: np.ndarray, y: np.ndarr
 
     try:
         res = minimize(neg, theta0, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": 100})
-    except Exception:  # a failed warm start is no reason to fail the fit
+    except (SolverError, np.linalg.LinAlgError, ValueError):  # a failed warm start is no reason to fail the fit
         return theta0
     return res.x if np.all(np.isfinite(res.x)) else theta0

@@ -14,7 +14,8 @@ import time
 
 import numpy as np
 
-from gprace.mpc.qp import LtvProblem, QPResult, QPStatus, SparseQP, Weights, check_result, fail_result
+from gprace.mpc.qp import LtvProblem, QPResult, QPStatus, SparseQP, Weights, check_result, fail_result, nonfinite_result
+from gprace.solvers import conic_status
 
 
 class CasadiQP:
@@ -56,23 +57,26 @@ class CasadiQP:
 
     def solve(self, pb: LtvProblem) -> QPResult:
         ca, f = self.ca, self.form
+        bad = nonfinite_result(pb, f"casadi/{self.plugin}")
+        if bad is not None:
+            return bad
         t0 = time.perf_counter()
-        try:
-            vals, b = f.fill(pb)
-            uba = b[self._rows]
-            lba = self._lba.copy()
-            lba[: f.neq] = uba[: f.neq]
-            N = self.N
-            lbx = np.concatenate([np.tile(pb.u_lo, N), np.full(6 * N, -np.inf), np.zeros(2 * N)])
-            ubx = np.concatenate([np.tile(pb.u_hi, N), np.full(6 * N, np.inf), np.full(2 * N, np.inf)])
-            sol = self.solver(h=self._H, g=f.q(pb), a=ca.DM(self._Asp, vals[self._take]), lba=lba, uba=uba, lbx=lbx, ubx=ubx)
-            st = self.solver.stats()
-        except Exception as exc:
+        vals, b = f.fill(pb)
+        uba = b[self._rows]
+        lba = self._lba.copy()
+        lba[: f.neq] = uba[: f.neq]
+        N = self.N
+        lbx = np.concatenate([np.tile(pb.u_lo, N), np.full(6 * N, -np.inf), np.zeros(2 * N)])
+        ubx = np.concatenate([np.tile(pb.u_hi, N), np.full(6 * N, np.inf), np.full(2 * N, np.inf)])
+        a = ca.DM(self._Asp, vals[self._take])
+        try:  # CasADi raises RuntimeError when the plugin itself fails (error_on_fail is off)
+            sol = self.solver(h=self._H, g=f.q(pb), a=a, lba=lba, uba=uba, lbx=lbx, ubx=ubx)
+        except RuntimeError as exc:
             return fail_result(self.N, QPStatus.FAILED, f"casadi/{self.plugin}: {exc}", time.perf_counter() - t0)
+        st = self.solver.stats()
         dt = time.perf_counter() - t0
-        ok = bool(st.get("success", False))
-        status = QPStatus.SOLVED if ok else (QPStatus.MAX_ITER if "iter" in str(st.get("return_status", "")).lower() else QPStatus.FAILED)
+        status = conic_status(st)
         z = np.asarray(sol["x"]).ravel()
         x, u, eps = f.unpack(z)
-        obj = float(sol["cost"]) + f.constant(pb) if ok else np.nan
+        obj = float(sol["cost"]) + f.constant(pb) if status.usable else np.nan
         return check_result(QPResult(status, x, u, eps, obj, dt, int(st.get("iter_count", 0) or 0), str(st.get("return_status", ""))))

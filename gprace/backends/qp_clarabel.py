@@ -11,18 +11,8 @@ import time
 
 import numpy as np
 
-from gprace.mpc.qp import LtvProblem, QPResult, QPStatus, SparseQP, Weights, check_result, fail_result
-
-_STATUS = {
-    "Solved": QPStatus.SOLVED,
-    "AlmostSolved": QPStatus.INACCURATE,
-    "PrimalInfeasible": QPStatus.INFEASIBLE,
-    "DualInfeasible": QPStatus.INFEASIBLE,
-    "AlmostPrimalInfeasible": QPStatus.INFEASIBLE,
-    "AlmostDualInfeasible": QPStatus.INFEASIBLE,
-    "MaxIterations": QPStatus.MAX_ITER,
-    "MaxTime": QPStatus.MAX_ITER,
-}
+from gprace.mpc.qp import LtvProblem, QPResult, SparseQP, Weights, check_result, nonfinite_result
+from gprace.solvers import clarabel_status
 
 
 class ClarabelQP:
@@ -53,22 +43,23 @@ class ClarabelQP:
 
     def solve(self, pb: LtvProblem) -> QPResult:
         f = self.form
+        bad = nonfinite_result(pb, "clarabel")
+        if bad is not None:
+            return bad
         t0 = time.perf_counter()
-        try:
-            vals, b = f.fill(pb)
-            q = f.q(pb)
-            if self._solver is None:
-                M = f.M.copy()
-                M.data = vals
-                self._solver = self._cl.DefaultSolver(f.P_triu, q, M, b, self.cones, self.settings)
-            else:
-                self._solver.update(q=q, A=vals, b=b)
-            sol = self._solver.solve()
-        except Exception as exc:  # a failed solve never crashes a lap
-            self._solver = None
-            return fail_result(self.N, QPStatus.FAILED, f"clarabel: {exc}", time.perf_counter() - t0)
+        vals, b = f.fill(pb)
+        q = f.q(pb)
+        # Clarabel reports a numerical failure as a status; it raises only on malformed data,
+        # which is a bug here and is not caught
+        if self._solver is None:
+            M = f.M.copy()
+            M.data = vals
+            self._solver = self._cl.DefaultSolver(f.P_triu, q, M, b, self.cones, self.settings)
+        else:
+            self._solver.update(q=q, A=vals, b=b)
+        sol = self._solver.solve()
         dt = time.perf_counter() - t0
-        status = _STATUS.get(str(sol.status).split(".")[-1], QPStatus.FAILED)
+        status = clarabel_status(sol.status)
         z = np.asarray(sol.x)
         x, u, eps = f.unpack(z)
         obj = float(sol.obj_val) + f.constant(pb) if status.usable else np.nan

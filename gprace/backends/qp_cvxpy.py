@@ -11,7 +11,8 @@ import time
 
 import numpy as np
 
-from gprace.mpc.qp import EY, NUS, NXS, STEER_OPEN, LtvProblem, QPResult, QPStatus, Weights, check_result, fail_result
+from gprace.mpc.qp import EY, NUS, NXS, STEER_OPEN, LtvProblem, QPResult, QPStatus, Weights, check_result, fail_result, nonfinite_result
+from gprace.solvers import cvxpy_status
 
 
 class CvxpyClarabelQP:
@@ -67,27 +68,28 @@ class CvxpyClarabelQP:
 
     def solve(self, pb: LtvProblem) -> QPResult:
         cp = self.cp
+        bad = nonfinite_result(pb, "cvxpy-clarabel")
+        if bad is not None:
+            return bad
         t0 = time.perf_counter()
+        for k in range(self.N):
+            self.A[k].value = pb.A[k]
+            self.B[k].value = pb.B[k]
+        self.c.value, self.Ax0.value = pb.c, pb.A[0] @ pb.x0
+        self.xref.value, self.uref.value = pb.xref, pb.uref
+        self.ey_lo.value, self.ey_hi.value = pb.ey_lo, pb.ey_hi
+        self.u_lo.value, self.u_hi.value = pb.u_lo, pb.u_hi
+        self.delta_prev.value = pb.delta_prev
+        self.steer_step.value = STEER_OPEN if pb.steer_step is None else float(pb.steer_step)
+        self.a_prev.value = pb.a_prev
+        self.grip_G.value, self.grip_lo.value, self.grip_hi.value = pb.grip()
         try:
-            for k in range(self.N):
-                self.A[k].value = pb.A[k]
-                self.B[k].value = pb.B[k]
-            self.c.value, self.Ax0.value = pb.c, pb.A[0] @ pb.x0
-            self.xref.value, self.uref.value = pb.xref, pb.uref
-            self.ey_lo.value, self.ey_hi.value = pb.ey_lo, pb.ey_hi
-            self.u_lo.value, self.u_hi.value = pb.u_lo, pb.u_hi
-            self.delta_prev.value = pb.delta_prev
-            self.steer_step.value = STEER_OPEN if pb.steer_step is None else float(pb.steer_step)
-            self.a_prev.value = pb.a_prev
-            self.grip_G.value, self.grip_lo.value, self.grip_hi.value = pb.grip()
             self.problem.solve(solver=cp.CLARABEL, warm_start=False)
-        except Exception as exc:
+        except cp.error.SolverError as exc:  # CVXPY's word for a solver that gave no answer
             return fail_result(self.N, QPStatus.FAILED, f"cvxpy-clarabel: {exc}", time.perf_counter() - t0)
         dt = time.perf_counter() - t0
         st = self.problem.status
-        status = {cp.OPTIMAL: QPStatus.SOLVED, cp.OPTIMAL_INACCURATE: QPStatus.INACCURATE,
-                  cp.INFEASIBLE: QPStatus.INFEASIBLE, cp.UNBOUNDED: QPStatus.INFEASIBLE,
-                  cp.INFEASIBLE_INACCURATE: QPStatus.INFEASIBLE, cp.USER_LIMIT: QPStatus.MAX_ITER}.get(st, QPStatus.FAILED)
+        status = cvxpy_status(st)
         if not status.usable:
             return fail_result(self.N, status, f"cvxpy-clarabel: {st}", dt)
         stats = self.problem.solver_stats

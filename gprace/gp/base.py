@@ -36,7 +36,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from gprace.errors import ArtifactError, ConfigError, InputError, at_row
+from gprace.errors import ArtifactError, ConfigError, InputError, SolverError, at_row
 from gprace.gp.kernels import check_kernel, kernel
 
 ARTIFACT_KIND = "gp_model"
@@ -440,7 +440,7 @@ def best_start(kernel_name: str, theta0: np.ndarray, Z: np.ndarray, Y: np.ndarra
     for th in (theta0, default):
         try:
             scores.append(sum(exact_lml(kernel_name, th, Z, Y[:, i])[0] for i in range(Y.shape[1])))
-        except Exception:  # an unusable start (not positive definite) scores worst
+        except (SolverError, np.linalg.LinAlgError):  # an unusable start (not positive definite) scores worst
             scores.append(-np.inf)
     return theta0 if scores[0] >= scores[1] else default
 

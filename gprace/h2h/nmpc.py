@@ -32,6 +32,7 @@ from gprace.h2h.config import H2HConfig, MPCConfig
 from gprace.interrupt import check as check_interrupt
 from gprace.model import NominalModel, State
 from gprace.model.nominal import rk4_expression
+from gprace.solvers import SolveStatus, all_finite, ipopt_status
 
 NX, NU, NS = 6, 2, 3  # states, inputs, slacks per stage (track, speed, collision)
 N_GLOBAL = 9  # x0 (6), u_prev (2), alpha
@@ -282,13 +283,14 @@ class NMPC:
                 check_interrupt()  # IPOPT stops at Ctrl-C as if it had failed: no fallback, no retry
                 stats = self._solver.stats()
                 status = str(stats.get("return_status", ""))
-                ok = bool(stats.get("success", False)) or status == "Solved_To_Acceptable_Level"
+                outcome = ipopt_status(stats)
                 wv = np.asarray(res["x"]).ravel()
-                ok = ok and bool(np.all(np.isfinite(wv)))
-                if ok or status != "Maximum_Iterations_Exceeded" or not np.all(np.isfinite(wv)):
+                finite = all_finite(wv)
+                ok = outcome.usable and finite
+                if ok or outcome is not SolveStatus.MAX_ITER or not finite:
                     break
                 args.update(x0=wv, lam_g0=np.asarray(res["lam_g"]).ravel(), lam_x0=np.asarray(res["lam_x"]).ravel())
-        except Exception as exc:  # noqa: BLE001 -- a solver failure must not end the race
+        except RuntimeError as exc:  # CasADi's word for a failed evaluation: must not end the race
             ok, status, wv, res = False, f"exception: {exc}", None, None
         dt = time.perf_counter() - t0
         if not ok:

@@ -88,6 +88,10 @@ class Raw:
         return InputError(f"{self.source}: no {what} ({where} not found); {noun} present: {listing}")
 
 
+#: What the binary readers' decoders raise on a damaged file besides their own error class
+#: (measured on truncated and random-byte bags, MCAPs and MDF4 files).
+BAD_FILE = (ValueError, KeyError, IndexError, EOFError, OSError, struct.error)
+
 def recording_format(path: Path) -> str | None:
     """``csv``, ``ros``, ``mdf`` from the path, or None when it is not a raw-recording path."""
     suf = path.suffix.lower()
@@ -369,12 +373,12 @@ def _ros_fast(path: Path, wanted: dict[str, str], use_header: bool, mcap_fast):
 
 def _ros_general(path: Path, wanted: dict[str, str], use_header: bool):
     """Topics and fields through rosbags' AnyReader (every bag format, one message at a time)."""
-    from rosbags.highlevel import AnyReader
+    from rosbags.highlevel import AnyReader, AnyReaderError
 
     try:
         reader = AnyReader([path], default_typestore=ros_typestore(path.suffix.lower() == ".bag"))
         reader.open()
-    except Exception as exc:  # noqa: BLE001 - rosbags raises several kinds on bad files
+    except (AnyReaderError, *BAD_FILE) as exc:  # rosbags' own error, or a decoder's on a damaged file
         raise InputError(f"{path}: not a readable ROS bag / MCAP file ({type(exc).__name__}: {exc})") from None
     try:
         topics = {c.topic: c.msgtype for c in reader.connections}
@@ -431,11 +435,12 @@ def _ros_fields(reader, conns, typ: str, use_header: bool) -> dict[str, np.ndarr
 def read_mdf(path: Path, rmap: RecordingMap) -> Raw:
     try:
         from asammdf import MDF
+        from asammdf.blocks.utils import MdfException
     except ImportError as exc:  # pragma: no cover - a declared dependency
         raise InputError(f"{path}: reading MDF4 needs asammdf ({exc})") from None
     try:
         mdf = MDF(str(path))
-    except Exception as exc:  # noqa: BLE001 - asammdf raises several kinds on bad files
+    except (MdfException, *BAD_FILE) as exc:  # asammdf's own error, or a decoder's on a damaged file
         raise InputError(f"{path}: not a readable MDF4 file ({type(exc).__name__}: {exc})") from None
     cols = rmap.columns
     raw = Raw(str(path), kind="mdf", hints={q: f"channel {getattr(cols, q)!r}" for q in QUANTITIES})

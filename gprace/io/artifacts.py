@@ -13,6 +13,7 @@ from __future__ import annotations
 import datetime as _dt
 import os
 import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -71,14 +72,21 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
     gprace writes goes through here; the scan skips the hidden sibling)."""
     interrupt.check()
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
+    with staged(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return path
+
+
+@contextmanager
+def staged(path: Path, tmp: Path | None = None):
+    """Yield a hidden sibling of ``path`` to write; on success it replaces ``path``, on any failure
+    (Ctrl-C included) it is removed and ``path`` is left as it was."""
+    tmp = Path(tmp) if tmp is not None else path.with_name(f".{path.name}.tmp")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)  # nothing left to remove after the replace
 
 
 def write_artifact(path: str | Path, art: Artifact) -> Path:
@@ -90,28 +98,23 @@ def write_artifact(path: str | Path, art: Artifact) -> Path:
         raise InputError(f"{path}: cannot create its folder {path.parent}: a file is in the way") from None
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["kind"] = art.kind
-            f.attrs["schema"] = int(art.schema)
-            f.attrs["gprace_version"] = __version__
-            f.attrs["config_hash"] = art.config_hash
-            f.attrs["seed"] = int(art.seed)
-            f.attrs["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-            for k, v in art.attrs.items():
-                f.attrs[k] = _attr(v)
-            d = f.create_group("data")
-            for k, v in art.arrays.items():
-                d.create_dataset(k, data=np.asarray(v))
-            g = f.create_group("groups")
-            for gname, arrays in art.groups.items():
-                sub = g.create_group(gname)
-                for k, v in arrays.items():
-                    sub.create_dataset(k, data=np.asarray(v))
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with staged(path, tmp), h5py.File(tmp, "w") as f:
+        f.attrs["kind"] = art.kind
+        f.attrs["schema"] = int(art.schema)
+        f.attrs["gprace_version"] = __version__
+        f.attrs["config_hash"] = art.config_hash
+        f.attrs["seed"] = int(art.seed)
+        f.attrs["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        for k, v in art.attrs.items():
+            f.attrs[k] = _attr(v)
+        d = f.create_group("data")
+        for k, v in art.arrays.items():
+            d.create_dataset(k, data=np.asarray(v))
+        g = f.create_group("groups")
+        for gname, arrays in art.groups.items():
+            sub = g.create_group(gname)
+            for k, v in arrays.items():
+                sub.create_dataset(k, data=np.asarray(v))
     return path
 
 

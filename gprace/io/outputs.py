@@ -224,6 +224,7 @@ class Outputs:
 
         for o in self.outputs:
             check_writable(o.path, o.option, o.kind)
+        entered = False
         try:
             for o in self.outputs:
                 if o.kind != "run":
@@ -239,9 +240,10 @@ class Outputs:
                 if lock.took_over:
                     console.warn(f"{o.option} {o.path}: took over the lock of {_describe(lock.took_over)}, which is "
                                  "no longer running")
-        except BaseException:
-            self.close()
-            raise
+            entered = True
+        finally:
+            if not entered:  # a refusal or Ctrl-C half-way: release what was taken
+                self.close()
         return self
 
     def __exit__(self, *exc) -> None:

@@ -32,7 +32,7 @@ import numpy as np
 
 from gprace.errors import InputError, at_row
 from gprace.interrupt import check
-from gprace.io.artifacts import Artifact, read_artifact, write_artifact
+from gprace.io.artifacts import Artifact, read_artifact, staged, write_artifact
 
 RUN_COLUMNS = ("t", "s", "e_y", "e_psi", "v_x", "v_y", "yaw_rate", "delta", "a_x", "kappa")
 STATE_COLUMNS = ("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s")
@@ -166,13 +166,8 @@ def write_run_csv(run: Run, path: str | Path) -> Path:
     arr = np.column_stack([np.asarray(run.data[c], dtype=float) for c in cols])
     check()  # a run driven across Ctrl-C is not a result
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
+    with staged(path) as tmp:
         np.savetxt(tmp, arr, delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
-        tmp.replace(path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     if "inputs" in run.meta:
         _write_sidecar(run.meta, path)
     return path

@@ -36,7 +36,6 @@ hard: ``delta_k = delta_{-1}`` always satisfies them. ``steer_step = None`` leav
 
 from __future__ import annotations
 
-import enum
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -47,6 +46,7 @@ from gprace.config import Frozen
 from gprace.model.dynamics import NU as NUS
 from gprace.model.dynamics import NX as NXS
 from gprace.model.dynamics import State
+from gprace.solvers import SolveStatus, all_finite
 
 EY = State.E_Y
 GRIP_STATES = (State.V_X, State.V_Y, State.YAW_RATE)  # state entries a grip row may weigh
@@ -55,16 +55,7 @@ STEER_OPEN = 10.0        # steering change per step [rad] of an open rate row
 ETA_UNIT = 0.01          # the grip slack's unit in the standard form [rad]: keeps its weights near the others
 
 
-class QPStatus(enum.Enum):
-    SOLVED = "solved"
-    INACCURATE = "inaccurate"      # solved to reduced accuracy: used, but counted
-    INFEASIBLE = "infeasible"
-    MAX_ITER = "max_iter"
-    FAILED = "failed"              # numerical error, exception, non-finite solution
-
-    @property
-    def usable(self) -> bool:
-        return self in (QPStatus.SOLVED, QPStatus.INACCURATE)
+QPStatus = SolveStatus  # the name the MPC and its backends have always used
 
 
 @dataclass
@@ -120,12 +111,22 @@ class LtvProblem:
     def N(self) -> int:
         return self.A.shape[0]
 
+    def finite(self) -> bool:
+        """True when the dynamics and references are finite numbers (a model that blew up is a
+        failed solve, reported before any backend sees it)."""
+        return all_finite(self.A, self.B, self.c, self.x0, self.xref, self.uref)
+
     def grip(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(G (N, 6), lo (N,), hi (N,))`` of the grip rows (inactive rows if there are none)."""
         N = self.N
         if self.grip_G is None:
             return np.zeros((N, NXS)), np.full(N, -GRIP_OPEN), np.full(N, GRIP_OPEN)
         return np.asarray(self.grip_G, float), np.asarray(self.grip_lo, float), np.asarray(self.grip_hi, float)
+
+
+def nonfinite_result(pb: LtvProblem, backend: str) -> QPResult | None:
+    """The FAILED result of a problem with non-finite data, or None when the data are finite."""
+    return None if pb.finite() else fail_result(pb.N, QPStatus.FAILED, f"{backend}: non-finite problem data")
 
 
 def fail_result(N: int, status: QPStatus, message: str, solve_time: float = 0.0) -> QPResult:

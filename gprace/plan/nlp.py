@@ -32,6 +32,7 @@ from pydantic import Field
 from gprace.config import CommandSettings
 from gprace.errors import ConfigError, SolverError
 from gprace.plan.plan import Plan, track_hash
+from gprace.solvers import ipopt_status
 
 
 class PlanSettings(CommandSettings):
@@ -192,14 +193,14 @@ def _solve(nlp: dict, args: dict, settings: PlanSettings, track) -> tuple[np.nda
     sol = solver(**args)
     check_interrupt()  # IPOPT stops at Ctrl-C as if it had failed: that is no reason for the second try
     stats = solver.stats()
-    if not stats["success"]:
+    if not ipopt_status(stats).usable:
         # the fast settings failed (seen with a strong GP compensation): IPOPT's robust defaults
         opts.update({"ipopt.mu_strategy": "adaptive", "ipopt.mu_init": 0.1, "ipopt.bound_push": 1e-2, "ipopt.bound_frac": 1e-2})
         solver = ca.nlpsol("plan", "ipopt", nlp, opts)
         sol = solver(**args)
         check_interrupt()
         stats = solver.stats()
-    if not stats["success"]:
+    if not ipopt_status(stats).usable:
         raise SolverError(f"plan: IPOPT did not converge on {track.name!r} ({stats['return_status']}, {stats['iter_count']} iterations)")
     return np.asarray(sol["x"]).ravel(), stats
 

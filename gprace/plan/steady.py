@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from gprace.errors import SolverError
+from gprace.solvers import ipopt_status
 
 
 def steady_state_inputs(model, v: np.ndarray, kappa_p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -70,7 +71,7 @@ def max_corner_speed(model, radius: float, e_y: float = 0.0, steering_max: float
         lbg=0,
         ubg=0,
     )
-    if not solver.stats()["success"]:
+    if not ipopt_status(solver.stats()).usable:
         raise SolverError(f"max_corner_speed: IPOPT failed ({solver.stats()['return_status']}) for radius {radius}")
     z = np.asarray(sol["x"]).ravel()
     vx, vy, r, epsi, delta, a = z
