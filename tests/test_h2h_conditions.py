@@ -3,6 +3,8 @@ calibrated spread of the opponent predictions (issue 17, items 1 and 3)."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -17,7 +19,7 @@ from gprace.h2h.spread import CALIB_LEVEL, at_least, band_coverage, fit_calibrat
 
 
 def _hashes(tasks: list[dict]) -> list[str]:
-    return [P._task_hash(t) for t in tasks]
+    return [P.task_hash(t) for t in tasks]
 
 
 def _all_tasks(st: P.Settings) -> dict[str, list[str]]:
@@ -30,8 +32,8 @@ def test_each_condition_changes_exactly_the_tasks_it_affects():
     ref = _all_tasks(base)
     # noiseless: the tasks carry no noise entry, as before the noise existed
     quiet = P.Settings(tracks=3, calib_runs=2, sensor_noise=0.0, process_noise=0.0)
-    assert all("sensor_std" not in t["config"] and "process_std" not in t["config"] for t in P.collect_tasks(quiet, 3))
-    assert P.collect_tasks(quiet, 1)[0]["config"] == {"max_time": quiet.max_time, "samples": quiet.samples}
+    assert all("sensor_std" not in t.config and "process_std" not in t.config for t in P.collect_tasks(quiet, 3))
+    assert P.collect_tasks(quiet, 1)[0].config == {"max_time": quiet.max_time, "samples": quiet.samples}
     for kw in ({"sensor_noise": 0.5}, {"process_noise": 2.0}, {"blocking_weight": 100.0}):
         other = _all_tasks(P.Settings(tracks=3, calib_runs=2, **kw))
         for stage in ref:  # noise and blocking act in every race
@@ -45,7 +47,7 @@ def test_each_condition_changes_exactly_the_tasks_it_affects():
     assert on_eval["init"] == other["init"] == on_eval["collect"][:2]
     assert ref == other
     assert ref["calib"] == other["calib"] and ref["eval"] == other["eval"]
-    assert {t["track"]["kind"] for t in P.collect_tasks(train, 4)} == {"training"}
+    assert {t.track.kind for t in P.collect_tasks(train, 4)} == {"training"}
     # exploration time: only the exploration episodes (their number) change
     assert _all_tasks(P.Settings(tracks=3, calib_runs=2, explore_minutes=3.0)) == ref
 
@@ -224,9 +226,9 @@ def test_calibration_reaches_the_races_and_the_coverage_table(tmp_path):
     # driven passes: the raced predictor drives calib_runs more races per pass with the calibration of
     # the pass before (the first with the oracle pass's), on tracks of their own; each pass's fit is
     # on its own races alone, and the final calibration is the larger of the last pass's two
-    history = P.json.loads((tmp_path / "calib" / "passes.json").read_text())
-    drove = P.json.loads((tmp_path / "calib" / "calibration_oracle.json").read_text())["cv"]
-    seen = {t["seed"] for t in P.calib_tasks(st)}
+    history = json.loads((tmp_path / "calib" / "passes.json").read_text())
+    drove = json.loads((tmp_path / "calib" / "calibration_oracle.json").read_text())["cv"]
+    seen = {t.seed for t in P.calib_tasks(st)}
     for i, h in enumerate(history):
         assert h["drove_with"]["cv"] == drove
         folder = tmp_path / "calib" / ("cv" if i == 0 else f"pass{i + 2}/cv")
@@ -235,8 +237,8 @@ def test_calibration_reaches_the_races_and_the_coverage_table(tmp_path):
         assert len(own) == 2 and all(t["calibration"]["floor"] == drove["floor"] and t["predictor"] == "cv" for t in tasks)
         assert seen.isdisjoint(t["seed"] for t in tasks)
         seen |= {t["seed"] for t in tasks}
-        _, arrays = P._rollout_errors(st, own, folder / "runs", folder / "errors", ["cv"], {}, "check")
-        assert h["fitted"]["cv"] == P._fit_calibration(st, arrays, ["cv"])["cv"]
+        _, arrays = P.evaluation._rollout_errors(st, own, folder / "runs", folder / "errors", ["cv"], {}, "check")
+        assert h["fitted"]["cv"] == P.evaluation._fit_calibration(st, arrays, ["cv"])["cv"]
         assert h["settled"] == settled(drove, h["fitted"]["cv"])
         drove = h["fitted"]["cv"]
     assert 1 <= len(history) <= st.calib_passes and (history[-1]["settled"] or len(history) == st.calib_passes)

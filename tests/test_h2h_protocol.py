@@ -77,7 +77,7 @@ def test_offline_errors_are_recorded_and_reused(tmp_path, monkeypatch):
     def recomputed(task):
         raise AssertionError("an offline error task ran again")
 
-    monkeypatch.setattr(P, "offline_errors_task", recomputed)
+    monkeypatch.setattr(P.evaluation, "offline_errors_task", recomputed)
     again = P.offline_errors(st, tmp_path, raced, {})
     assert first["cv"].shape[1] > 0
     np.testing.assert_array_equal(first["cv"], again["cv"])
@@ -96,7 +96,7 @@ def test_report_draws_the_errors_of_a_race_from_its_stored_record_only(tmp_path,
     race = tmp_path / "eval" / "cv" / "run_00000.h5"
     rec = read_record(race, RaceAttrs)
     with monkeypatch.context() as m:
-        m.setattr(P, "offline_errors_task", no_simulation)
+        m.setattr(P.evaluation, "offline_errors_task", no_simulation)
         # no errors/ yet: no figure, and one note naming the race and the command that stores them
         assert collect._errors_along(race, rec, [])[0] is None
         sec = collect.h2h_section(scan(tmp_path))
@@ -104,7 +104,7 @@ def test_report_draws_the_errors_of_a_race_from_its_stored_record_only(tmp_path,
     assert len(notes) == 1 and "cv/run_00000.h5" in notes[0] and "gprace eval head2head" in notes[0]
     assert "error_along_run" not in {i.name for i in sec.items}
     P.offline_errors(st, tmp_path, raced, {})
-    monkeypatch.setattr(P, "offline_errors_task", no_simulation)
+    monkeypatch.setattr(P.evaluation, "offline_errors_task", no_simulation)
     (t, E), why = collect._errors_along(race, rec, [])
     stored = read_record(tmp_path / "errors" / "cv" / "run_00000.h5", ErrorAttrs)
     np.testing.assert_array_equal(E["cv"], stored.arrays["cv"])
@@ -120,15 +120,15 @@ def test_report_draws_the_errors_of_a_race_from_its_stored_record_only(tmp_path,
 def test_task_hash_follows_file_contents_not_locations():
     t = {"id": "eval-gp-0", "seed": 3, "model": "/a/models/explore.h5", "model_hash": "abc"}
     moved = {**t, "id": "other", "model": "/b/models/explore.h5"}
-    assert P._task_hash(t) == P._task_hash(moved)  # a copied --out directory is reused
-    assert P._task_hash(t) != P._task_hash({**t, "model_hash": "abd"})  # a refitted model is not
-    assert P._task_hash(t) != P._task_hash({**t, "seed": 4})
+    assert P.task_hash(t) == P.task_hash(moved)  # a copied --out directory is reused
+    assert P.task_hash(t) != P.task_hash({**t, "model_hash": "abd"})  # a refitted model is not
+    assert P.task_hash(t) != P.task_hash({**t, "seed": 4})
 
 
 def test_failed_run_is_recorded_skipped_and_resumed(tmp_path):
     st = P.Settings(**{**TINY, "tracks": 3})
     tasks = P.eval_tasks(st, "cv", None)
-    tasks[1].update(predictor="gp", model=str(tmp_path / "missing.h5"))  # this run raises
+    tasks[1] = tasks[1].model_copy(update={"predictor": "gp", "model": str(tmp_path / "missing.h5")})  # this run raises
     recs = P.run_tasks(tasks, tmp_path / "runs", st, "test")
     assert [r.attrs.ok for r in recs] == [True, False, True]
     assert "missing.h5" in recs[1].attrs.error
@@ -140,12 +140,12 @@ def test_failed_run_is_recorded_skipped_and_resumed(tmp_path):
     calls = []
 
     def counting(task):
-        calls.append(task["seed"])
+        calls.append(task.seed)
         return P.race_with_data(task)
 
     st = st.model_copy(update={"resume": True})
     again = P.run_tasks(tasks, tmp_path / "runs", st, "test", fn=counting)
-    assert calls == [tasks[1]["seed"]]
+    assert calls == [tasks[1].seed]
     np.testing.assert_array_equal(again[0].arrays["ego"], recs[0].arrays["ego"])
 
 
@@ -167,7 +167,7 @@ def test_model_with_wrong_feature_layout(tmp_path):
     with pytest.raises(InputError, match="opponent"):
         read_opponent_gp(bad)
     data = tmp_path / "d.h5"
-    P._write_dataset(data, rng.normal(size=(5, 11)), rng.normal(size=(5, 5)), np.zeros(5), {}, {})
+    P.data._write_dataset(data, rng.normal(size=(5, 11)), rng.normal(size=(5, 5)), np.zeros(5), {}, {})
     rc = main(["h2h", "explore", "--out", str(tmp_path / "o"), "--init-model", str(bad), "--init-data", str(data),
                "--explore-minutes", "0.01"])
     assert rc == 2
@@ -272,9 +272,9 @@ def test_seeds_option_and_chain_layout(tmp_path):
     # seed 0 is the single-seed protocol (same folder, same run seeds: finished work is reused)
     st = P.Settings()
     assert P.chain_dir(tmp_path, 0) == tmp_path and P.chain_dir(tmp_path, 2) == tmp_path / "seed_2"
-    assert [t["seed"] for t in P.collect_tasks(st, 2)] == [P.SEED_COLLECT, P.SEED_COLLECT + 1]
+    assert [t.seed for t in P.collect_tasks(st, 2)] == [P.SEED_COLLECT, P.SEED_COLLECT + 1]
     other = P.collect_tasks(P.Settings(seed=1), 2)
-    assert {t["seed"] for t in other}.isdisjoint({P.SEED_COLLECT, P.SEED_COLLECT + 1})
+    assert {t.seed for t in other}.isdisjoint({P.SEED_COLLECT, P.SEED_COLLECT + 1})
     assert P.eval_tasks(P.Settings(seed=1, tracks=2), "cv", None) == P.eval_tasks(P.Settings(tracks=2), "cv", None)
 
 
@@ -293,9 +293,9 @@ def test_train_refuses_a_degenerate_fit_and_reports_a_sound_one(tmp_path, capsys
     Z = rng.normal(size=(n, 11))
     Y = np.column_stack([np.sin(Z[:, 0]), 0.5 * Z[:, 1], np.tanh(Z[:, 2]), Z[:, 3] * 0.2, rng.normal(size=n)])
     bad, good = tmp_path / "bad.h5", tmp_path / "good.h5"
-    P._write_dataset(bad, Z, Y, np.zeros(n), {}, {})
+    P.data._write_dataset(bad, Z, Y, np.zeros(n), {}, {})
     Y[:, 4] = np.cos(Z[:, 4])
-    P._write_dataset(good, Z, Y, np.zeros(n), {}, {})
+    P.data._write_dataset(good, Z, Y, np.zeros(n), {}, {})
     with threadpool_limits(limits=1):
         assert main(["h2h", "train", str(bad), str(tmp_path / "m_bad.h5")]) == 2
         err = capsys.readouterr().err
@@ -309,3 +309,31 @@ def test_train_refuses_a_degenerate_fit_and_reports_a_sound_one(tmp_path, capsys
     assert "Fit quality" in out and "dyaw_rate_opp" in out
     q = P.fit_report(tmp_path / "m.h5")
     assert not q.degenerate and q.outputs[-1] == "dyaw_rate_opp" and max(q.heldout) < 0.95
+
+
+# task hashes written by the protocol when its tasks were plain dicts (commit 422047a): an --out
+# folder of that version must be reused by the typed tasks (issue 40)
+DICT_ERA_HASHES = {
+    (): {"collect": "4a1bcd1282807d1a", "init": "99bb7d36c7e3d6bc", "calib": "ba961752adbd6853",
+         "calib_gp": "792e688562aa0c39", "eval_cv": "4fee79a201caf260", "eval_gp": "6c971d6990fa542d"},
+    (("process_noise", 0.5), ("seed", 2), ("sensor_noise", 0.0), ("stretches", 3), ("width", 0.9)): {
+        "collect": "afccbab4fab74006", "init": "4b029e4a539bd5de", "calib": "4f9e85bbe2a85f0b",
+        "calib_gp": "eece625b66e2b130", "eval_cv": "ae13777973445067", "eval_gp": "fa448338bc9b31c0"},
+    (("baseline_tracks", "eval"), ("blocking_weight", 3.0), ("max_time", 8.0), ("samples", 10)): {
+        "collect": "5520f2359d90cd76", "init": "5520f2359d90cd76", "calib": "d435c3ef39fcec8a",
+        "calib_gp": "a0ffabe891a8f2e8", "eval_cv": "7e4b2c6ef5488b47", "eval_gp": "6470ced36ac9baf9"},
+}
+
+
+@pytest.mark.parametrize("conditions", list(DICT_ERA_HASHES))
+def test_typed_tasks_hash_as_the_dict_tasks_did(tmp_path, conditions):
+    model = tmp_path / "m.h5"
+    model.write_bytes(b"model-bytes")  # the model's hash enters the GP tasks
+    st = P.Settings(tracks=2, runs=2, init_runs=1, calib_runs=2, **dict(conditions))
+    cal = {"scale": [[1.0, 2.0]], "floor": [[0.0, 0.1]]}
+    first = {"collect": P.collect_tasks(st, 2)[0], "init": P.collect_tasks(st, 2, "eval")[0],
+             "calib": P.calib_tasks(st)[0], "calib_gp": P.calib_tasks(st, "explore", model, cal, 2, 2)[0],
+             "eval_cv": P.eval_tasks(st, "cv", None)[0], "eval_gp": P.eval_tasks(st, "baseline", model, cal)[0]}
+    assert {k: P.task_hash(t) for k, t in first.items()} == DICT_ERA_HASHES[conditions]
+    for t in first.values():  # a task read back from its record is the same task
+        assert type(t).of(t.as_dict()) == t and P.task_hash(t.as_dict()) == t.hash()

@@ -16,6 +16,7 @@ import pytest
 
 from gprace.errors import ArtifactError, InputError
 from gprace.h2h import protocol as P
+from gprace.h2h.tasks import RaceTask
 from gprace.h2h.records import RECORD_VERSION, ErrorAttrs, RaceAttrs, read_record, record_of, write_record
 
 OLD = Path(__file__).parent / "data" / "h2h_race_before_schema.h5"
@@ -104,13 +105,13 @@ def test_the_protocol_migrates_the_old_records_it_reuses_with_one_warning(tmp_pa
     for i in range(3):
         shutil.copy(OLD, tmp_path / f"run_{i:05d}.h5")
     # the fixture's hash is that of the race version it was written with; the reuse is what is tested
-    monkeypatch.setattr(P, "_task_hash", lambda task: old.attrs.task_hash)
+    monkeypatch.setattr(P.batches, "task_hash", lambda task: old.attrs.task_hash)
 
     def no_race(task):
         raise AssertionError("a finished record was raced again")
 
     st = P.Settings(tracks=3, resume=True)
-    recs = P.run_tasks([dict(old.attrs.task, id=f"eval-cv-{i}") for i in range(3)], tmp_path, st, "test", fn=no_race)
+    recs = P.run_tasks([RaceTask.of(dict(old.attrs.task, id=f"eval-cv-{i}")) for i in range(3)], tmp_path, st, "test", fn=no_race)
     warnings = [ln for ln in capsys.readouterr().err.splitlines() if "layout before version" in ln]
     assert len(warnings) == 1 and "3 records" in warnings[0] and "migrated" in warnings[0]
     for i, rec in enumerate(recs):
@@ -123,20 +124,20 @@ def test_the_protocol_migrates_the_old_records_it_reuses_with_one_warning(tmp_pa
 
 def test_the_protocol_reruns_an_unreadable_record_and_keeps_a_newer_one(tmp_path, monkeypatch, capsys):
     old = read_record(OLD, RaceAttrs, warn=False)
-    monkeypatch.setattr(P, "_task_hash", lambda task: old.attrs.task_hash)
+    monkeypatch.setattr(P.batches, "task_hash", lambda task: old.attrs.task_hash)
     ran = []
 
     def race(task):
-        ran.append(task["id"])
+        ran.append(task.id)
         return {"arrays": old.arrays, "attrs": {}}
 
     st = P.Settings(tracks=1, resume=True)
     _edited(tmp_path, ok="maybe")
-    P.run_tasks([old.attrs.task], tmp_path, st, "test", fn=race)
+    P.run_tasks([RaceTask.of(old.attrs.task)], tmp_path, st, "test", fn=race)
     assert ran == [old.attrs.task["id"]] and "1 unreadable record(s) rerun" in capsys.readouterr().err
     _edited(tmp_path, version=RECORD_VERSION + 1)
     with pytest.raises(InputError, match="newer than this gprace reads"):
-        P.run_tasks([old.attrs.task], tmp_path, st, "test", fn=race)
+        P.run_tasks([RaceTask.of(old.attrs.task)], tmp_path, st, "test", fn=race)
     assert len(ran) == 1  # not overwritten
 
 

@@ -10,9 +10,11 @@ arc here) on curves. A collision is an overlap of the two rectangles in the glob
 from __future__ import annotations
 
 import functools
+from typing import Literal
 
 import numpy as np
 
+from gprace.config import Frozen
 from gprace.errors import InputError
 from gprace.model.dynamics import State
 
@@ -112,17 +114,39 @@ def training_track(seed: int, width: float = 0.75):
     return build_track(spec.model_copy(update={"name": name}), name, f"training track (seed {seed})")
 
 
-def make_track(spec: dict):
-    """Track from a task's spec: ``{"kind": "random", "seed", "stretches", "width"}``,
-    ``{"kind": "training", "seed", "width"}`` or ``{"kind": "loop", "width": optional}``."""
-    kind = spec.get("kind")
-    if kind == "loop":
-        w = spec.get("width")
-        return loop_track(None if w is None else float(w))
-    if kind == "random":
+TRACK_KINDS = ("random", "training", "loop")
+
+
+class TrackSpec(Frozen):
+    """Where a race runs: ``random`` (seed, stretches, width), ``training`` (seed, width: the curve
+    and chicane tracks) or ``loop`` (width, optional: the exploration's closed loop)."""
+
+    kind: Literal["random", "training", "loop"]
+    seed: int | None = None
+    stretches: int | None = None
+    width: float | None = None
+
+    @classmethod
+    def of(cls, spec: TrackSpec | dict) -> TrackSpec:
+        if isinstance(spec, TrackSpec):
+            return spec
+        if spec.get("kind") not in TRACK_KINDS:
+            raise InputError(f"track spec: unknown kind {spec.get('kind')!r} (valid: {', '.join(TRACK_KINDS)})")
+        return cls.model_validate(spec)
+
+    def as_dict(self) -> dict:
+        """The spec as tasks and records have always stored it (unset entries left out)."""
+        return self.model_dump(mode="json", exclude_none=True)
+
+
+def make_track(spec: TrackSpec | dict):
+    """Track from a task's spec (:class:`TrackSpec`, or its dict as a record stores it)."""
+    spec = TrackSpec.of(spec)
+    width = 0.75 if spec.width is None else float(spec.width)
+    if spec.kind == "loop":
+        return loop_track(None if spec.width is None else width)
+    if spec.kind == "random":
         from gprace.tracks.random import random_track
 
-        return random_track(int(spec["seed"]), n_stretches=int(spec.get("stretches", 5)), width=float(spec.get("width", 0.75)))
-    if kind == "training":
-        return training_track(int(spec["seed"]), float(spec.get("width", 0.75)))
-    raise InputError(f"track spec: unknown kind {kind!r} (valid: random, training, loop)")
+        return random_track(int(spec.seed), n_stretches=5 if spec.stretches is None else int(spec.stretches), width=width)
+    return training_track(int(spec.seed), width)

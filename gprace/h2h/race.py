@@ -1,8 +1,8 @@
 """One head-to-head race: two 1:10 cars, the blocking opponent MPC and the ego NMPC.
 
-``run_race(task)`` is the module-level function the executor calls; ``task`` is a plain dict, so
-it pickles for local processes and Dask alike, and everything random in it derives from
-``task["seed"]`` (identical results whoever runs it):
+``run_race(task)`` is the module-level function the executor calls; ``task`` is a
+:class:`~gprace.h2h.tasks.RaceTask` (or its dict), which pickles for local processes and Dask
+alike, and everything random in it derives from ``task.seed`` (identical results whoever runs it):
 
 * ``track``: track spec (:func:`gprace.h2h.geometry.make_track`),
 * ``seed``: start configuration and GP sampling seed,
@@ -49,6 +49,7 @@ from gprace.h2h.config import H2HConfig
 from gprace.h2h.geometry import border_hits, collisions, global_pose, make_track
 from gprace.h2h.nmpc import NMPC, StageData
 from gprace.h2h.predictors import Context, gap_s, make_predictor
+from gprace.h2h.tasks import BuildTask, RaceTask
 from gprace.model.dynamics import State
 from gprace.plants.frenet import compiled_step
 from gprace.sim.stop import stop_kind
@@ -97,14 +98,15 @@ def controllers(cfg: H2HConfig) -> tuple[NMPC, NMPC]:
     return ego, opp
 
 
-def build_controller(task: dict) -> str:
-    """Build one car's NMPC (``task["car"]``: ego | opponent) of a race configuration
-    (``task["config"]``), which compiles its NLP once per machine. The two cars' NLPs differ in
+def build_controller(task: BuildTask | dict) -> str:
+    """Build one car's NMPC (``task.car``: ego | opponent) of a race configuration
+    (``task.config``), which compiles its NLP once per machine. The two cars' NLPs differ in
     their constants, so they are two libraries of 25 to 50 s of compiler each; built side by side
     before the first batch instead of one after the other inside it (:func:`gprace.h2h.protocol.run_tasks`)."""
-    cfg = H2HConfig(**task["config"])
-    NMPC(_model(), getattr(cfg, task["car"]), cfg, collision=True)
-    return task["car"]
+    task = BuildTask.of(task)
+    cfg = H2HConfig(**task.config)
+    NMPC(_model(), getattr(cfg, task.car), cfg, collision=True)
+    return task.car
 
 
 def start_states(track, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -205,26 +207,27 @@ def _race_end(track, cfg: H2HConfig, X: np.ndarray, t: float, t_overtake: float,
 
 
 @single_thread_blas
-def run_race(task: dict) -> dict:
+def run_race(task: RaceTask | dict) -> dict:
     """One race of ``task`` (track, seed, predictor, ...): per step the opponent's NMPC, the ego's
     prediction and NMPC, one plant step of both cars; the states, inputs and outcome as a record."""
-    cfg = H2HConfig(**task.get("config", {}))
-    track = make_track(task["track"])
-    rng = np.random.default_rng(int(task["seed"]))
+    task = RaceTask.of(task)
+    cfg = H2HConfig(**task.config)
+    track = make_track(task.track)
+    rng = np.random.default_rng(task.seed)
     N, dt = cfg.horizon, cfg.dt
-    predictor = make_predictor(task.get("predictor", "gp"), cfg.pred_steps, dt, task.get("model"), cfg.samples,
-                               seed=int(task["seed"]) + 7919, calibration=task.get("calibration"))
-    alpha = float(task.get("alpha", 0.0))
+    predictor = make_predictor(task.predictor, cfg.pred_steps, dt, task.model, cfg.samples,
+                               seed=task.seed + 7919, calibration=task.calibration)
+    alpha = float(task.alpha or 0.0)
     explorer = _explorer(task, cfg, predictor, alpha)
     ego_mpc, opp_mpc = controllers(cfg)
     cv_ego = make_predictor("cv", N, dt)
     ego, opp = start_states(track, rng)
-    duration = task.get("duration")
+    duration = task.duration
     max_time = float(duration) if duration else cfg.max_time
 
     X = np.vstack([ego, opp])
-    measure = state_noise(int(task["seed"]), SENSOR_STREAM, cfg.sensor_std)
-    disturb = state_noise(int(task["seed"]), PROCESS_STREAM, cfg.process_std)
+    measure = state_noise(task.seed, SENSOR_STREAM, cfg.sensor_std)
+    disturb = state_noise(task.seed, PROCESS_STREAM, cfg.process_std)
     Xm = X + measure() if measure else X  # what the controllers and the predictor see
     hist_m = [Xm.copy()]
     Uprev = np.zeros((2, 2))
@@ -261,20 +264,20 @@ def run_race(task: dict) -> dict:
                    hist_u, hist_m if measure else None, ego_ms, fb, targets)
 
 
-def _explorer(task: dict, cfg: H2HConfig, predictor, alpha: float):
+def _explorer(task: RaceTask, cfg: H2HConfig, predictor, alpha: float):
     """The exploring ego's target picker (Algorithm 1 on its dataset), None when alpha is 0."""
     if alpha <= 0:
         return None
     from gprace.h2h.explore import Explorer
     from gprace.io.artifacts import read_artifact
 
-    data = read_artifact(task["explore_data"], "h2h_dataset")
+    data = read_artifact(task.explore_data, "h2h_dataset")
     return Explorer.from_data(predictor.gp, data.arrays["Z"], data.arrays["Y"], alpha,
                               stalemate_steps=cfg.stalemate_steps, stalemate_tol=cfg.stalemate_tol,
                               hold_steps=cfg.hold_steps)
 
 
-def _record(task: dict, cfg: H2HConfig, track, predictor, alpha: float, explorer, end_reason: str,
+def _record(task: RaceTask, cfg: H2HConfig, track, predictor, alpha: float, explorer, end_reason: str,
             t_overtake: float, H: np.ndarray, hist_u: list, hist_m: list | None, ego_ms: list, fb: list,
             targets: list) -> dict:
     """The race record: states (T+1, 2, 6) of both cars, inputs, border hits, collisions, outcome."""
@@ -296,8 +299,8 @@ def _record(task: dict, cfg: H2HConfig, track, predictor, alpha: float, explorer
     if targets:
         arrays["targets"] = np.array(targets)
     attrs = {
-        "track": track.name, "track_length": float(track.length), "seed": int(task["seed"]),
-        "predictor": str(task.get("label", predictor.name)), "alpha": alpha, "end_reason": end_reason,
+        "track": track.name, "track_length": float(track.length), "seed": task.seed,
+        "predictor": task.label or predictor.name, "alpha": alpha, "end_reason": end_reason,
         "overtake_time": float(t_overtake), "border_hit": bool(be.any()), "border_hit_opp": bool(bo.any()),
         "collision": bool(col.any()), "steps": len(H) - 1, "fallbacks_ego": int(fb[:, 0].sum()),
         "fallbacks_opp": int(fb[:, 1].sum()), "stalemates": int(explorer.stalemates) if explorer else 0,
@@ -305,7 +308,7 @@ def _record(task: dict, cfg: H2HConfig, track, predictor, alpha: float, explorer
     return {"arrays": arrays, "attrs": attrs}
 
 
-def time_race(task: dict) -> tuple[dict, float]:
+def time_race(task: RaceTask | dict) -> tuple[dict, float]:
     t0 = time.perf_counter()
     out = run_race(task)
     return out, time.perf_counter() - t0

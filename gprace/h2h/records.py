@@ -57,7 +57,7 @@ class RecordAttrs(Frozen):
     version: int = Field(RECORD_VERSION, description="layout version of the record")
     ok: bool = Field(description="the task ran to its end (False: ``error`` says why not)")
     error: str = Field("", description="the failed task's error and traceback (empty when ok)")
-    task_hash: str = Field("", description="hash of what decides the result (protocol._task_hash); "
+    task_hash: str = Field("", description="hash of what decides the result (gprace.h2h.tasks.task_hash); "
                            "a record whose hash differs from its task's is rerun")
     task: dict[str, Any] = Field(default_factory=dict, description="the task (JSON text in the file)")
     seed: int = Field(0, description="the task's seed (also the artifact's provenance seed)")
