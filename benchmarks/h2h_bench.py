@@ -18,7 +18,7 @@ Prints one JSON object:
   and the numpy loop it replaces as ``numpy_*``), for each
   GP model of the protocol (the exact and the sparse backend), with one BLAS thread and with
   every core, target 3 ms;
-* ``protocol``: the table next to the paper's numbers (REFERENCE.md) and the wall time per stage.
+* ``protocol``: the table next to the paper's numbers (docs/reference.md#head-to-head) and the wall time per stage.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ The QP is handed over in the same sparse standard form as the ``clarabel`` backe
 object is built once per horizon from the sparsity patterns of ``P`` and ``M``; each call passes the
 new values. Measured here with casadi 3.8.2: ``qrqp`` (active set) solves every test problem to
 1e-6 of Clarabel; ``ipqp`` stopped at its iteration limit ("LDL factorization has zeros in D") on
-this formulation although REFERENCE.md reports it working on another, so it is selectable
+this formulation although docs/reference.md#measured reports it working on another, so it is selectable
 (``CasadiQP(plugin="ipqp")``) but not the default; ``qpoases`` is an order of magnitude slower.
 """
 

@@ -9,7 +9,7 @@
 - ``planning``: same ``z``; ``y`` = error of the derivatives, ``(x_{k+1} - x_k) / dt - f(x_k, u_k)``
   for the Euler step (in general: the tracking error divided by ``dt``), in the units of the
   planner's continuous dynamics.
-- ``opponent`` (REFERENCE.md, Zhu et al. 2022): ``z = [e_y_ego - e_y_opp, e_psi_ego, v_x_ego,
+- ``opponent`` (docs/reference.md#head-to-head, Zhu et al. 2022): ``z = [e_y_ego - e_y_opp, e_psi_ego, v_x_ego,
   s_opp - s_ego, e_y_opp, e_psi_opp, v_x_opp, yaw_rate_opp, kappa(s_opp), kappa(s_opp + 0.5),
   kappa(s_opp + 1.0)]``; ``y`` = one-step change of the opponent's ``[s, e_y, e_psi, v_x,
   yaw_rate]``. Arc-length differences are wrapped into ``[-L/2, L/2)`` on closed tracks, so the

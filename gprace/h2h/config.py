@@ -1,6 +1,6 @@
 """Head-to-head settings: one frozen object per car controller plus the race set-up.
 
-Numbers follow the simulation of Zhu et al. 2022 as collected in REFERENCE.md (1:10 BARC cars,
+Numbers follow the simulation of Zhu et al. 2022 as collected in docs/reference.md#head-to-head (1:10 BARC cars,
 dt 0.1 s, N = 10). Where that set-up is silent, the choices are documented on the fields.
 """
 
@@ -44,7 +44,7 @@ def ego_mpc() -> MPCConfig:
 
 def opponent_mpc() -> MPCConfig:
     """Contouring 75, progress 30 (lower than the ego's 200), input 5 / 25, speed 1.3 (soft 1.0),
-    a_x in [-1, 0.45], blocking weight 500 (REFERENCE.md decision: a positive weight)."""
+    a_x in [-1, 0.45], blocking weight 500 (docs/reference.md#head-to-head, decision: a positive weight)."""
     return MPCConfig(
         q_contour=75.0, q_progress=30.0, r_input=(5.0, 5.0), r_rate=(25.0, 25.0), speed_max=1.3,
         speed_soft=1.0, accel=(-1.0, 0.45), q_block=500.0,

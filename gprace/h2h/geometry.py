@@ -97,7 +97,7 @@ CHICANE_EXIT = 5.0  # m of straight after a training chicane (the curve's own ex
 
 @functools.lru_cache(maxsize=64)
 def training_track(seed: int, width: float = 0.75):
-    """A short training track of Zhu et al. 2022 (REFERENCE.md): the random-track generator's 2 m
+    """A short training track of Zhu et al. 2022 (docs/reference.md#head-to-head): the random-track generator's 2 m
     lead-in and one ``curve`` (even seeds) or ``chicane`` (odd seeds) stretch; a chicane is
     followed by a :data:`CHICANE_EXIT` straight (the source gives none; without it the race
     would end 2 m after the start grid)."""

@@ -4,7 +4,7 @@
 steps 1..K (same layout as the car state; quantities a predictor does not model are held) and
 ``std`` (K, 2): standard deviations of ``s`` and ``e_y`` in metres (they inflate the ego's ellipses).
 
-GP opponent model (REFERENCE.md, Zhu et al. 2022): inputs ``z`` = :data:`FEATURES`, outputs the
+GP opponent model (docs/reference.md#head-to-head, Zhu et al. 2022): inputs ``z`` = :data:`FEATURES`, outputs the
 one-step change of the opponent's ``[s, e_y, e_psi, v_x, yaw_rate]``. Multi-step prediction draws
 ``n`` sample paths: at every step each sample gets one draw ``mean + sqrt(var) * eps`` from the GP
 (latent variance), with the curvature features recomputed at the sample's own ``s`` and the ego part

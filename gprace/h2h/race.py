@@ -11,7 +11,7 @@ alike, and everything random in it derives from ``task.seed`` (identical results
 * ``config``: :class:`H2HConfig` fields (optional), ``duration``: run length for exploration
   episodes (then the race does not stop at the overtake).
 
-Starts (REFERENCE.md): opponent ``s`` in [0.9, 1.2] m, ego in [0.2, 0.4] m, lateral offset within
+Starts (docs/reference.md#head-to-head): opponent ``s`` in [0.9, 1.2] m, ego in [0.2, 0.4] m, lateral offset within
 +-0.3 x width, heading error +-0.02 rad, speed 0.65 to 1.3 m/s; on a closed track the whole grid is
 shifted by a random arc length. The plant integrates both cars with RK4 and 10 sub-steps per
 0.1 s (the frenet plant's compiled step, curvature re-evaluated at every stage). The race ends

@@ -1,7 +1,7 @@
 """The tracking QP (paper eq. "mpc_problem") as data, its sparse standard form, and solver results.
 
 Decision variables, written **relative to the current position** (progress ``s`` measured from
-the car, so every number in the QP is of the size of the deviations it controls; REFERENCE.md:
+the car, so every number in the QP is of the size of the deviations it controls; docs/reference.md#measured:
 absolute progress made Clarabel report "Solved" with errors of 5e-2 m/s^2):
 
     z = [u_0 .. u_{N-1} (2N), x_1 .. x_N (6N), eps_1 .. eps_N (N), eta_1 .. eta_N (N)]

@@ -8,7 +8,7 @@ track without tuning:
   ``0.8 accel_max``) and a backward pass (braking limit ``0.8 min(-accel_min, a_y,max)``; the
   remaining 20 % leave the speed feedback authority to catch up), both on the
   friction circle ``a_x <= a_lim sqrt(1 - (a_y/a_y,max)^2)``. Closed tracks are solved on three
-  tiled laps and the middle one kept, so the profile is periodic. (REFERENCE.md: a profile limited
+  tiled laps and the middle one kept, so the profile is periodic. (docs/reference.md#measured: a profile limited
   only by curvature makes the car spin; braking must start before the corner.)
 * **Weaving** (optional, to excite the lateral dynamics): the target line
   ``e_y,ref(s) = A h(s) sin(2 pi s / lambda)`` with ``h = min(w_left, w_right) - width/2`` the

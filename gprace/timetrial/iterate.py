@@ -435,8 +435,9 @@ def oracle_lap(settings: IterateSettings, out: Path | None = None) -> dict:
 def run_chain(task: dict) -> list[dict]:
     """One trial: iterations 0..N, each step skipped when its marker exists (module-level for pickling).
 
-    BLAS is limited to one thread per chain: chains run one per core (REFERENCE.md measured
-    everything that way; several multi-threaded chains on two cores only fight over them).
+    BLAS is limited to one thread per chain: chains run one per core (every timing of
+    docs/reference.md#measured was taken that way; several multi-threaded chains on two cores only
+    fight over them).
     """
     from gprace.executor import single_thread_blas
 

@@ -1,7 +1,7 @@
 """The two GPs of the double-GP scheme: their data, training and use (paper, "GP Model" and appendix).
 
 Both GPs take the inputs of a named feature set (:data:`gprace.gp.features.DYN_FEATURE_SETS`):
-``paper`` = ``[v_y, yaw_rate, delta]`` (the paper, REFERENCE.md) or ``full`` = ``[v_x, v_y,
+``paper`` = ``[v_y, yaw_rate, delta]`` (the paper, docs/reference.md#time-trial) or ``full`` = ``[v_x, v_y,
 yaw_rate, delta, a_x]`` (the default: with the paper's three inputs braking and driving alias,
 docs/decisions.md). A saved model carries its input names; :class:`GPPredictor` builds its own
 inputs from states and inputs (:meth:`GPPredictor.at`), so planner and MPC never index features.

@@ -1,4 +1,4 @@
-"""Seeded random open tracks for head-to-head training and evaluation (REFERENCE.md).
+"""Seeded random open tracks for head-to-head training and evaluation (docs/reference.md#head-to-head).
 
 A track is a lead-in straight followed by ``n_stretches`` stretches (default 5, about 30 m: room
 for an overtake at the 1.3 to 1.6 m/s of the 1:10 cars), each drawn uniformly from:
@@ -15,7 +15,7 @@ A draw whose stretches come back within one track width of an earlier part of th
 than :data:`OVERLAP_GAP` metres of arc length away is rejected and redrawn from the same
 generator, so the result still depends only on the seed.
 
-Note on width: with the default 1.5 m (REFERENCE.md's one width) the half width is larger than
+Note on width: with the default 1.5 m (docs/reference.md#head-to-head: one width) the half width is larger than
 most of these radii, so on the inside of a tight arc the border lies beyond the centre of
 curvature and Frenet coordinates are only valid for ``e_y * kappa < 1``. The source used 0.75 m
 for these training tracks; pass ``width=0.75`` to reproduce that.

@@ -41,7 +41,7 @@ QUALITY_VERSION = 2  # models fitted before the quality reports are refitted (an
 
 
 class Settings(CommandSettings):
-    """The protocol of ``gprace eval head2head`` (defaults: the paper's comparison, REFERENCE.md)."""
+    """The protocol of ``gprace eval head2head`` (defaults: the paper's comparison, docs/reference.md#head-to-head)."""
 
     OPTIONS: ClassVar[dict[str, str]] = {"backend": "--gp-backend", "raced": "--predictors"}
 
