@@ -175,7 +175,27 @@ def centre_from_bounds(a: np.ndarray, b: np.ndarray, *, where: str = "boundaries
     if closed:
         B = np.roll(B, -int(np.argmin(np.hypot(*(B - A[0]).T))), axis=0)
     near_b = _Nearest(B, closed)
-    # 3. crossings where the boundaries face each other
+    _refuse_facing_crossings(A, B, near_a, near_b, closed, h, where)
+    c = _centre_line(A, B, near_a, near_b, closed, h)
+    pa, _ = near_a(c)
+    pb, _ = near_b(c)
+    # which side is A: the sign of the tangent x (A - c)
+    q = np.vstack([c[-1:], c, c[:1]]) if closed else np.vstack([c[:1], c, c[-1:]])
+    tang = q[2:] - q[:-2]
+    side_a = np.sign(tang[:, 0] * (pa - c)[:, 1] - tang[:, 1] * (pa - c)[:, 0])
+    da, db = np.hypot(*(pa - c).T), np.hypot(*(pb - c).T)
+    if np.median(side_a) > 0:  # A on the left
+        wl, wr = da, db
+    else:
+        wl, wr = db, da
+    floor = 0.02 * w0
+    return c[:, 0], c[:, 1], np.maximum(wl, floor), np.maximum(wr, floor), bool(closed)
+
+
+def _refuse_facing_crossings(A, B, near_a, near_b, closed: bool, h: float, where: str) -> None:
+    """Raise when the resampled boundaries cross where they face each other (at about the same
+    share of the lap); crossings of parts far apart along the lap are left to the track's checks."""
+    La = near_a.s[-1]
     i, j = _crossings(A, B, closed, h)
     if len(i):
         ua = near_a.s[i] / La
@@ -190,7 +210,11 @@ def centre_from_bounds(a: np.ndarray, b: np.ndarray, *, where: str = "boundaries
             raise InputError(
                 f"{where}: the boundary files cross each other near ({x:.1f}, {y:.1f}) "
                 f"(at {100 * ua[k]:.0f} % of the lap); they must bound one track, left and right")
-    # 4. centre line: equal phase, then equidistant from both
+
+
+def _centre_line(A, B, near_a, near_b, closed: bool, h: float) -> np.ndarray:
+    """Centre points: the boundaries paired at equal phase, moved to be equidistant from both,
+    with folds (steps against the direction of travel) and near-duplicates dropped."""
     n = max(len(A), len(B))
     u = np.linspace(0.0, 1.0, n, endpoint=not closed)
     qa, qb = (np.vstack([P, P[:1]]) if closed else P for P in (A, B))
@@ -213,19 +237,7 @@ def centre_from_bounds(a: np.ndarray, b: np.ndarray, *, where: str = "boundaries
         if keep.all():
             break
         c, ca = c[keep], ca[keep]
-    pa, _ = near_a(c)
-    pb, _ = near_b(c)
-    # which side is A: the sign of the tangent x (A - c)
-    q = np.vstack([c[-1:], c, c[:1]]) if closed else np.vstack([c[:1], c, c[-1:]])
-    tang = q[2:] - q[:-2]
-    side_a = np.sign(tang[:, 0] * (pa - c)[:, 1] - tang[:, 1] * (pa - c)[:, 0])
-    da, db = np.hypot(*(pa - c).T), np.hypot(*(pb - c).T)
-    if np.median(side_a) > 0:  # A on the left
-        wl, wr = da, db
-    else:
-        wl, wr = db, da
-    floor = 0.02 * w0
-    return c[:, 0], c[:, 1], np.maximum(wl, floor), np.maximum(wr, floor), bool(closed)
+    return c
 
 
 def track_from_bounds(path_a: str | Path, path_b: str | Path, *, smoothing: float | None = None, name: str | None = None):

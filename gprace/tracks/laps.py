@@ -349,7 +349,14 @@ def wrap_frenet(s, kappa, *, e_y=None, v=None, min_length: float | None = None,
         full = np.nanmean([_lag_corr(on_grid(q), 2 * m) for q in checks])
         if np.isfinite(full) and full > 0.5 and (not np.isfinite(half) or half < full - 0.3):
             m = 2 * m
-    # refine: least squares of kappa(s) - kappa(s + L) over the overlap (zero at the period),
+    L = _refine_period(grid, kg, m * h, h)
+    lap = np.floor(s / L) - np.floor(s[0] / L)
+    return s - L * np.floor(s / L), lap, L
+
+def _refine_period(grid: np.ndarray, kg: np.ndarray, L_peak: float, h: float) -> float:
+    """The lap length near the autocorrelation's peak ``L_peak`` [m] (curvature ``kg`` on the
+    uniform ``grid`` of spacing ``h``)."""
+    # least squares of kappa(s) - kappa(s + L) over the overlap (zero at the period),
     # within 2 % of the peak, then to a tenth of the grid
     def mismatch(cands):
         out = []
@@ -358,10 +365,8 @@ def wrap_frenet(s, kappa, *, e_y=None, v=None, min_length: float | None = None,
             out.append(np.mean((np.interp(grid[sel] + Lc, grid, kg) - kg[sel]) ** 2) if sel.sum() > 8 else np.inf)
         return np.asarray(out)
 
-    coarse = m * h * (1.0 + np.linspace(-0.02, 0.02, 81))
+    coarse = L_peak * (1.0 + np.linspace(-0.02, 0.02, 81))
     L0 = float(coarse[int(np.argmin(mismatch(coarse)))])
     dl = max(coarse[1] - coarse[0], h)
     fine = L0 + np.linspace(-dl, dl, 41)
-    L = float(fine[int(np.argmin(mismatch(fine)))])
-    lap = np.floor(s / L) - np.floor(s[0] / L)
-    return s - L * np.floor(s / L), lap, L
+    return float(fine[int(np.argmin(mismatch(fine)))])

@@ -134,12 +134,7 @@ class Track:
         self.smoothing_shift = float(np.max(np.hypot(*(uni - raw_uni).T)))
 
         # 4. final spline, re-parametrised by its own arc length
-        nodes = np.vstack([uni, uni[:1]]) if closed else uni
-        u = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(nodes, axis=0).T))])
-        for _ in range(3):
-            spl = _fit(u, uni, closed)
-            u = _arc_at_knots(spl, u)
-        self._spl = _fit(u, uni, closed)
+        self._spl, u = _arc_length_spline(uni, closed)
         self._d1 = self._spl.derivative(1)
         self._d2 = self._spl.derivative(2)
         self._d12 = _stacked(self._d1, self._d2)
@@ -147,32 +142,8 @@ class Track:
         self.length = float(u[-1])
         self._h = self.length / (len(u) - 1)
 
-        # widths: linear in s between the input points; smoothing moves the reference line, not
-        # the borders, so the widths take up the normal component of the displacement (first
-        # order in the displacement). Nodes: the input points and the spline knots.
-        ws = u[:-1] if closed else u
-        d1 = self._d1(ws)
-        nrm = np.column_stack([-d1[:, 1], d1[:, 0]]) / np.hypot(d1[:, 0], d1[:, 1])[:, None]
-        shift = np.sum((raw_uni - uni) * nrm, axis=1)
-        s_in = s_raw * (self.length / length0)
-        if closed:
-            nodes = np.union1d(ws, s_in[:-1])
-            wln = np.interp(nodes, s_in[:-1], wl, period=self.length)
-            wrn = np.interp(nodes, s_in[:-1], wr, period=self.length)
-            sh = np.interp(nodes, ws, shift, period=self.length)
-        else:
-            nodes = np.union1d(ws, s_in)
-            wln, wrn = np.interp(nodes, s_in, wl), np.interp(nodes, s_in, wr)
-            sh = np.interp(nodes, ws, shift)
-        wln, wrn = wln + sh, wrn - sh
-        for side, w in (("left", wln), ("right", wrn)):
-            if np.any(w <= 0):
-                i = int(np.argmin(w))
-                raise InputError(
-                    f"{where}: smoothing of {self.smoothing:g} m moves the centre line outside the "
-                    f"{side} border near s = {nodes[i]:.1f} m; use less smoothing"
-                )
-        self._ws, self._wl, self._wr = nodes, wln, wrn
+        self._ws, self._wl, self._wr = _border_widths(self._d1, u, raw_uni, uni, s_raw * (self.length / length0),
+                                                      wl, wr, closed, self.smoothing, where)
         self.n_points = len(x)
 
     # ------------------------------------------------------------------------------------------
@@ -566,3 +537,47 @@ def _whittaker3(z: np.ndarray, lam: float, closed: bool) -> np.ndarray:
         ab[3 - off, off:] = mat.diagonal(off)
     ab[3] += 1.0
     return solveh_banded(ab, z)
+
+
+def _arc_length_spline(uni: np.ndarray, closed: bool):
+    """The spline through the resampled points, parametrised by its own arc length (three fixed-
+    point passes): ``(spline, knots u)``."""
+    nodes = np.vstack([uni, uni[:1]]) if closed else uni
+    u = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(nodes, axis=0).T))])
+    for _ in range(3):
+        spl = _fit(u, uni, closed)
+        u = _arc_at_knots(spl, u)
+    return _fit(u, uni, closed), u
+
+
+def _border_widths(d1_of, u: np.ndarray, raw_uni: np.ndarray, uni: np.ndarray, s_in: np.ndarray, wl: np.ndarray,
+                   wr: np.ndarray, closed: bool, smoothing: float, where: str):
+    """Nodes and left/right widths along the final line (``d1_of``: its first derivative, ``u``: its
+    knots, ``s_in``: the input points' arc length on it); refuses a smoothing that moved the line
+    outside a border."""
+    length = float(u[-1])
+    # widths: linear in s between the input points; smoothing moves the reference line, not
+    # the borders, so the widths take up the normal component of the displacement (first
+    # order in the displacement). Nodes: the input points and the spline knots.
+    ws = u[:-1] if closed else u
+    d1 = d1_of(ws)
+    nrm = np.column_stack([-d1[:, 1], d1[:, 0]]) / np.hypot(d1[:, 0], d1[:, 1])[:, None]
+    shift = np.sum((raw_uni - uni) * nrm, axis=1)
+    if closed:
+        nodes = np.union1d(ws, s_in[:-1])
+        wln = np.interp(nodes, s_in[:-1], wl, period=length)
+        wrn = np.interp(nodes, s_in[:-1], wr, period=length)
+        sh = np.interp(nodes, ws, shift, period=length)
+    else:
+        nodes = np.union1d(ws, s_in)
+        wln, wrn = np.interp(nodes, s_in, wl), np.interp(nodes, s_in, wr)
+        sh = np.interp(nodes, ws, shift)
+    wln, wrn = wln + sh, wrn - sh
+    for side, w in (("left", wln), ("right", wrn)):
+        if np.any(w <= 0):
+            i = int(np.argmin(w))
+            raise InputError(
+                f"{where}: smoothing of {smoothing:g} m moves the centre line outside the "
+                f"{side} border near s = {nodes[i]:.1f} m; use less smoothing"
+            )
+    return nodes, wln, wrn
