@@ -59,6 +59,16 @@ STAGE_TEXT = {"import": "importing the recordings", "select": "selecting the GPs
               "predict": "predicting the band along the lap"}
 
 
+def cut_text(recordings: list[dict]) -> str:
+    """What the envelope left out of learning, by reason over the recordings (a spin of a lost lap
+    is counted here, the rest of its lap is learned from)."""
+    cut: dict[str, int] = {}
+    for r in recordings:
+        for why, n in r.get("cut", {}).items():
+            cut[why] = cut.get(why, 0) + int(n)
+    return f" (left out: {', '.join(f'{why} {n}' for why, n in sorted(cut.items()))})" if any(cut.values()) else ""
+
+
 def summary_lines(rec: dict, mcap: Path | None = None) -> list[str]:
     """The learn result as an engineer reads it."""
     k, d = rec["iteration"], Path(rec["out"]) / f"iter_{rec['iteration']:02d}"
@@ -66,7 +76,8 @@ def summary_lines(rec: dict, mcap: Path | None = None) -> list[str]:
     best = f", best {min(laps):.3f} s" if laps else ""
     lines = [f"iteration {k} in {rec['out']}" + (" (already learned from these recordings)" if rec.get("already_done") else ""),
              f"recordings: {len(rec['recordings'])}, {len(laps)} whole lap(s){best}; usable samples "
-             f"{sum(r['usable'] for r in rec['recordings'])} of {sum(r['samples'] for r in rec['recordings'])}"]
+             f"{sum(r['usable'] for r in rec['recordings'])} of {sum(r['samples'] for r in rec['recordings'])}"
+             + cut_text(rec["recordings"])]
     g = rec["retrain"]
     lines.append("GP dictionaries: " + ", ".join(f"{kk} {v['dictionary']} points ({v['new']} new samples, variance x"
                                                  f"{max(v['var_scale']):.2f})" for kk, v in g.items()))
