@@ -13,9 +13,10 @@ A hidden-effects plant is driven through files, ``--rounds`` times in a row:
 
 Then ``iterate`` runs the same plant, track and seeds (one trial, ``--rounds`` iterations, alpha
 0) with what the file loop's controller has: iteration 0 the curvature plan at 0.7 (no
-shakedown), the vehicle's delay (none estimated), no never-worse guard (``BUILTIN``; the
-stability envelope is on in both, ``run`` learns its band inside the lap, ``iterate`` from the
-last lap); the table compares laps and GP errors (normalised RMS on
+shakedown), the vehicle's delay (none estimated) (``BUILTIN``; the never-worse guard on in both;
+the stability envelope is on in both, ``run`` learns its band inside the lap, ``iterate`` from the
+last lap); learn gets iterate's seeds and, in round 0, the plan the car drove (``--driven``: the
+widening starts from its limits); the table compares laps and GP errors (normalised RMS on
 iterate's held-out weaving run, for both loops' GPs). Prints JSON. Tens of minutes on a 2-core
 machine; run with ``nice``; the two loops can run as two processes (``--no-iterate`` and
 ``--iterate-only``), and a last call without either prints the table from their files::
@@ -76,8 +77,9 @@ def gp_error(pred, Z, Y) -> tuple[float, float]:
     return float(np.mean(np.sqrt(np.mean(((mean - Y) / sd) ** 2, axis=0)))), float(np.min(coverage(pred, Z, Y)))
 
 
-BUILTIN = {"shakedown": False, "delay": 0.0, "never_worse": False, "oracle": False}
-"""iterate's settings that give it the file loop's controller (``run`` with a plan and a GP)."""
+BUILTIN = {"shakedown": False, "delay": 0.0, "oracle": False}
+"""iterate's settings that give it the file loop's controller (``run`` with a plan and a GP); the
+never-worse guard is on in both (learn applies iterate's rules, ``--never-worse``)."""
 
 
 def builtin_loop(a, out: Path) -> dict:
@@ -142,7 +144,11 @@ def main() -> None:
         csv = out / f"log{k}.csv"
         if not csv.exists():
             export_global(run_k, track, csv)
-        res = gprace("learn", str(csv), *common, "--out", str(out / "learn"), "--dt", "0.05", "--seed", str(a.seed))
+        # the seed of iterate's trial 0 (its hyperparameter fit and selection); round 0 names the
+        # plan it drove (its limits start the widening, as iterate's iteration 0 plan)
+        driven = ["--driven", str(p0)] if k == 0 else []
+        res = gprace("learn", str(csv), *common, "--out", str(out / "learn"), "--dt", "0.05", "--seed",
+                     str(a.seed * 1000 + 1), *driven)
         rows[-1]["learn_planned"] = res.get("plan", {}).get("planned_lap_time")
         rows[-1]["learn_replan_failed"] = res.get("plan", {}).get("replan_failed")
         rows[-1]["learn_warm_start"] = res.get("plan", {}).get("warm_start")

@@ -302,27 +302,43 @@ def test_run_mcap_shows_the_plan_with_the_gp_band_and_the_lap(looped, tmp_path):
         assert pos[1][0] == pytest.approx(g["x"][k], abs=5e-3) and pos[2][0] == pytest.approx(g["y"][k], abs=5e-3)
 
 
-@pytest.mark.parametrize("laps, now, good", [
-    ((True, True), True, 3),  # every plan completed: the previous one
-    ((True, False), True, 3),  # plan 2 lost its lap (recordings of 3), plan 3 completed (these)
-    ((True, True), False, 2),  # plan 3 lost its lap now: plan 2
-    ((False, False), False, None),  # only lost laps: none (the curvature line)
+@pytest.mark.parametrize("laps, now, never_worse, good", [
+    (((True, 60.0), (True, 59.0)), (True, 58.0), True, 3),  # every plan completed, each faster: the last
+    (((True, 60.0), (False, None)), (True, 58.0), True, 3),  # plan 2 lost its lap, plan 3 completed
+    (((True, 60.0), (True, 59.0)), (False, None), True, 0),  # plan 3 lost now, plans 1, 2 not below its level
+    (((True, 60.0), (True, 59.0)), (False, None), False, 2),  # without the guard: the last completed
+    (((False, None), (False, None)), (False, None), True, 0),  # only lost GP laps: the car's own plan
+    (((True, 60.0), (True, 59.0)), (True, 61.0), True, 2),  # plan 3 slower (guard): back to plan 2
+    (((True, 60.0), (True, 59.0)), (True, 61.0), False, 3),  # without the guard: the last completed
 ])
-def test_the_plan_after_a_lost_lap_is_never_the_lost_plan(tmp_path, laps, now, good):
-    """Iteration 4's warm start and fallback: the last plan that completed its lap when driven
-    (plan j is driven in the recordings of iteration j + 1; iteration 1 is the car's own line)."""
-    from gprace.learn.workflow import Folder, last_good_plan, write_json
+def test_the_plan_after_a_lost_lap_is_never_the_lost_plan(tmp_path, laps, now, never_worse, good):
+    """Iteration 4's warm start and fallback, by iterate's rules: lap j is plan j driven in the
+    recordings of iteration j + 1 (lap 0: the car's own plan, ``--driven``); the last good lap
+    whose limits stay clear of the lost laps' (with the guard), else the last completed one."""
+    from gprace.learn.workflow import Folder, lap_records, start_lap, write_json
 
     folder = Folder(tmp_path)
-    for j, done in zip((1, 2, 3), (True, *laps)):
+    lim = [[10.0, 5.0, 9.0], [11.0, 5.0, 10.0], [12.0, 5.0, 11.0], [11.3, 5.0, 10.4]]  # 3 clear of 2
+
+    def facts(done, t):
+        return [{"completed": done, "laps": [t] if done else [], "envelope": [10.0, 5.0, 9.0]}]
+
+    for j, (done, t) in zip((1, 2, 3), ((True, 62.0), *laps)):
         folder.it(j).mkdir()
-        write_json(folder.it(j) / "record.json", {"completed": done})
+        write_json(folder.it(j) / "record.json", {"recordings": facts(done, t), "limits": lim[j],
+                                                  "settings": {"alpha": None},
+                                                  **({"driven": {"limits": lim[0]}} if j == 1 else {})})
 
     class C:
         k = 4
+        st = type("S", (), {"slower_tolerance": 0.005})
 
     C.folder = folder
-    assert last_good_plan(C, now) == good
+    recs = lap_records(C, facts(*now))
+    assert [r["limits"] for r in recs] == lim
+    assert [r["completed"] for r in recs] == [True, laps[0][0], laps[1][0], now[0]]
+    assert start_lap(recs, never_worse, 0.05) == good
+    assert good is None or recs[good]["completed"]
 
 
 def test_learn_refuses_a_frenet_csv_of_another_track_in_one_line(tmp_path, capsys):

@@ -21,6 +21,10 @@ def learn_cmd(
     features: str = typer.Option("full", "--features", help="GP inputs: full (v_x, v_y, yaw_rate, delta, a_x) or paper (v_y, yaw_rate, delta)."),
     selection: str = typer.Option("diverse", "--selection", help="Data selection: diverse (paper) or random (baseline)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the hyperparameter fit and the selection."),
+    driven: Optional[Path] = typer.Option(None, "--driven", help="First iteration: the plan or raceline (gprace plan, TUM or F1TENTH CSV) the recordings drove; the widening starts from its limits (default: the measured envelope, not widened)."),
+    widen: float = typer.Option(0.05, "--widen", help="Widening of the limits per clean iteration (as iterate)."),
+    widen_max: float = typer.Option(0.15, "--widen-max", help="Widening per clean iteration that used little of the tires' slip (as iterate)."),
+    never_worse: bool = typer.Option(True, "--never-worse/--no-never-worse", help="As iterate: after a lost or slower lap back to the last good limits; an unsafe new plan is replaced by the last good one."),
     mcap: Optional[Path] = typer.Option(None, "--mcap", help="Also write the recorded and planned laps, the GP's band and the track as MCAP (Foxglove schemas)."),
     as_json: bool = typer.Option(False, "--json", help="Print the iteration's record as JSON."),
 ) -> None:
@@ -31,7 +35,8 @@ def learn_cmd(
 
     check_output(mcap, "--mcap")
     st = LearnSettings(track=track, vehicle=vehicle, map_file=str(map_file) if map_file else None, dt=dt, alpha=alpha,
-                       dictionary_size=dictionary, features=features, selection=selection, seed=seed)
+                       dictionary_size=dictionary, features=features, selection=selection, seed=seed,
+                       driven=str(driven) if driven else None, widen=widen, widen_max=widen_max, never_worse=never_worse)
     from gprace.learn.workflow import check_inputs
 
     checked = check_inputs(recordings, st, out)  # before the start line: a refusal is one line
@@ -83,7 +88,10 @@ def summary_lines(rec: dict, mcap: Path | None = None) -> list[str]:
                                                  f"{max(v['var_scale']):.2f})" for kk, v in g.items()))
     lim, p = rec["grip"], rec["plan"]
     lines.append(f"predicted lap time: {p['planned_lap_time']:.3f} s"
-                 + (f" (re-plan FAILED, previous plan kept: {p['replan_failed']})" if p["replan_failed"] else ""))
+                 + (f" (re-plan FAILED, previous plan kept: {p['replan_failed']})" if p["replan_failed"] else "")
+                 + (f" (the new plan was not predicted safe: {p['unsafe']}; {p['warm_start']} kept)" if p.get("unsafe") else ""))
+    if lim.get("source", "replan") != "replan":
+        lines.append(f"limits: {lim['source']} (the last lap was {lim['status'][-1]})")
     lines.append("friction ellipse [m/s^2] lateral/drive/brake: " + " / ".join(f"{v:.2f}" for v in lim["limits"])
                  + " (measured " + " / ".join(f"{v:.2f}" for v in lim["measured"]) + ")")
     lines.append("where the plan uses most of the learned grip:")
