@@ -21,12 +21,12 @@ def learn_cmd(
     features: str = typer.Option("full", "--features", help="GP inputs: full (v_x, v_y, yaw_rate, delta, a_x) or paper (v_y, yaw_rate, delta)."),
     selection: str = typer.Option("diverse", "--selection", help="Data selection: diverse (paper) or random (baseline)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the hyperparameter fit and the selection."),
+    mcap: Optional[Path] = typer.Option(None, "--mcap", help="Also write the recorded and planned laps, the GP's band and the track as MCAP (Foxglove schemas)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the iteration's record as JSON."),
     driven: Optional[Path] = typer.Option(None, "--driven", help="First iteration: the plan or raceline (gprace plan, TUM or F1TENTH CSV) the recordings drove; the widening starts from its limits (default: the measured envelope, not widened)."),
     widen: float = typer.Option(0.05, "--widen", help="Widening of the limits per clean iteration (as iterate)."),
     widen_max: float = typer.Option(0.15, "--widen-max", help="Widening per clean iteration that used little of the tires' slip (as iterate)."),
     never_worse: bool = typer.Option(True, "--never-worse/--no-never-worse", help="As iterate: after a lost or slower lap back to the last good limits; an unsafe new plan is replaced by the last good one."),
-    mcap: Optional[Path] = typer.Option(None, "--mcap", help="Also write the recorded and planned laps, the GP's band and the track as MCAP (Foxglove schemas)."),
-    as_json: bool = typer.Option(False, "--json", help="Print the iteration's record as JSON."),
 ) -> None:
     """Learn from recorded laps: retrain both GPs, re-plan the lap, write the next raceline (TUM and F1TENTH CSV) and the portable tracking GP."""
     from gprace.console import console
