@@ -91,6 +91,40 @@ def builtin_loop(a, out: Path) -> dict:
     return iterate(st, out, workers=1)
 
 
+def replay(a) -> dict:
+    """learn on iterate's laps: iteration k's lap exported (as in the file loop) and learned; the
+    limits, plan and GP errors of learn's iteration k + 1 next to iterate's iteration k + 1."""
+    from gprace.config import load_vehicle
+    from gprace.io.runs import read_run
+    from gprace.model import NominalModel
+    from gprace.timetrial.learning import features, load_predictor
+    from gprace.tracks import load_track
+
+    track, model = load_track(a.track), NominalModel(load_vehicle(a.vehicle))
+    it, out = a.out / "iterate" / "trial_0", a.out / "replay"
+    out.mkdir(parents=True, exist_ok=True)
+    held = read_run(a.out / "iterate" / "heldout.h5")
+    H = {kind: features(held, model, track, kind, "full") for kind in ("tracking", "planning")}
+    rows = []
+    for k in range(a.rounds):
+        csv = out / f"log{k}.csv"
+        if not csv.exists():
+            export_global(it / f"iter_{k:02d}" / "run.h5", track, csv)
+        driven = ["--driven", str(it / "iter_00" / "plan.h5")] if k == 0 else []
+        res = gprace("learn", str(csv), "--track", a.track, "--vehicle", a.vehicle, "--out", str(out / "learn"), "--dt",
+                     "0.05", "--seed", str(a.seed * 1000 + 1), *driven)
+        i = json.loads((it / f"iter_{k + 1:02d}" / "record.json").read_text())
+        row = {"iteration": k + 1, "learn_limits": res.get("plan", {}).get("limits"), "iterate_limits": i["limits"],
+               "learn_planned": res.get("plan", {}).get("planned_lap_time"), "iterate_planned": i["planned"],
+               "learn_unsafe": res.get("plan", {}).get("unsafe"), "iterate_source": i.get("plan_source"),
+               "iterate_err_tracking": i["err_tracking"], "iterate_err_planning": i["err_planning"]}
+        d = out / "learn" / f"iter_{k + 1:02d}"
+        for kind in ("tracking", "planning"):
+            row[f"learn_err_{kind}"], row[f"learn_cov_{kind}"] = gp_error(load_predictor(d / f"gp_{kind}.h5", kind), *H[kind])
+        rows.append(row)
+    return {"replay": rows}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, required=True)
@@ -101,7 +135,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-iterate", action="store_true", help="the file loop only")
     ap.add_argument("--iterate-only", action="store_true", help="the built-in loop only")
+    ap.add_argument("--replay", action="store_true", help="learn on iterate's own laps (after --iterate-only): "
+                    "the same data in both, so what differs is learn's logic and the import, not the laps driven")
     a = ap.parse_args()
+    if a.replay:
+        print(json.dumps(replay(a), indent=1))
+        return
     if a.iterate_only:
         a.out.mkdir(parents=True, exist_ok=True)
         builtin_loop(a, a.out / "iterate")
