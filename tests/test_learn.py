@@ -353,3 +353,41 @@ def test_learn_refuses_a_frenet_csv_of_another_track_in_one_line(tmp_path, capsy
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "different tracks" in err[0] and "curvature" in err[0], err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("driven, util, completed", [
+    (None, 0.2, True),  # the car's own plan unknown: its measured envelope, not widened
+    ([10.4, 6.0, 9.8], 0.2, True),  # known: widened from it by widen_max (little slip used), as iterate
+    ([10.4, 6.0, 9.8], 0.6, True),  # more slip used: a smaller step (gprace.timetrial.grip.widening)
+    ([10.4, 6.0, 9.8], 0.2, False),  # the lap was lost: narrowed below the plan's limits
+])
+def test_first_limits_follow_iterates_rule_from_the_driven_plan(tmp_path, audi, driven, util, completed):
+    """learn's first limits are iterate's (``next_limits`` from the limits of the plan the car
+    drove, ``--driven``), with the widening that depends on the rear-slip use."""
+    from types import SimpleNamespace
+
+    from gprace.learn.workflow import Folder, LearnSettings, next_plan_limits
+    from gprace.model import NominalModel
+    from gprace.timetrial import grip as G
+
+    measured = [12.03, 6.0, 9.94]
+    facts = [{"envelope": measured, "utilisation": util, "completed": completed, "border_hits": 0,
+              "laps": [62.4] if completed else []}]
+    st = LearnSettings(track="circle_100", vehicle="audi_tt_cup")
+    model = NominalModel(audi)
+    c = SimpleNamespace(st=st, k=1, folder=Folder(tmp_path), model=model, runs=lambda: [],
+                        driven_info={"limits": driven} if driven else None)
+    lim = next_plan_limits(c, facts)
+    cap = G.nominal_cap(model, st.plan_grip)
+    if driven is None:
+        expect = np.minimum(measured, cap)
+    else:
+        expect = G.next_limits(driven, measured, completed, util, cap, 0.05, widen_max=0.15)
+        step = G.widening(util, 0.05, 0.15)
+        if completed:  # the plan's own limits (below what was measured) widened by the step
+            np.testing.assert_allclose(expect, np.minimum(np.minimum(measured, driven) * (1 + step), cap))
+            assert step == pytest.approx(0.15 if util <= 0.3 else 0.05 + 0.1 * (0.8 - util) / 0.5)
+        else:
+            np.testing.assert_allclose(expect, np.minimum(np.array(driven) * 0.9, cap))
+    np.testing.assert_allclose(lim["limits"], expect, rtol=1e-12)
+    assert lim["previous_known"] == (driven is not None)
