@@ -13,9 +13,10 @@ A hidden-effects plant is driven through files, ``--rounds`` times in a row:
 
 Then ``iterate`` runs the same plant, track and seeds (one trial, ``--rounds`` iterations, alpha
 0) with what the file loop's controller has: iteration 0 the curvature plan at 0.7 (no
-shakedown), the vehicle's delay (none estimated), no never-worse guard (``BUILTIN``; the
-stability envelope is on in both, ``run`` learns its band inside the lap, ``iterate`` from the
-last lap); the table compares laps and GP errors (normalised RMS on
+shakedown), the vehicle's delay (none estimated) (``BUILTIN``; the never-worse guard on in both;
+the stability envelope is on in both, ``run`` learns its band inside the lap, ``iterate`` from the
+last lap); learn gets iterate's seeds and, in round 0, the plan the car drove (``--driven``: the
+widening starts from its limits); the table compares laps and GP errors (normalised RMS on
 iterate's held-out weaving run, for both loops' GPs). Prints JSON. Tens of minutes on a 2-core
 machine; run with ``nice``; the two loops can run as two processes (``--no-iterate`` and
 ``--iterate-only``), and a last call without either prints the table from their files::
@@ -76,8 +77,9 @@ def gp_error(pred, Z, Y) -> tuple[float, float]:
     return float(np.mean(np.sqrt(np.mean(((mean - Y) / sd) ** 2, axis=0)))), float(np.min(coverage(pred, Z, Y)))
 
 
-BUILTIN = {"shakedown": False, "delay": 0.0, "never_worse": False, "oracle": False}
-"""iterate's settings that give it the file loop's controller (``run`` with a plan and a GP)."""
+BUILTIN = {"shakedown": False, "delay": 0.0, "oracle": False}
+"""iterate's settings that give it the file loop's controller (``run`` with a plan and a GP); the
+never-worse guard is on in both (learn applies iterate's rules, ``--never-worse``)."""
 
 
 def builtin_loop(a, out: Path) -> dict:
@@ -87,6 +89,40 @@ def builtin_loop(a, out: Path) -> dict:
     st = IterateSettings(alphas=(0.0,), iterations=a.rounds, trials=1, plant=a.plant, track=a.track, vehicle=a.vehicle,
                          seed=a.seed, **BUILTIN)
     return iterate(st, out, workers=1)
+
+
+def replay(a) -> dict:
+    """learn on iterate's laps: iteration k's lap exported (as in the file loop) and learned; the
+    limits, plan and GP errors of learn's iteration k + 1 next to iterate's iteration k + 1."""
+    from gprace.config import load_vehicle
+    from gprace.io.runs import read_run
+    from gprace.model import NominalModel
+    from gprace.timetrial.learning import features, load_predictor
+    from gprace.tracks import load_track
+
+    track, model = load_track(a.track), NominalModel(load_vehicle(a.vehicle))
+    it, out = a.out / "iterate" / "trial_0", a.out / "replay"
+    out.mkdir(parents=True, exist_ok=True)
+    held = read_run(a.out / "iterate" / "heldout.h5")
+    H = {kind: features(held, model, track, kind, "full") for kind in ("tracking", "planning")}
+    rows = []
+    for k in range(a.rounds):
+        csv = out / f"log{k}.csv"
+        if not csv.exists():
+            export_global(it / f"iter_{k:02d}" / "run.h5", track, csv)
+        driven = ["--driven", str(it / "iter_00" / "plan.h5")] if k == 0 else []
+        res = gprace("learn", str(csv), "--track", a.track, "--vehicle", a.vehicle, "--out", str(out / "learn"), "--dt",
+                     "0.05", "--seed", str(a.seed * 1000 + 1), *driven)
+        i = json.loads((it / f"iter_{k + 1:02d}" / "record.json").read_text())
+        row = {"iteration": k + 1, "learn_limits": res.get("plan", {}).get("limits"), "iterate_limits": i["limits"],
+               "learn_planned": res.get("plan", {}).get("planned_lap_time"), "iterate_planned": i["planned"],
+               "learn_unsafe": res.get("plan", {}).get("unsafe"), "iterate_source": i.get("plan_source"),
+               "iterate_err_tracking": i["err_tracking"], "iterate_err_planning": i["err_planning"]}
+        d = out / "learn" / f"iter_{k + 1:02d}"
+        for kind in ("tracking", "planning"):
+            row[f"learn_err_{kind}"], row[f"learn_cov_{kind}"] = gp_error(load_predictor(d / f"gp_{kind}.h5", kind), *H[kind])
+        rows.append(row)
+    return {"replay": rows}
 
 
 def main() -> None:
@@ -99,7 +135,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-iterate", action="store_true", help="the file loop only")
     ap.add_argument("--iterate-only", action="store_true", help="the built-in loop only")
+    ap.add_argument("--replay", action="store_true", help="learn on iterate's own laps (after --iterate-only): "
+                    "the same data in both, so what differs is learn's logic and the import, not the laps driven")
     a = ap.parse_args()
+    if a.replay:
+        print(json.dumps(replay(a), indent=1))
+        return
     if a.iterate_only:
         a.out.mkdir(parents=True, exist_ok=True)
         builtin_loop(a, a.out / "iterate")
@@ -142,7 +183,11 @@ def main() -> None:
         csv = out / f"log{k}.csv"
         if not csv.exists():
             export_global(run_k, track, csv)
-        res = gprace("learn", str(csv), *common, "--out", str(out / "learn"), "--dt", "0.05", "--seed", str(a.seed))
+        # the seed of iterate's trial 0 (its hyperparameter fit and selection); round 0 names the
+        # plan it drove (its limits start the widening, as iterate's iteration 0 plan)
+        driven = ["--driven", str(p0)] if k == 0 else []
+        res = gprace("learn", str(csv), *common, "--out", str(out / "learn"), "--dt", "0.05", "--seed",
+                     str(a.seed * 1000 + 1), *driven)
         rows[-1]["learn_planned"] = res.get("plan", {}).get("planned_lap_time")
         rows[-1]["learn_replan_failed"] = res.get("plan", {}).get("replan_failed")
         rows[-1]["learn_warm_start"] = res.get("plan", {}).get("warm_start")

@@ -123,7 +123,7 @@ INPUTS: dict[str, tuple[str, ...]] = {
     "retrain": ("data",), "eval gp": ("model", "run"), "eval iterate": ("folder",), "h2h train":
     ("dataset", "hyper_model", "initial", "validation"), "h2h explore": ("init_model", "init_data"),
     "diagnose": ("recordings",), "import": ("recording", "map_file"), "show": ("file",), "report": ("folder",),
-    "learn": ("recordings", "map_file"), "eval learn": ("folder", "log", "map_file"),
+    "learn": ("recordings", "map_file", "driven"), "eval learn": ("folder", "log", "map_file"),
 }
 
 

@@ -302,27 +302,43 @@ def test_run_mcap_shows_the_plan_with_the_gp_band_and_the_lap(looped, tmp_path):
         assert pos[1][0] == pytest.approx(g["x"][k], abs=5e-3) and pos[2][0] == pytest.approx(g["y"][k], abs=5e-3)
 
 
-@pytest.mark.parametrize("laps, now, good", [
-    ((True, True), True, 3),  # every plan completed: the previous one
-    ((True, False), True, 3),  # plan 2 lost its lap (recordings of 3), plan 3 completed (these)
-    ((True, True), False, 2),  # plan 3 lost its lap now: plan 2
-    ((False, False), False, None),  # only lost laps: none (the curvature line)
+@pytest.mark.parametrize("laps, now, never_worse, good", [
+    (((True, 60.0), (True, 59.0)), (True, 58.0), True, 3),  # every plan completed, each faster: the last
+    (((True, 60.0), (False, None)), (True, 58.0), True, 3),  # plan 2 lost its lap, plan 3 completed
+    (((True, 60.0), (True, 59.0)), (False, None), True, 0),  # plan 3 lost now, plans 1, 2 not below its level
+    (((True, 60.0), (True, 59.0)), (False, None), False, 2),  # without the guard: the last completed
+    (((False, None), (False, None)), (False, None), True, 0),  # only lost GP laps: the car's own plan
+    (((True, 60.0), (True, 59.0)), (True, 61.0), True, 2),  # plan 3 slower (guard): back to plan 2
+    (((True, 60.0), (True, 59.0)), (True, 61.0), False, 3),  # without the guard: the last completed
 ])
-def test_the_plan_after_a_lost_lap_is_never_the_lost_plan(tmp_path, laps, now, good):
-    """Iteration 4's warm start and fallback: the last plan that completed its lap when driven
-    (plan j is driven in the recordings of iteration j + 1; iteration 1 is the car's own line)."""
-    from gprace.learn.workflow import Folder, last_good_plan, write_json
+def test_the_plan_after_a_lost_lap_is_never_the_lost_plan(tmp_path, laps, now, never_worse, good):
+    """Iteration 4's warm start and fallback, by iterate's rules: lap j is plan j driven in the
+    recordings of iteration j + 1 (lap 0: the car's own plan, ``--driven``); the last good lap
+    whose limits stay clear of the lost laps' (with the guard), else the last completed one."""
+    from gprace.learn.workflow import Folder, lap_records, start_lap, write_json
 
     folder = Folder(tmp_path)
-    for j, done in zip((1, 2, 3), (True, *laps)):
+    lim = [[10.0, 5.0, 9.0], [11.0, 5.0, 10.0], [12.0, 5.0, 11.0], [11.3, 5.0, 10.4]]  # 3 clear of 2
+
+    def facts(done, t):
+        return [{"completed": done, "laps": [t] if done else [], "envelope": [10.0, 5.0, 9.0]}]
+
+    for j, (done, t) in zip((1, 2, 3), ((True, 62.0), *laps)):
         folder.it(j).mkdir()
-        write_json(folder.it(j) / "record.json", {"completed": done})
+        write_json(folder.it(j) / "record.json", {"recordings": facts(done, t), "limits": lim[j],
+                                                  "settings": {"alpha": None},
+                                                  **({"driven": {"limits": lim[0]}} if j == 1 else {})})
 
     class C:
         k = 4
+        st = type("S", (), {"slower_tolerance": 0.005})
 
     C.folder = folder
-    assert last_good_plan(C, now) == good
+    recs = lap_records(C, facts(*now))
+    assert [r["limits"] for r in recs] == lim
+    assert [r["completed"] for r in recs] == [True, laps[0][0], laps[1][0], now[0]]
+    assert start_lap(recs, never_worse, 0.05) == good
+    assert good is None or recs[good]["completed"]
 
 
 def test_learn_refuses_a_frenet_csv_of_another_track_in_one_line(tmp_path, capsys):
@@ -337,3 +353,41 @@ def test_learn_refuses_a_frenet_csv_of_another_track_in_one_line(tmp_path, capsy
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "different tracks" in err[0] and "curvature" in err[0], err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("driven, util, completed", [
+    (None, 0.2, True),  # the car's own plan unknown: its measured envelope, not widened
+    ([10.4, 6.0, 9.8], 0.2, True),  # known: widened from it by widen_max (little slip used), as iterate
+    ([10.4, 6.0, 9.8], 0.6, True),  # more slip used: a smaller step (gprace.timetrial.grip.widening)
+    ([10.4, 6.0, 9.8], 0.2, False),  # the lap was lost: narrowed below the plan's limits
+])
+def test_first_limits_follow_iterates_rule_from_the_driven_plan(tmp_path, audi, driven, util, completed):
+    """learn's first limits are iterate's (``next_limits`` from the limits of the plan the car
+    drove, ``--driven``), with the widening that depends on the rear-slip use."""
+    from types import SimpleNamespace
+
+    from gprace.learn.workflow import Folder, LearnSettings, next_plan_limits
+    from gprace.model import NominalModel
+    from gprace.timetrial import grip as G
+
+    measured = [12.03, 6.0, 9.94]
+    facts = [{"envelope": measured, "utilisation": util, "completed": completed, "border_hits": 0,
+              "laps": [62.4] if completed else []}]
+    st = LearnSettings(track="circle_100", vehicle="audi_tt_cup")
+    model = NominalModel(audi)
+    c = SimpleNamespace(st=st, k=1, folder=Folder(tmp_path), model=model, runs=lambda: [],
+                        driven_info={"limits": driven} if driven else None)
+    lim = next_plan_limits(c, facts)
+    cap = G.nominal_cap(model, st.plan_grip)
+    if driven is None:
+        expect = np.minimum(measured, cap)
+    else:
+        expect = G.next_limits(driven, measured, completed, util, cap, 0.05, widen_max=0.15)
+        step = G.widening(util, 0.05, 0.15)
+        if completed:  # the plan's own limits (below what was measured) widened by the step
+            np.testing.assert_allclose(expect, np.minimum(np.minimum(measured, driven) * (1 + step), cap))
+            assert step == pytest.approx(0.15 if util <= 0.3 else 0.05 + 0.1 * (0.8 - util) / 0.5)
+        else:
+            np.testing.assert_allclose(expect, np.minimum(np.array(driven) * 0.9, cap))
+    np.testing.assert_allclose(lim["limits"], expect, rtol=1e-12)
+    assert lim["previous_known"] == (driven is not None)

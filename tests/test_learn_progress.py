@@ -76,7 +76,7 @@ def test_learn_bar_names_its_stages(monkeypatch, tmp_path):
     monkeypatch.setattr("gprace.learn.workflow.check_inputs", lambda *a: None)  # checked before the bar: tested apart
     with pytest.raises(SystemExit):
         commands.learn_cmd([tmp_path / "x.csv"], "h2h_loop", "barc_1_10", tmp_path / "o", None, None, 0.05, 100, "full",
-                           "diverse", 0, None, False)
+                           "diverse", 0, None, False, None, 0.05, 0.15, True)
     assert shown[1] == (None, "learn: importing the recordings")
     del shown[1]
     assert [n for n, _ in shown] == list(range(len(STAGES) + 1))

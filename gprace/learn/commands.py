@@ -23,6 +23,10 @@ def learn_cmd(
     seed: int = typer.Option(0, "--seed", help="Seed of the hyperparameter fit and the selection."),
     mcap: Optional[Path] = typer.Option(None, "--mcap", help="Also write the recorded and planned laps, the GP's band and the track as MCAP (Foxglove schemas)."),
     as_json: bool = typer.Option(False, "--json", help="Print the iteration's record as JSON."),
+    driven: Optional[Path] = typer.Option(None, "--driven", help="First iteration: the plan or raceline (gprace plan, TUM or F1TENTH CSV) the recordings drove; the widening starts from its limits (default: the measured envelope, not widened)."),
+    widen: float = typer.Option(0.05, "--widen", help="Widening of the limits per clean iteration (as iterate)."),
+    widen_max: float = typer.Option(0.15, "--widen-max", help="Widening per clean iteration that used little of the tires' slip (as iterate)."),
+    never_worse: bool = typer.Option(True, "--never-worse/--no-never-worse", help="As iterate: after a lost or slower lap back to the last good limits; an unsafe new plan is replaced by the last good one."),
 ) -> None:
     """Learn from recorded laps: retrain both GPs, re-plan the lap, write the next raceline (TUM and F1TENTH CSV) and the portable tracking GP."""
     from gprace.console import console
@@ -31,7 +35,8 @@ def learn_cmd(
 
     check_output(mcap, "--mcap")
     st = LearnSettings(track=track, vehicle=vehicle, map_file=str(map_file) if map_file else None, dt=dt, alpha=alpha,
-                       dictionary_size=dictionary, features=features, selection=selection, seed=seed)
+                       dictionary_size=dictionary, features=features, selection=selection, seed=seed,
+                       driven=str(driven) if driven else None, widen=widen, widen_max=widen_max, never_worse=never_worse)
     from gprace.learn.workflow import check_inputs
 
     checked = check_inputs(recordings, st, out)  # before the start line: a refusal is one line
@@ -59,6 +64,16 @@ STAGE_TEXT = {"import": "importing the recordings", "select": "selecting the GPs
               "predict": "predicting the band along the lap"}
 
 
+def cut_text(recordings: list[dict]) -> str:
+    """What the envelope left out of learning, by reason over the recordings (a spin of a lost lap
+    is counted here, the rest of its lap is learned from)."""
+    cut: dict[str, int] = {}
+    for r in recordings:
+        for why, n in r.get("cut", {}).items():
+            cut[why] = cut.get(why, 0) + int(n)
+    return f" (left out: {', '.join(f'{why} {n}' for why, n in sorted(cut.items()))})" if any(cut.values()) else ""
+
+
 def summary_lines(rec: dict, mcap: Path | None = None) -> list[str]:
     """The learn result as an engineer reads it."""
     k, d = rec["iteration"], Path(rec["out"]) / f"iter_{rec['iteration']:02d}"
@@ -66,13 +81,17 @@ def summary_lines(rec: dict, mcap: Path | None = None) -> list[str]:
     best = f", best {min(laps):.3f} s" if laps else ""
     lines = [f"iteration {k} in {rec['out']}" + (" (already learned from these recordings)" if rec.get("already_done") else ""),
              f"recordings: {len(rec['recordings'])}, {len(laps)} whole lap(s){best}; usable samples "
-             f"{sum(r['usable'] for r in rec['recordings'])} of {sum(r['samples'] for r in rec['recordings'])}"]
+             f"{sum(r['usable'] for r in rec['recordings'])} of {sum(r['samples'] for r in rec['recordings'])}"
+             + cut_text(rec["recordings"])]
     g = rec["retrain"]
     lines.append("GP dictionaries: " + ", ".join(f"{kk} {v['dictionary']} points ({v['new']} new samples, variance x"
                                                  f"{max(v['var_scale']):.2f})" for kk, v in g.items()))
     lim, p = rec["grip"], rec["plan"]
     lines.append(f"predicted lap time: {p['planned_lap_time']:.3f} s"
-                 + (f" (re-plan FAILED, previous plan kept: {p['replan_failed']})" if p["replan_failed"] else ""))
+                 + (f" (re-plan FAILED, previous plan kept: {p['replan_failed']})" if p["replan_failed"] else "")
+                 + (f" (the new plan was not predicted safe: {p['unsafe']}; {p['warm_start']} kept)" if p.get("unsafe") else ""))
+    if lim.get("source", "replan") != "replan":
+        lines.append(f"limits: {lim['source']} (the last lap was {lim['status'][-1]})")
     lines.append("friction ellipse [m/s^2] lateral/drive/brake: " + " / ".join(f"{v:.2f}" for v in lim["limits"])
                  + " (measured " + " / ".join(f"{v:.2f}" for v in lim["measured"]) + ")")
     lines.append("where the plan uses most of the learned grip:")

@@ -72,6 +72,15 @@ class LearnSettings(CommandSettings):
     max_fit_points: int = Field(300, ge=20, description="points the hyperparameter fit uses at most")
     plan_ds: float | None = Field(None, gt=0, description="planner node spacing [m] (default: 6 m, at most 1/250 of the lap)")
     widen: float = Field(0.05, ge=0, lt=0.5, description="widening of the measured envelope per clean iteration")
+    widen_max: float = Field(0.15, ge=0, lt=0.5, description="widening per clean iteration that used little of the "
+                             "tires' slip (gprace.timetrial.grip.widening), as iterate")
+    driven: str | None = Field(None, description="the plan or raceline the recordings drove (gprace plan, TUM or "
+                               "F1TENTH CSV): the widening starts from its limits and it is the warm start; default "
+                               "the previous iteration's plan, at the first the measured envelope (not widened)")
+    never_worse: bool = Field(True, description="as iterate: after a lost or slower lap go back to the last good plan's "
+                              "limits; a new plan not predicted safe is replaced by the last good one")
+    slower_tolerance: float = Field(0.005, ge=0, description="a lap slower than the best by more than this share counts "
+                                    "as slower (never_worse)")
     plan_grip: float = Field(1.0, gt=0, description="cap of the ellipse: share of the nominal model's limits")
     grid_values: int = Field(7, ge=2, description="candidate values per exploration dimension")
     seed: int = Field(0, description="seed of the hyperparameter fit and the selection")
@@ -298,6 +307,28 @@ def usable(run, vehicle) -> tuple[np.ndarray, dict]:
     return keep, cut
 
 
+def input_kind(run, name: str = "a_x") -> str:
+    """The kind of a recording's input (``meta["inputs"]``, :mod:`gprace.io.runs`); a gprace run
+    without it has the commanded ones."""
+    given = run.meta.get("inputs") or {}
+    if isinstance(given, str):  # stored as JSON text
+        given = json.loads(given)
+    return str(given.get(name, "commanded"))
+
+
+def longitudinal_mode(runs) -> str:
+    """How the recordings' ``a_x`` drives ``v_x`` in the model (:data:`gprace.model.dynamics.
+    LONGITUDINAL`): a commanded ``a_x`` through the forces (``"force"``: gprace runs, a
+    powertrain command), a measured or derived one kinematically (``"kinematic"``: it holds every
+    longitudinal force, ``dv_x/dt = a_x + r v_y``; the importer derives it so). Recordings of both
+    kinds in one iteration are refused (the GPs' ``a_x`` input would mean two things)."""
+    kinds = {input_kind(r) == "commanded" for r in runs}
+    if len(kinds) > 1:
+        raise InputError("the recordings mix a commanded a_x with a measured or derived one; learn them in "
+                         "separate --out folders")
+    return "force" if kinds == {True} or not kinds else "kinematic"
+
+
 def recording_facts(run, track, model, keep, cut: dict) -> dict:
     """Laps, the measured envelope, rear-slip use and border hits of one recording, what the
     envelope cut (``cut``: samples by reason), and whether the car completed its laps (at least
@@ -313,7 +344,7 @@ def recording_facts(run, track, model, keep, cut: dict) -> dict:
     return {"source": run.meta.get("source_file", run.source), "samples": int(run.n), "usable": int(keep.sum()),
             "laps": laps, "best_lap": min(laps) if laps else float("nan"),
             "envelope": G.envelope(run, ctrl).tolist(), "utilisation": G.utilisation(run, model, ctrl),
-            "border_hits": int(hits.sum()), "cut": cut,
+            "border_hits": int(hits.sum()), "cut": cut, "interventions": int(run.meta.get("interventions", 0)),
             "completed": bool(laps) and not cut.get("spin") and bool(run.meta.get("completed", True)),
             "speed_p5": float(np.percentile(X[keep, 0], 5)) if keep.any() else float("nan")}
 
@@ -329,6 +360,7 @@ class Iteration:
         self.st, self.folder, self.k, self.track, self.model = settings, folder, k, track, model
         self.dir = folder.it(k)
         self._runs = self._keeps = self._facts = None
+        self.driven_info: dict | None = None  # --driven of this iteration (the first): its file and limits
 
     def runs(self) -> list:
         if self._runs is None:
@@ -343,6 +375,15 @@ class Iteration:
             self._cuts = [usable(r, self.model.vehicle) for r in self.runs()]
             self._keeps = [k for k, _ in self._cuts]
         return self._keeps
+
+    @property
+    def data_model(self):
+        """The nominal model whose residuals the GPs learn from these recordings: the second input
+        as the recordings have it (:func:`longitudinal_mode`)."""
+        from gprace.model import NominalModel
+
+        mode = longitudinal_mode(self.runs())
+        return self.model if mode == self.model.params.longitudinal else NominalModel(self.model.vehicle, longitudinal=mode)
 
     @property
     def facts(self) -> list[dict]:
@@ -382,20 +423,47 @@ def stage_select(c: Iteration) -> None:
     from gprace.timetrial import learning as L
 
     st, runs, keeps = c.st, c.runs(), c.keeps()
+    model = c.data_model
     for kind in KINDS:
-        parts = [L.features(r, c.model, c.track, kind, st.features, keep=k) for r, k in zip(runs, keeps)]
+        parts = [L.features(r, model, c.track, kind, st.features, keep=k) for r, k in zip(runs, keeps)]
         Znew = np.vstack([p[0] for p in parts])
         Ynew = np.vstack([p[1] for p in parts])
         if not (c.folder.out / f"hyper_{kind}.h5").exists() and len(Znew) < 20:
             raise InputError(f"the recordings hold only {len(Znew)} usable sample pairs; cannot train the GPs "
                              "(give longer recordings, or check the envelope's cuts)")
         prev = c.previous()
+        hyper_path = c.folder.out / f"hyper_{kind}.h5"
+        if not hyper_path.exists():
+            gp0 = fit_hyper_checked(Znew, Ynew, kind, st)
+            L.save_predictor(hyper_path, gp0, kind, feature_set=st.features)
         d, stats = L.stream_step(c.folder.out / f"hyper_{kind}.h5", prev / f"data_{kind}.h5" if prev else None, Znew, Ynew,
                                  kind, st.dictionary_size, st.selection, st.features, st.seed, st.max_fit_points, st.seed + c.k)
         lap_id = np.concatenate([_blocks(len(p[0]), len(full_laps(r, c.track.length)), j) for j, (p, r) in enumerate(zip(parts, runs))])
         write_artifact(c.dir / f"data_{kind}.h5", Artifact(
             "dataset", {"Z": d.Z, "Y": d.Y, "Z_new": Znew, "Y_new": Ynew, "block_new": lap_id},
-            {"n_seen": int(d.n_seen), "gp": kind, "selection": st.selection, "stats": stats}))
+            {"n_seen": int(d.n_seen), "gp": kind, "selection": st.selection, "stats": stats,
+             "longitudinal": model.params.longitudinal}))
+
+
+def fit_hyper_checked(Z: np.ndarray, Y: np.ndarray, kind: str, st: LearnSettings):
+    """The hyperparameters of the first iteration, as iterate fits them
+    (:func:`gprace.timetrial.learning.fit_hyper`, same seed and subsample), checked for a
+    degenerate optimum (:func:`gprace.gp.quality.fit_quality`); a degenerate fit is fitted again
+    by :func:`gprace.gp.quality.checked_fit` (other seeds, from a reference GP's optimum).
+    Measured on the INI run 01-45-24 with the body acceleration as a_x: the single L-BFGS run
+    ended with every length scale at its lower bound and the noise at 1 (white noise: the learned
+    yaw-rate error equal to the nominal model's, 0.283 against 0.129 before)."""
+    from gprace.gp.quality import checked_fit, fit_quality
+    from gprace.timetrial import learning as L
+
+    gp0 = L.fit_hyper(Z, Y, seed=st.seed, max_fit_points=st.max_fit_points)
+    q = fit_quality(gp0, Z, Y, Z, Y, seed=st.seed, heldout_from_training=True)
+    if not q.degenerate:
+        return gp0
+    console.warn(f"learn: the {kind} GP's hyperparameter fit is degenerate ({q.problems()}); fitted again")
+    settings = {"kernel": "se", "optimize": True, "seed": st.seed, "max_fit_points": st.max_fit_points,
+                "shared_kernel": True}
+    return checked_fit("exact", settings, Z, Y, what=f"learn's {kind} GP")[0]
 
 
 def _blocks(n: int, laps: int, j: int) -> np.ndarray:
@@ -464,35 +532,100 @@ def lateral_cap(model, share: float) -> tuple[np.ndarray, str]:
         return share * np.array([model.params.mu * model.params.g, lim.accel_max, -lim.accel_min]), note
 
 
-def next_plan_limits(c: Iteration, facts: list[dict]) -> dict:
-    """The friction ellipse of the next plan (:func:`gprace.timetrial.grip.next_limits`): from the
-    previous plan's limits (the first iteration: the envelope the recordings measured) and the
-    envelope, laps, rear-slip use and border hits of this iteration's recordings."""
+def driven_plan(c: Iteration):
+    """``(plan, limits)`` of ``--driven`` (the plan or raceline the recordings drove) on the track
+    in the direction learned, or ``(None, None)``. Its limits: a gprace plan's own, else what its
+    speed profile asks for (:func:`gprace.timetrial.grip.envelope_of` over its nodes)."""
     from gprace.timetrial import grip as G
+    from gprace.tracks.raceline import load_plan
 
+    if not c.st.driven:
+        return None, None
+    if not Path(c.st.driven).exists():
+        raise InputError(f"--driven {c.st.driven}: no such file")
+    plan, trk = load_plan(c.st.driven, c.st.track, c.model.vehicle, c.ds)
+    if bool(trk.is_reversed) != bool(c.track.is_reversed):
+        raise InputError(f"--driven {c.st.driven}: drives the track the other way round than the recordings")
+    lim = plan.meta.get("limits")
+    if lim is None or len(lim) != 3:
+        lim = G.envelope_of(plan.states(), plan.inputs(), plan.t, np.ones(plan.n, bool)).tolist()
+    plan.meta = {**plan.meta, "limits": [float(v) for v in lim]}
+    return plan, plan.meta["limits"]
+
+
+def lap_records(c: Iteration, facts: list[dict]) -> list[dict]:
+    """The laps of the loop so far as ``iterate`` records them: lap ``j`` is plan ``j`` driven in
+    the recordings of iteration ``j + 1`` (plan 0 the car's own: ``--driven`` of iteration 1, or
+    unknown); ``facts`` are this iteration's recordings (the last lap). Each: ``completed``,
+    ``driven`` (best lap [s]), ``alpha``, ``limits`` (the plan's; lap 0 without a known plan: the
+    envelope its recordings measured), ``plan`` (its file or None), ``known`` (the plan's limits
+    are known) and ``status`` (:func:`gprace.timetrial.guard.lap_status`)."""
+    from gprace.timetrial.guard import lap_status
+
+    recs: list[dict] = []
+    for j in range(c.k):
+        fs = facts if j + 1 == c.k else c.folder.record(j + 1)["recordings"]
+        laps = [t for f in fs for t in f["laps"]]
+        if j == 0:
+            d = (c.folder.record(1).get("driven") if c.k > 1 else c.driven_info) or {}
+            plan = c.folder.it(1) / "driven.h5" if d.get("limits") else None
+            limits = d.get("limits") or np.max(np.array([f["envelope"] for f in fs], float), axis=0).tolist()
+            alpha = 0.0
+        else:
+            rec = c.folder.record(j)
+            plan, limits, alpha = c.folder.it(j) / "plan.h5", rec["limits"], float(rec["settings"].get("alpha") or 0.0)
+        r = {"completed": all(f["completed"] for f in fs), "driven": min(laps) if laps else float("nan"),
+             "alpha": alpha, "limits": [float(v) for v in limits], "plan": plan, "known": plan is not None}
+        r["status"] = lap_status(r, recs, c.st.slower_tolerance)
+        recs.append(r)
+    return recs
+
+
+def next_plan_limits(c: Iteration, facts: list[dict]) -> dict:
+    """The friction ellipse of the next plan, by ``iterate``'s rules (``gprace.timetrial``'s
+    functions): :func:`~gprace.timetrial.grip.next_limits` from the last plan's limits and the
+    envelope, rear-slip use, border hits and interventions of this iteration's recordings; with
+    ``never_worse``, after a lost or slower lap the last good plan's limits again
+    (:mod:`gprace.timetrial.guard`), never a level that lost the car. The first plan of the car
+    unknown (no ``--driven``), a completed first lap is planned at its measured envelope, not
+    widened: the envelope holds transients above what the plan asked for (Norisring: planned at
+    10.4 m/s^2 lateral, measured 12.03)."""
+    from gprace.timetrial import grip as G
+    from gprace.timetrial import guard
+
+    st = c.st
     measured = np.max(np.array([f["envelope"] for f in facts], float), axis=0)
+    if not np.all(np.isfinite(measured)):
+        raise InputError("the recordings hold too few usable samples to measure the car's envelope")
     util = float(np.nanmax([f["utilisation"] for f in facts])) if facts else float("nan")
     completed = all(f["completed"] for f in facts)
     hits = int(sum(f["border_hits"] for f in facts))
-    cap, note = lateral_cap(c.model, c.st.plan_grip)
-    # plan j was driven in the recordings of iteration j + 1 (the last of them: these)
-    done = {j + 1: c.folder.record(j + 1)["completed"] for j in range(1, c.k - 1)} | {c.k: completed}
-    failed = [c.folder.record(j)["limits"] for j in range(1, c.k) if not done[j + 1]]
-    previous = c.folder.record(c.k - 1)["limits"] if c.k > 1 else measured
-    if not np.all(np.isfinite(measured)):
-        raise InputError("the recordings hold too few usable samples to measure the car's envelope")
-    # the first iteration does not know the limits the car's own plan asked for: the measured
-    # envelope holds transients above them, so a completed lap is planned at it, not widened (on
-    # Norisring the lap planned at 10.4 m/s^2 lateral measured 12.03; widened to 12.63, the second
-    # GP plan at those limits spun the car, iterate widened from the plan's 10.4 to 11.96)
-    widen = 0.0 if c.k == 1 and completed else c.st.widen
-    limits = G.next_limits(np.asarray(previous), measured, completed, util, cap, widen, failed=failed, border_hits=hits)
-    shown = grip_shown(c, completed)
-    if shown is not None:  # never plan corners faster than the grip the car has shown (as iterate)
-        limits[0] = min(limits[0], max(shown * lateral_cap(c.model, 1.0)[0][0], float(np.asarray(previous)[0])))
-    return {"limits": limits.tolist(), "previous": list(map(float, previous)), "measured": measured.tolist(),
-            "cap": cap.tolist(), "utilisation": util, "border_hits": hits, "completed": completed, "failed": failed,
-            "grip_shown": shown, "note": note}
+    inter = int(sum(f.get("interventions", 0) for f in facts))
+    cap, note = lateral_cap(c.model, st.plan_grip)
+    laps = lap_records(c, facts)
+    last = laps[-1]
+    failed = [r["limits"] for r in laps if not r["completed"]]
+    previous = np.asarray(last["limits"], float)
+    ref = guard.last_good(laps) if st.never_worse else None
+    shown = None
+    if st.never_worse and last["status"] != "good" and ref is not None:
+        limits = G.below_failed(laps[ref]["limits"], failed, st.widen)
+        source = f"back to the limits of lap {ref}" + ("" if G.clear_of(laps[ref]["limits"], failed, st.widen)
+                                                      else ", below the limits of the lost laps")
+    else:
+        widen = st.widen if last["known"] or not completed else 0.0
+        limits = G.next_limits(previous, measured, completed, util, cap, widen, failed=failed, border_hits=hits,
+                               interventions=inter if c.k > 1 else 0,
+                               widen_max=st.widen_max if last["known"] else widen)
+        source = "replan"
+        shown = grip_shown(c, completed)
+        if shown is not None:  # never plan corners faster than the grip the car has shown (as iterate)
+            limits[0] = min(limits[0], max(shown * lateral_cap(c.model, 1.0)[0][0], float(previous[0])))
+    start = start_lap(laps, st.never_worse, st.widen)
+    return {"limits": np.asarray(limits, float).tolist(), "previous": previous.tolist(), "measured": measured.tolist(),
+            "cap": cap.tolist(), "utilisation": util, "border_hits": hits, "interventions": inter,
+            "completed": completed, "failed": failed, "grip_shown": shown, "note": note, "source": source,
+            "start": start, "status": [r["status"] for r in laps], "previous_known": bool(last["known"])}
 
 
 def grip_shown(c: Iteration, completed: bool) -> float | None:
@@ -516,45 +649,70 @@ def grip_shown(c: Iteration, completed: bool) -> float | None:
     return float(min(ratios)) if ratios else None
 
 
-def last_good_plan(c: Iteration, completed: bool) -> int | None:
-    """The last iteration before ``c.k`` whose plan completed its lap when driven (plan ``j`` was
-    driven in the recordings of iteration ``j + 1``; ``completed``: this iteration's), or None."""
-    good = [j for j in range(1, c.k) if (c.folder.record(j + 1)["completed"] if j + 1 < c.k else completed)]
-    return good[-1] if good else None
+def start_lap(laps: list[dict], never_worse: bool, widen: float) -> int | None:
+    """The lap whose plan the next one starts from (and writes again when the new plan fails or,
+    with ``never_worse``, is not predicted safe), as iterate: the last good lap whose limits stay
+    clear of every lost lap's (:func:`gprace.timetrial.guard.last_good`), else the last completed
+    one; None when that lap's plan is unknown or no lap completed (the curvature line). A plan
+    that lost its lap is never the one."""
+    from gprace.timetrial import grip as G
+    from gprace.timetrial import guard
+
+    failed = [r["limits"] for r in laps if not r["completed"]]
+    ref = guard.last_good(laps, clear=lambda lim: G.clear_of(lim, failed, widen)) if never_worse else None
+    good = [j for j in range(len(laps) - 1, -1, -1) if laps[j]["completed"]]
+    start = ref if ref is not None else (good[0] if good else None)
+    return None if start is None or laps[start]["plan"] is None else start
 
 
 def stage_plan(c: Iteration, lim: dict) -> dict:
-    """The minimum-time plan with the planning GP inside the new limits, warm-started from the last
-    plan that completed its lap (none: the curvature-optimal line at the limits). A failed solve
-    writes that plan again; a plan that lost its lap is never written again (as in ``iterate``:
-    measured on Norisring, a lost lap narrowed the limits, the lost plan was an infeasible warm
-    start, IPOPT stopped at 1500 iterations and the lost plan was driven again)."""
+    """The minimum-time plan with the planning GP inside the new limits, warm-started from the
+    plan :func:`next_plan_limits` chose (the last good one, as iterate; none: the curvature-optimal
+    line at the limits). With ``never_worse`` a plan the guard does not predict safe
+    (:func:`gprace.timetrial.guard.plan_safety`) is replaced by that plan; a failed solve writes it
+    again. A plan that lost its lap is never written again (measured on Norisring: a lost lap
+    narrowed the limits, the lost plan was an infeasible warm start, IPOPT stopped at 1500
+    iterations and the lost plan was driven again)."""
+    from gprace.mpc.tracking import MPCSettings
     from gprace.plan import PlanSettings, curvature_plan, plan_min_time, read_plan
+    from gprace.timetrial import guard
     from gprace.timetrial import learning as L
 
     track, model = c.track, c.model
-    good = last_good_plan(c, lim["completed"])
+    start = lim.get("start")
     limits = lim["limits"]
-    warm = read_plan(c.folder.it(good) / "plan.h5", track) if good is not None else curvature_plan(
-        track, model, ds=c.ds, speed_scale=1.0, margin=c.margin, a_lat=limits[0])
+    warm = read_plan(_lap_plan(c, start), track) if start is not None else None
     speeds = [f["speed_p5"] for f in c.facts]
     v_low = float(min(3.0, 0.5 * np.nanmin(speeds))) if np.any(np.isfinite(speeds)) else 3.0
     gp_plan = L.load_predictor(c.dir / "gp_planning.h5", "planning")
-    info = {"replan_failed": "", "warm_start": "curvature" if good is None else f"iteration {good}"}
+    info = {"replan_failed": "", "unsafe": "", "safety": {},
+            "warm_start": "curvature" if start is None else f"the plan of lap {start}"}
+    what = f"the plan of lap {start} (the last good one)" if start is not None else "the curvature-optimal line at the limits"
     try:
         plan = plan_min_time(track, model, PlanSettings(ds=c.ds, limits=tuple(limits), margin=c.margin, v_low=max(v_low, 0.1)),
-                             warm=warm, mu_plan=lambda X, U: gp_plan.at(X, U)[0])
+                             warm=warm or curvature_plan(track, model, ds=c.ds, speed_scale=1.0, margin=c.margin, a_lat=limits[0]),
+                             mu_plan=lambda X, U: gp_plan.at(X, U)[0])
+        if c.st.never_worse:
+            safety = guard.plan_safety(plan, model, gp_plan, MPCSettings(dt=c.st.dt).grip_share)
+            info["safety"] = {k: v for k, v in safety.items() if k != "safe"}
+            if not safety["safe"] and warm is not None:
+                info["unsafe"] = safety["why"]
+                console.warn(f"learn: the new plan is not predicted safe ({safety['why']}); {what} is written instead")
+                plan, limits = warm, warm.meta.get("limits", limits)
     except SolverError as exc:
-        plan = warm
+        plan = warm or curvature_plan(track, model, ds=c.ds, speed_scale=1.0, margin=c.margin, a_lat=limits[0])
         info["replan_failed"] = str(exc)
-        console.warn(f"learn: the re-plan failed ({exc}); "
-                     + (f"the plan of iteration {good} (the last that completed its lap)" if good is not None
-                        else "the curvature-optimal line at the limits") + " is written instead")
+        console.warn(f"learn: the re-plan failed ({exc}); {what} is written instead")
         limits = plan.meta.get("limits", limits)
     plan.meta = {**plan.meta, "limits": [float(v) for v in limits], "iteration": c.k,
-                 "replan_failed": info["replan_failed"]}
+                 "replan_failed": info["replan_failed"], "unsafe": info["unsafe"]}
     plan.write(c.dir / "plan.h5")
     return {"planned_lap_time": float(plan.lap_time), "limits": plan.meta["limits"], **info}
+
+
+def _lap_plan(c: Iteration, j: int) -> Path:
+    """The file of the plan of lap ``j`` (:func:`lap_records`)."""
+    return c.folder.it(1) / "driven.h5" if j == 0 else c.folder.it(j) / "plan.h5"
 
 
 def stage_export(c: Iteration) -> dict:
@@ -575,7 +733,8 @@ def stage_export(c: Iteration) -> dict:
         files.append(name)
     gp = L.load_predictor(c.dir / "gp_tracking.h5", "tracking")
     export_gp(gp, c.dir / "gp_tracking.portable.h5", c.dir / "gp_tracking.card.json", dt=c.st.dt,
-              step="RK4 of the nominal model over dt, curvature following s (gprace.timetrial.learning.features)",
+              step=f"RK4 of the nominal model over dt, curvature following s (gprace.timetrial.learning.features); "
+                   f"a_x read {'as the powertrain command (force model)' if c.data_model.params.longitudinal == 'force' else 'as the body acceleration (kinematic: dv_x/dt = a_x + r v_y)'}",
               vehicle=c.model.vehicle, provenance={"iteration": c.k, "out": str(c.folder.out)})
     files += ["gp_tracking.portable.h5", "gp_tracking.card.json"]
     if c.st.alpha is not None:
@@ -668,6 +827,13 @@ def check_inputs(paths, settings: LearnSettings, out) -> Checked:
     learned = folder.out / "learn.json"
     was = bool(read_json(learned).get("track_reversed")) if learned.exists() else None
     check_identity(folder, car_identity(vehicle, track0.reversed() if was else track0, settings))  # refuses an iterate folder
+    if settings.driven:
+        if not Path(settings.driven).exists():
+            raise InputError(f"--driven {settings.driven}: no such file")
+        k, _ = choose_iteration(folder, [{"path": str(p), "sha256": file_sha(p)} for p in paths])
+        if k > 1:
+            raise InputError(f"--driven: the recordings of iteration {k} drove iteration {k - 1}'s raceline; "
+                             "--driven names the car's own plan of the first iteration only")
     notes: list[str] = []
     runs, rev = import_recordings(paths, track0, settings, log=notes.append)
     if was is not None and rev != was:
@@ -720,6 +886,11 @@ def learn(paths, settings: LearnSettings, out, progress=None, checked: Checked |
             adv(name)
         if not folder.done(k, "plan"):
             console.info(f"learn: iteration {k}: plan (minimum-time NLP with the planning GP)")
+            if settings.driven and "driven" not in results:
+                plan_d, lim_d = driven_plan(c)
+                plan_d.write(c.dir / "driven.h5")
+                results["driven"] = {"path": settings.driven, "sha256": file_sha(Path(settings.driven)), "limits": lim_d}
+            c.driven_info = results.get("driven")
             results["grip"] = next_plan_limits(c, c.facts)
             results["plan"] = stage_plan(c, results["grip"])
             _save_partial(folder, k, results)
