@@ -159,12 +159,12 @@ def run_cmd(
     # checks radius, beta and the delay (at most the horizon)
     mpc = MPCSettings(solver=solver, beta=beta, explore_radius=radius, delay=known or 0.0)
     solvers.get(solver)  # an unknown name lists the registered ones
-    p0, tr = load_plan(plan, track, m.vehicle)  # a plan file, or a raceline CSV on --track
     gp = grid = None
     if model is not None:
         from gprace.timetrial.learning import load_predictor
 
         gp = load_predictor(model, "tracking")
+    p0, tr = load_plan(plan, track, m.vehicle, gp=gp, dt=mpc.dt)  # a plan file, or a raceline CSV on --track
     if alpha > 0:
         if gp is None:
             raise ConfigError("--alpha > 0 needs --model (exploration ranks candidates by the tracking GP's variance)")

@@ -321,7 +321,7 @@ def project_raceline(rl: Raceline, track) -> OnTrack:
     return OnTrack(track=track, s=s_un, e=e, reversed=rev)
 
 
-def plan_of_raceline(rl: Raceline, track, model, ds: float | None = None):
+def plan_of_raceline(rl: Raceline, track, model, ds: float | None = None, gp=None, dt: float = 0.05):
     """The raceline as a :class:`~gprace.plan.Plan` on ``track`` (or on the track reversed, when
     the raceline runs the other way: ``plan.track_hash`` says which).
 
@@ -331,6 +331,11 @@ def plan_of_raceline(rl: Raceline, track, model, ds: float | None = None):
     the nominal model's steady corner at that speed and path curvature (the raceline files do not
     carry them), the body heading is the path heading minus the sideslip, and ``a_x`` the command
     that gives the raceline's change of speed in the nominal model.
+
+    With ``gp``, the tracking GP the car drives with (``dt``: its step), the lateral velocity and
+    the steering are those of the steady corner of the nominal model *plus the GP's mean*
+    (:func:`compensated_corner`), where that corner is found; the references then ask for the
+    sideslip the compensated MPC predicts, not the nominal tire's (issue 39, docs/decisions.md).
     """
     from gprace.plan.plan import Plan, track_hash
     from gprace.plan.steady import steady_state_inputs
@@ -358,6 +363,10 @@ def plan_of_raceline(rl: Raceline, track, model, ds: float | None = None):
     vy, r, delta = steady_state_inputs(model, v, kappa_p)
     beta = np.arctan2(vy, v)
     vx, vy = v * np.cos(beta), v * np.sin(beta)
+    if gp is not None:
+        X = np.column_stack([vx, vy, r, np.zeros_like(sn), e, sn])
+        vy, delta = compensated_corner(model, gp, X, delta, smp.kappa, dt)
+        beta = np.arctan2(vy, vx)
     epsi = wrap_angle(heading - trk.heading(sn)) - beta
     sdot = (vx * np.cos(epsi) - vy * np.sin(epsi)) / (1.0 - smp.kappa * e)
     hn = L / len(sn)
@@ -376,6 +385,47 @@ def plan_of_raceline(rl: Raceline, track, model, ds: float | None = None):
                 a_x=np.clip(a_x, lim.accel_min, lim.accel_max), t=t[:-1], lap_time=float(t[-1]), track=trk.name,
                 track_length=L, track_hash=track_hash(trk), vehicle=model.vehicle.name, method="raceline",
                 meta={"raceline": rl.source, "format": rl.fmt, "reversed": on.reversed, "ds": hn})
+
+
+def compensated_corner(model, gp, X: np.ndarray, delta: np.ndarray, kappa: np.ndarray, dt: float,
+                       iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    """``(v_y, delta)`` per node of the steady corner of the model's RK4 step plus the tracking
+    GP's mean: ``v_y`` and the yaw rate held over one step ``dt`` at the nodes' ``v_x`` and yaw rate
+    (``X`` (n, 6)), with no drive command. Newton on both residuals of every node at once
+    (finite-difference Jacobian, capped steps), started from zero rear slip and the kinematic
+    steering: the stable corner is the one with the least slip, and a start on the nominal tire's
+    flat top would stay there, far from the GP's data, where its mean is zero. A node whose solve
+    does not settle keeps the nominal ``X[:, 1]`` and ``delta``.
+
+    Measured (issue 39, Norisring, a plan learned from files): against the learned plan's own
+    states the v_y references differ by 0.58 m/s rms (2.9 m/s at most) instead of 0.96 (5.8) with
+    the nominal corner; the same solve with the GP's mean left out gives 0.95 (5.7)."""
+    p = model.params
+    X = np.array(X, dtype=float)
+    lim = model.vehicle.limits.steering_max
+
+    def residual(vy, dl):
+        Xc = X.copy()
+        Xc[:, 1] = vy
+        U = np.column_stack([dl, np.zeros_like(dl)])
+        mean, _ = gp.at(Xc, U)
+        return (model.rk4(Xc, U, kappa, dt)[:, 1:3] + mean - Xc[:, 1:3]) / dt
+
+    vy, d = p.lr * X[:, 2], np.clip((p.lf + p.lr) * np.asarray(kappa, dtype=float), -lim, lim)
+    res = residual(vy, d)
+    h = (1e-4, 1e-5)
+    for _ in range(iterations):
+        J = np.stack([(residual(vy + h[0], d) - res) / h[0], (residual(vy, d + h[1]) - res) / h[1]], axis=2)
+        det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+        ok = np.abs(det) > 1e-12
+        det = np.where(ok, det, 1.0)
+        step_vy = ok * (J[:, 1, 1] * res[:, 0] - J[:, 0, 1] * res[:, 1]) / det
+        step_d = ok * (J[:, 0, 0] * res[:, 1] - J[:, 1, 0] * res[:, 0]) / det
+        vy = vy - np.clip(step_vy, -0.3, 0.3)
+        d = np.clip(d - np.clip(step_d, -0.01, 0.01), -lim, lim)
+        res = residual(vy, d)
+    settled = np.all(np.isfinite(res), axis=1) & (np.max(np.abs(res), axis=1) < 1e-2)
+    return np.where(settled, vy, X[:, 1]), np.where(settled, d, np.asarray(delta, dtype=float))
 
 
 def raceline_track(rl: Raceline, name: str | None = None):
@@ -410,10 +460,12 @@ def raceline_summary(rl: Raceline, track=None, half_width: float = 0.0) -> dict:
     return out
 
 
-def load_plan(path, track: str | None, vehicle, ds: float | None = None):
+def load_plan(path, track: str | None, vehicle, ds: float | None = None, gp=None, dt: float = 0.05):
     """``(plan, track)``: a plan file (on ``track``, default the plan's own by name), or a raceline
     CSV read as a plan (:func:`plan_of_raceline`) on ``track``, which a raceline needs; the track
-    is returned in the direction the plan drives it. ``vehicle``: a name, path or VehicleConfig."""
+    is returned in the direction the plan drives it. ``vehicle``: a name, path or VehicleConfig;
+    ``gp``, ``dt``: the tracking GP a raceline's references are compensated with (a plan file
+    carries its own states)."""
     from gprace.config import load_vehicle
     from gprace.model import NominalModel
     from gprace.plan import read_plan
@@ -424,7 +476,7 @@ def load_plan(path, track: str | None, vehicle, ds: float | None = None):
         if track is None:
             raise InputError(f"{path}: a raceline holds no track; give the track it was planned on (--track)")
         veh = load_vehicle(vehicle) if isinstance(vehicle, (str, Path)) else vehicle
-        plan = plan_of_raceline(read_raceline(path), load_track(track), NominalModel(veh), ds)
+        plan = plan_of_raceline(read_raceline(path), load_track(track), NominalModel(veh), ds, gp=gp, dt=dt)
         trk = load_track(track)
         return plan, (trk.reversed() if plan.meta["reversed"] else trk)
     plan = read_plan(path)
