@@ -469,7 +469,7 @@ def _laps():
 def test_lap_tables_count_and_place_failed_laps(capsys, tmp_path):
     from gprace.report import collect
     from gprace.report.sections.timetrial import timetrial_section
-    from gprace.timetrial.commands import _print_summary
+    from gprace.cli.timetrial import _print_summary
     from gprace.timetrial.compare import COLUMNS, format_table
     from gprace.timetrial.iterate import IterateSettings, build_summary, failed_laps_text
     from gprace.timetrial.record import IterationRecord, write_json, write_record
@@ -506,7 +506,7 @@ def test_lap_tables_count_and_place_failed_laps(capsys, tmp_path):
 
 
 def test_race_tables_count_and_place_failed_races(capsys, tmp_path):
-    from gprace.h2h.commands import print_table
+    from gprace.cli.h2h import print_table
     from gprace.h2h.table import TABLE_VERSION, RacingRow, failed_races_text
 
     row = {"runs": 3, "failed": 1, "failed_where": [{"scenario": 2, "reason": "SolverError: NMPC infeasible"}],

@@ -52,7 +52,7 @@ def test_learn_bar_names_its_stages(monkeypatch, tmp_path):
     """The stage callback of ``learn``: each finished stage moves the bar one step and names the next."""
     import contextlib
 
-    from gprace.learn import commands
+    from gprace.cli import learn as commands
     from gprace.learn.workflow import STAGES
 
     shown = []

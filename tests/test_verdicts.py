@@ -67,7 +67,7 @@ def test_the_overtake_time_claim_counts_only_the_tracks_where_both_overtook():
 def test_the_printed_claims_table_of_two_tracks_gives_no_verdict(capsys):
     """What `eval head2head --tracks 2` prints (its table, through the command's printer), and an
     old table (no count stored) judged on its --tracks."""
-    from gprace.h2h.commands import print_table
+    from gprace.cli.h2h import print_table
     from gprace.h2h.spread import summarise
     from gprace.h2h.table import H2HTable
 

@@ -1,7 +1,7 @@
 """The GP stages behind the CLI: ``select-data``, ``retrain``, ``evaluate gp``.
 
 Each takes paths and options, does the work through the library (features, selection, backends)
-and returns a summary dict; the commands in :mod:`gprace.gp.commands` only parse and print.
+and returns a summary dict; the commands in :mod:`gprace.cli.gp` only parse and print.
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ oracle), :mod:`~gprace.h2h.fastroll` (the compiled GP rollout), :mod:`~gprace.h2
 :mod:`~gprace.h2h.explore` (active exploration of interactions), :mod:`~gprace.h2h.protocol` (the
 paper's comparison, resumable), :mod:`~gprace.h2h.records` (the schemas of its per-race records),
 :mod:`~gprace.h2h.table` (the schema of its table), :mod:`~gprace.h2h.spread` (bootstrap, seeds, calibration, verdicts),
-:mod:`~gprace.h2h.geometry` (tracks, border hits, collisions) and :mod:`~gprace.h2h.commands` (CLI).
+:mod:`~gprace.h2h.geometry` (tracks, border hits, collisions) and :mod:`gprace.cli.h2h` (CLI).
 """
 
 from gprace._lazy import lazy_face

@@ -11,7 +11,7 @@ The stage functions are named like their modules: ``gprace.timetrial.drive.drive
 :mod:`~gprace.timetrial.drive` (one run of a plan), :mod:`~gprace.timetrial.learning` (the GP
 compensation of the tracking MPC), :mod:`~gprace.timetrial.grip` (the friction envelope the plan may
 use), :mod:`~gprace.timetrial.iterate` (the paper's loop, resumable), :mod:`~gprace.timetrial.compare`
-and :mod:`~gprace.timetrial.commands` (CLI).
+and :mod:`gprace.cli.timetrial` (CLI).
 """
 
 from gprace._lazy import lazy_face

@@ -34,15 +34,15 @@ _app = typer.Typer(
 
 # stages that contribute commands, in the order --help lists them
 COMMAND_MODULES = (
-    "gprace.tracks.commands",
-    "gprace.sim.commands",
-    "gprace.gp.commands",
-    "gprace.report.commands",
-    "gprace.h2h.commands",
-    "gprace.timetrial.commands",
-    "gprace.diagnose.commands",
-    "gprace.ingest.commands",
-    "gprace.learn.commands",
+    "gprace.cli.tracks",
+    "gprace.cli.sim",
+    "gprace.cli.gp",
+    "gprace.cli.report",
+    "gprace.cli.h2h",
+    "gprace.cli.timetrial",
+    "gprace.cli.diagnose",
+    "gprace.cli.ingest",
+    "gprace.cli.learn",
 )
 
 

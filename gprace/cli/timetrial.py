@@ -8,17 +8,8 @@ from pathlib import Path
 
 import typer
 
+from gprace.cli.groups import RUN_PANEL, SCORE_PANEL, eval_group
 from gprace.options import EXECUTOR, SCHEDULER
-
-
-def eval_group(app: typer.Typer) -> typer.Typer:
-    """The ``eval`` sub-app shared by the stages (created by whichever registers first): they add
-    their subcommands with ``eval_group(app).command(name, rich_help_panel=RUN_PANEL or SCORE_PANEL)``.
-    ``gprace evaluate``, its old name for scoring finished results, is an alias made in
-    :mod:`gprace.cli`."""
-    from gprace.h2h.commands import _group
-
-    return _group(app, "eval", EVAL_HELP)
 
 
 def _floats(text: str, what: str) -> tuple[float, ...]:
@@ -44,9 +35,6 @@ DELAY = typer.Option(None, "--delay", help="Total steering and measurement delay
                      "(default: the vehicle's known delays, else estimated in the shakedown).")
 
 
-EVAL_HELP = ("Evaluate: run the paper's protocols (timetrial, head2head) or score finished results (iterate: "
-             "the table of an iterate folder; gp: a GP model on a recording).")
-RUN_PANEL, SCORE_PANEL = "Run a protocol", "Score finished results"
 MIN_NODES, MAX_NODES = 20, 20_000
 
 

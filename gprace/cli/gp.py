@@ -11,6 +11,7 @@ from typing import Optional
 
 import typer
 
+from gprace.cli.groups import SCORE_PANEL, eval_group
 from gprace.console import console
 
 JSON = typer.Option(False, "--json", help="Print the result as JSON.")
@@ -105,8 +106,6 @@ def evaluate_gp_cmd(
 
 
 def register(app: typer.Typer) -> None:
-    from gprace.timetrial.commands import SCORE_PANEL, eval_group
-
     app.command("select-data")(select_data_cmd)
     app.command("retrain")(retrain_cmd)
     eval_group(app).command("gp", rich_help_panel=SCORE_PANEL)(evaluate_gp_cmd)

@@ -8,6 +8,8 @@ from typing import Optional
 
 import typer
 
+from gprace.cli.groups import SCORE_PANEL, eval_group
+
 
 def learn_cmd(
     recordings: list[Path] = typer.Argument(..., help="Recorded laps: raw logs (CSV, MCAP, bag, MDF4; map beside them or --map) or gprace runs."),
@@ -135,7 +137,5 @@ def eval_learn_cmd(
 
 
 def register(app: typer.Typer) -> None:
-    from gprace.timetrial.commands import SCORE_PANEL, eval_group
-
     app.command("learn")(learn_cmd)
     eval_group(app).command("learn", rich_help_panel=SCORE_PANEL)(eval_learn_cmd)

@@ -12,6 +12,7 @@ from typing import Optional
 
 import typer
 
+from gprace.cli.groups import RUN_PANEL, eval_group, h2h_group
 from gprace.console import console
 from gprace.options import EXECUTOR, SCHEDULER
 
@@ -34,16 +35,6 @@ MAX_TIME = typer.Option(60.0, "--max-time", help="Longest race in seconds (safet
 GP_BACKEND = typer.Option("auto", "--gp-backend", help="exact | sparse | auto (sparse above --exact-max points).")
 EXACT_MAX = typer.Option(1500, "--exact-max", help="Most points the exact GP takes with --gp-backend auto.")
 INDUCING = typer.Option(200, "--inducing", help="Inducing points of the sparse GP.")
-
-
-def _group(app: typer.Typer, name: str, help: str) -> typer.Typer:
-    """The sub-app ``name`` (shared with other stages if one already registered it)."""
-    for info in app.registered_groups:
-        if info.name == name and info.typer_instance is not None:
-            return info.typer_instance
-    sub = typer.Typer(help=help, no_args_is_help=True)
-    app.add_typer(sub, name=name)
-    return sub
 
 
 def _settings(out: Path, **kw):
@@ -290,10 +281,8 @@ def explore_cmd(
 
 
 def register(app: typer.Typer) -> None:
-    from gprace.timetrial.commands import RUN_PANEL, eval_group
-
     ev = eval_group(app)
-    h2h = _group(app, "h2h", "Head-to-head racing steps: collect, train, explore.")
+    h2h = h2h_group(app)
     ev.command("head2head", rich_help_panel=RUN_PANEL)(head2head_cmd)
     h2h.command("collect")(collect_cmd)
     h2h.command("train")(train_cmd)
