@@ -141,7 +141,7 @@ def real_rows() -> list[dict]:
     """Import rows of the shared real logs (module docstring)."""
     from gprace.ingest.importer import import_recording
     from gprace.ingest.mapping import load_map
-    from gprace.ingest.table import numbers, sniff
+    from gprace.io.table import numbers, sniff
     from gprace.tracks import load_track
 
     ini, iac = REAL / "ini_f1tenth_ipz20", REAL / "iac_putnam_park"

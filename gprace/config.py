@@ -335,7 +335,7 @@ class PlantConfig(Frozen):
         an unknown kind is left to the registry (its error lists the kinds)."""
         if not v or "kind" not in info.data:
             return v
-        from gprace.backends import plants  # lazy: the registry imports plant modules that import this one
+        from gprace.registry import plants  # lazy: the registry imports plant modules that import this one
         from gprace.errors import UnknownBackendError
 
         try:
@@ -509,7 +509,7 @@ def load_vehicle(name_or_path: str | Path) -> VehicleConfig:
 def load_plant(name_or_path: str | Path) -> PlantConfig:
     p = builtin_config("plants", str(name_or_path))
     cfg = load_toml(p, PlantConfig)
-    from gprace.backends import plants
+    from gprace.registry import plants
 
     plants.get(cfg.kind)  # an unknown kind is refused when the config loads, before any work
     return cfg

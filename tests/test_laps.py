@@ -213,7 +213,7 @@ def test_iac_putnam_without_a_track(tmp_path):
 
 
 def _moving_in_log(rec: Path, cols: list[str]) -> int:
-    from gprace.ingest.table import numbers, sniff
+    from gprace.io.table import numbers, sniff
 
     v = numbers(sniff(rec), cols)
     return int(np.sum(np.hypot(v[:, 0], v[:, 1]) > 0.1))

@@ -128,7 +128,7 @@ def test_iterate_counts_laps_not_trials(tiny):
 def test_iterate_mcap_has_every_lap_and_the_band_where_a_gp_drove(tiny, tmp_path):
     from mcap.reader import make_reader
 
-    from gprace.io.foxglove import write_iterate
+    from gprace.report.mcap import write_iterate
     from gprace.io.runs import read_run
 
     path = write_iterate(tiny["out"], tmp_path / "it.mcap")

@@ -4,11 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from shared_data import REAL_LOGS, TUM_TRACKS
 
 from gprace.errors import InputError
-from gprace.tracks.raceline import (FORMATS, Raceline, plan_of_raceline, project_raceline, raceline_of_plan,
-                                    raceline_summary, raceline_track, read_raceline, write_raceline)
-from shared_data import REAL_LOGS, TUM_TRACKS
+from gprace.plan.raceline import plan_of_raceline
+from gprace.tracks.raceline import (
+    FORMATS,
+    Raceline,
+    project_raceline,
+    raceline_of_plan,
+    raceline_summary,
+    raceline_track,
+    read_raceline,
+    write_raceline,
+)
 
 INI = REAL_LOGS / "ini_f1tenth_ipz20"
 
@@ -82,10 +91,11 @@ def test_plan_to_tum_raceline_and_back_on_a_tum_circuit(tmp_path, audi):
 def test_ipz20_on_its_centre_line_runs_against_it(audi):
     """The INI raceline runs against the direction of the INI centre line file: read back as a
     plan it lies on the reversed track, once round, inside its borders."""
+    from pathlib import Path
+
     from gprace.config import load_vehicle
     from gprace.model import NominalModel
     from gprace.tracks import load_track
-    from pathlib import Path
 
     track = load_track(INI / "centerline.csv")
     rl = read_raceline(INI / "IPZ20_wp.csv")

@@ -11,7 +11,7 @@ from gprace.gp.features import dyn_inputs
 from gprace.model import NominalModel
 from gprace.plan.steady import steady_state_inputs
 from gprace.timetrial.learning import GPPredictor, fit_hyper
-from gprace.tracks.raceline import compensated_corner
+from gprace.plan.raceline import compensated_corner
 
 DT = 0.05
 FULL = ("v_x", "v_y", "yaw_rate", "delta", "a_x")

@@ -84,7 +84,7 @@ def plan_cmd(
     else:
         warm = None
         if warm_start:  # a plan file, or a raceline CSV: then the lap is planned in its direction
-            from gprace.tracks.raceline import load_plan
+            from gprace.plan.raceline import load_plan
 
             warm, tr = load_plan(warm_start, track, m.vehicle, ds)
         mu = None
@@ -130,7 +130,7 @@ def run_cmd(
     from gprace.mpc.tracking import MPCSettings
     from gprace.timetrial.drive import DriveSettings, drive
     from gprace.io.artifacts import check_output
-    from gprace.tracks.raceline import load_plan
+    from gprace.plan.raceline import load_plan
 
     check_output(output)
     check_output(mcap, "--mcap")
@@ -174,7 +174,7 @@ def run_cmd(
     run = drive(p0, plant_cfg, tr, m, settings, gp=gp, grid=grid, alpha=alpha, seed=seed)
     write_run(run, output)
     if mcap is not None:  # also for a lost lap: where it went is what an engineer looks at
-        from gprace.io.foxglove import write_plan_run
+        from gprace.report.mcap import write_plan_run
 
         write_plan_run(mcap, tr, p0, run, m, gp, mpc.dt, mpc.N, [f"gprace run {plan} on {plant}: {run.meta['reason'] or 'completed'}"])
     mt = run.meta
@@ -232,7 +232,7 @@ def iterate_cmd(
     except RunFailedError as exc:  # a failed trial: the MCAP still shows the finished laps
         failed = exc
     if mcap is not None:
-        from gprace.io.foxglove import write_iterate
+        from gprace.report.mcap import write_iterate
 
         write_iterate(out, mcap)
     if failed is not None:

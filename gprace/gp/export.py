@@ -123,9 +123,9 @@ def export_gp(predictor, h5_path: str | Path, card_path: str | Path, *, dt: floa
 
 
 def _outputs(predictor) -> list[str]:
-    from gprace.timetrial.learning import OUTPUTS
+    from gprace.gp.features import DYN_OUTPUTS
 
-    return list(OUTPUTS.get(predictor.kind, [f"y{i}" for i in range(predictor.gp.n_outputs_)]))
+    return list(DYN_OUTPUTS.get(predictor.kind, [f"y{i}" for i in range(predictor.gp.n_outputs_)]))
 
 
 class PortableGP:

@@ -40,6 +40,8 @@ DYN_FEATURE_SETS: dict[str, tuple[str, ...]] = {
     "full": ("v_x", "v_y", "yaw_rate", "delta", "a_x"),
 }
 DEFAULT_DYN_FEATURES = "full"
+#: outputs of the time trial's two GPs (targets: :mod:`gprace.timetrial.learning`)
+DYN_OUTPUTS: dict[str, list[str]] = {"tracking": ["v_y", "yaw_rate"], "planning": ["dv_y_dt", "dyaw_rate_dt"]}
 # where each feature lives: ("x", state index) or ("u", input index)
 _DYN_SOURCE = {"v_x": ("x", 0), "v_y": ("x", 1), "yaw_rate": ("x", 2), "delta": ("u", 0), "a_x": ("u", 1)}
 OPPONENT_INPUTS = (

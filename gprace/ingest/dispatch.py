@@ -1,7 +1,7 @@
 """Which recordings need the importer when a stage reads them (:func:`gprace.io.runs.read_run`).
 
 A raw recording is a ROS bag / MCAP / rosbag2 folder, an MDF4 file, or a CSV whose header (found
-as :mod:`gprace.ingest.table` finds it: after a comment preamble, or in the last comment line)
+as :mod:`gprace.io.table` finds it: after a comment preamble, or in the last comment line)
 has global columns (``x, y`` or ``lat, lon``, by the map's names) but no Frenet ones (``s, e_y``). Such a file is imported
 with the map next to it (``<name>.map.toml``, else the defaults) at the map's ``track`` (else a
 reference line made from the driven path) and period 0.05 s. Kept light: no heavy import here.
@@ -27,7 +27,7 @@ def is_raw_recording(path: Path) -> bool:
         return True
     if fmt != "csv":
         return False
-    from gprace.ingest.table import peek_names
+    from gprace.io.table import peek_names
 
     header = set(peek_names(path))
     if {"s", "e_y"} <= header:

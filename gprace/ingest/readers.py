@@ -2,7 +2,7 @@
 
 One reader per family, chosen by :func:`recording_format` from the extension:
 
-* ``.csv`` (global-frame log), read as it comes (:mod:`gprace.ingest.table`: comment preambles,
+* ``.csv`` (global-frame log), read as it comes (:mod:`gprace.io.table`: comment preambles,
   a header in the last comment line or none, BOM, CRLF, ``;``). *Wide*: one row per time stamp,
   column names from the map's ``[columns]``; an empty cell means the quantity was not sampled at
   that row (logs that merge sources of different rates), so each quantity keeps its own time
@@ -187,9 +187,9 @@ def _long_layout(tbl, rmap: RecordingMap, time_col: str) -> tuple[str, str, str]
 
 
 def read_csv(path: Path, rmap: RecordingMap) -> Raw:
-    """A CSV recording as it comes (:mod:`gprace.ingest.table`): wide (a column per quantity) or
+    """A CSV recording as it comes (:mod:`gprace.io.table`): wide (a column per quantity) or
     long (one row per channel sample); each quantity keeps its own time stamps."""
-    from gprace.ingest.table import numbers, sniff, strings
+    from gprace.io.table import numbers, sniff, strings
 
     tbl = sniff(path, "recording")
     cols = rmap.columns

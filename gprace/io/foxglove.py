@@ -19,8 +19,9 @@ Everything is in the track's global frame ``world`` (metres); log times are the 
 
 What writes them: ``learn --mcap`` (the iteration's recordings, its plan ``iteration_<k>`` with
 the band), ``run --mcap`` (the plan ``plan``, with the band when driven with a tracking GP, and
-the run ``run``), ``iterate --mcap`` (:func:`write_iterate`: every trial's plans and laps,
-``trial_<j>/iter_<i>``, the band on the iterations driven with a GP, and the oracle lap).
+the run ``run``), ``iterate --mcap`` (every trial's plans and laps, ``trial_<j>/iter_<i>``, the
+band on the iterations driven with a GP, and the oracle lap). This module writes laps and plans
+given to it; :mod:`gprace.report.mcap` gathers them from a run or an iterate folder.
 
 Heavy imports (foxglove) happen in :class:`McapLog` only.
 """
@@ -196,51 +197,3 @@ def write_runs(path, track, runs: dict, plans: dict | None = None, notes=()) -> 
         for text in notes:
             m.note(text)
     return Path(path)
-
-
-def write_plan_run(path, track, plan, run, model=None, gp=None, dt: float = 0.05, horizon: int = 15,
-                   notes=()) -> Path:
-    """``run --mcap``: the track, the plan driven (with the tracking GP's band when ``gp`` drove
-    it) and the run."""
-    from gprace.learn.predict import plan_along
-
-    along, band = plan_along(plan, track, model, gp, dt, horizon, plan.meta.get("limits"))
-    return write_runs(path, track, {"run": run}, {"plan": (plan, along, band)}, notes)
-
-
-def write_iterate(out, path) -> Path:
-    """``iterate --mcap``: every finished lap of an iterate folder (``trial_<j>/iter_<i>``: plan,
-    run, the band of its tracking GP from iteration 1 on) and the oracle lap, with the track."""
-    import json
-
-    from gprace.config import load_vehicle
-    from gprace.io.runs import read_run
-    from gprace.learn.predict import plan_along
-    from gprace.model import NominalModel
-    from gprace.mpc.tracking import MPCSettings
-    from gprace.plan import read_plan
-    from gprace.timetrial.learning import load_predictor
-    from gprace.timetrial.record import read_record
-    from gprace.tracks import load_track
-
-    out = Path(out)
-    st = json.loads((out / "settings.json").read_text())
-    track, model, mpc = load_track(st["track"]), NominalModel(load_vehicle(st["vehicle"])), MPCSettings()
-    plans, runs, notes = {}, {}, [f"gprace iterate {out}: plant {st['plant']}, track {track.name}"]
-    for rec_path in sorted(out.glob("trial_*/iter_*/record.json")):
-        d = rec_path.parent
-        if not (d / "run.h5").exists():
-            continue
-        rec = read_record(rec_path)
-        name = f"{d.parent.name}/{d.name}"
-        plan = read_plan(d / "plan.h5", track)
-        gp = load_predictor(d / "gp_tracking.h5", "tracking") if (d / "gp_tracking.h5").exists() else None
-        along, band = plan_along(plan, track, model, gp, mpc.dt, mpc.N, rec.get("limits") or None)
-        plans[name], runs[name] = (plan, along, band), read_run(d / "run.h5")
-        notes.append(f"{name}: alpha {rec['alpha']:g}, planned {rec['planned']:.3f} s, driven {rec['driven']:.3f} s"
-                     + ("" if rec["completed"] else f" (lost: {rec.get('reason') or 'not completed'})"))
-    if (out / "oracle_plan.h5").exists() and (out / "oracle_run.h5").exists():
-        oracle = read_plan(out / "oracle_plan.h5", track)
-        plans["oracle"] = (oracle, plan_along(oracle, track)[0], None)
-        runs["oracle"] = read_run(out / "oracle_run.h5")
-    return write_runs(path, track, runs, plans, notes)

@@ -206,7 +206,7 @@ def _is_raw(path: Path) -> bool:
     """A raw recording (imported) rather than a gprace run: anything but an HDF5 run or a CSV with
     Frenet columns (``s``, ``e_y``); the map decides what a raw file's columns mean."""
     from gprace.ingest.readers import recording_format
-    from gprace.ingest.table import peek_names
+    from gprace.io.table import peek_names
 
     if path.suffix.lower() in (".h5", ".hdf5"):
         return False
@@ -537,7 +537,7 @@ def driven_plan(c: Iteration):
     in the direction learned, or ``(None, None)``. Its limits: a gprace plan's own, else what its
     speed profile asks for (:func:`gprace.timetrial.grip.envelope_of` over its nodes)."""
     from gprace.timetrial import grip as G
-    from gprace.tracks.raceline import load_plan
+    from gprace.plan.raceline import load_plan
 
     if not c.st.driven:
         return None, None

@@ -245,7 +245,7 @@ EXPLORE_REFERENCE = ("s_m", "x_m", "y_m", "vx_mps", "explore")
 def _describe_table(path: Path) -> dict[str, Any] | None:
     """A CSV that is not a run: a raceline (TUM or F1TENTH), an exploration reference, a track's
     centre line; None for anything else (read as a run)."""
-    from gprace.ingest.table import peek_names
+    from gprace.io.table import peek_names
     from gprace.tracks.raceline import is_raceline, raceline_summary, read_raceline
 
     try:

@@ -41,12 +41,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from gprace.errors import InputError
+from gprace.gp.features import DYN_OUTPUTS
 
 FEATURE_NAMES = ["v_y", "yaw_rate", "delta"]  # the paper's set (kept for old imports)
 SPIN_EPSI = 0.5   # |e_psi| [rad] beyond which a sample counts as out of control
 SPIN_SLIP = 0.2   # |v_y| / |v_x| beyond which a sample counts as out of control
 SPIN_HORIZON = 1.0  # seconds before the end of a failed lap left out of the GP data (the loss of control)
-OUTPUTS = {"tracking": ["v_y", "yaw_rate"], "planning": ["dv_y_dt", "dyaw_rate_dt"]}
+OUTPUTS = DYN_OUTPUTS
 
 
 def in_control(X: np.ndarray) -> np.ndarray:

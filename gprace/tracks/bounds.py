@@ -1,7 +1,7 @@
 """A track from its two boundary polylines (as IAC and F1TENTH stacks keep them).
 
 Input: two files of points ``x, y`` (a third column, ``z``, is ignored), with or without a header
-(:mod:`gprace.ingest.table`). The files may run in opposite directions, start at different
+(:mod:`gprace.io.table`). The files may run in opposite directions, start at different
 points and have different point counts; their names say nothing (IAC's "inner" file is the
 outer loop). Steps, all vectorised:
 
@@ -37,7 +37,7 @@ from gprace.errors import InputError
 def read_polyline(path: str | Path) -> np.ndarray:
     """``(n, 2)`` points of a boundary file: columns ``x, y`` by name (any case, ``x_m``...) or
     the first two columns; consecutive repeated points dropped."""
-    from gprace.ingest.table import numbers, sniff
+    from gprace.io.table import numbers, sniff
 
     path = Path(path)
     tbl = sniff(path, "boundary file")

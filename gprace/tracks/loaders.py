@@ -4,7 +4,7 @@ files, shipped track names.
 * CSV centre line (TUM format): columns ``x_m, y_m, w_tr_right_m, w_tr_left_m`` named in a header
   (``# x_m,...``; the ``#`` is optional, the columns may come in any order, a comment preamble may
   precede it) or, without a header, in that order (x, y, width right, width left; as TUM and the
-  F1TENTH stacks keep them). The file is read by :mod:`gprace.ingest.table` (BOM, CRLF, ``;``).
+  F1TENTH stacks keep them). The file is read by :mod:`gprace.io.table` (BOM, CRLF, ``;``).
   The loop is implicitly closed (the last row does not repeat the first, and the ends may be
   several metres apart).
 * Two boundary polylines ``"inner.csv,outer.csv"`` (or a pair of paths): x, y (a third column,
@@ -175,7 +175,7 @@ def _with_option(exc: InputError) -> InputError:
 
 def read_tum_csv(path: str | Path) -> dict[str, np.ndarray]:
     """The columns of a TUM track CSV as float arrays, after checking every row."""
-    from gprace.ingest.table import numbers, sniff
+    from gprace.io.table import numbers, sniff
 
     path = Path(path)
     tbl = sniff(path, "track file")
