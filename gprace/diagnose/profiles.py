@@ -315,10 +315,14 @@ def _cv_lambda(J, r, fold: np.ndarray, n: int, Z, P: np.ndarray, c0: np.ndarray,
 
 
 def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None = None,
-                iterations: int = 2, lam: float | None = None, basis: Basis | None = None):
+                iterations: int = 2, lam: float | None = None, basis: Basis | None = None,
+                free: np.ndarray | None = None):
     """Penalised Gauss-Newton fit of a profile effect; returns a :class:`~gprace.diagnose.name.Fit`
     (or None when the recordings have no laps to fit a profile over). ``lam`` None: the smoothing
-    is chosen by cross-validation (:func:`_cv_lambda`) at the first iteration."""
+    is chosen by cross-validation (:func:`_cv_lambda`) at the first iteration. ``free`` None: the
+    knots fitted are those ``starts`` pass in :data:`MIN_LAPS_SEEN` laps (:func:`laps_seen`); a
+    refit on a training fold keeps the knots of the fit on all the recordings (cross-validation
+    asks whether what one lap shows at a place predicts another lap there)."""
     from gprace.diagnose import name as nm
 
     basis = basis or make_basis(prob.data, prob.H)
@@ -327,7 +331,8 @@ def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None =
     K = basis.K
     spec = EFFECTS[name].params["values"]
     base = neutral(name)
-    free = laps_seen(prob.data, starts, prob.H, basis) >= MIN_LAPS_SEEN
+    if free is None:
+        free = laps_seen(prob.data, starts, prob.H, basis) >= MIN_LAPS_SEEN
     if not free.any():
         return None
     Z = _constraint(name, K, free)
@@ -370,10 +375,10 @@ def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None =
 
 
 def refit(prob, fit, starts: np.ndarray, iterations: int = 1, keep_smoothing: bool = True):
-    """The fit again on other windows (a training fold: smoothing kept), warm-started."""
+    """The fit again on other windows (a training fold: smoothing and fitted knots kept), warm-started."""
     pf = fit.profile
     return fit_profile(prob, fit.name, starts, pf.neutral + fit.x, iterations=iterations,
-                       lam=pf.lam if keep_smoothing else None, basis=pf.basis) or fit
+                       lam=pf.lam if keep_smoothing else None, basis=pf.basis, free=pf.free) or fit
 
 
 def interval(prob, fit, starts: np.ndarray) -> None:
