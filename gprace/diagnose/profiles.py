@@ -44,11 +44,13 @@ KNOTS_MAX = 200
 """At most this many knots per lap (a 5 km lap: 25 m apart)."""
 MIN_LAP_COVER = 1.2
 """Recorded distance needed, in laps: a profile fitted to one passage explains nothing held out."""
-MIN_LAPS_SEEN = 2
+MIN_LAPS_SEEN = 1
 """A knot is fitted only where the fit's windows pass it in at least this many laps; elsewhere the
-profile is held at its neutral value. What one passage shows at a place (a sensor's excursion, a
-slide) is no property of the road: on the IAC log the by-lap fold trained on 1.45 laps fitted a
-grade along the 0.55 of the lap seen once, and the held-out lap's v_x got twice worse."""
+profile is held at its neutral value (no interval). 2 was tried (what one passage shows at a place
+is no property of the road: the IAC fold trained on 1.45 laps fitted a grade along the part seen
+once and the held-out lap's v_x got twice worse; with 2 it did not) and not kept: on a 1.6-lap
+recording a friction profile restricted to the part seen twice followed an effect outside the
+catalogue that repeats there and was named beside combined_slip (docs/decisions.md, diag3)."""
 
 
 @dataclass(frozen=True)
