@@ -322,7 +322,7 @@ def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None =
     """Penalised Gauss-Newton fit of a profile effect; returns a :class:`~gprace.diagnose.name.Fit`
     (or None when the recordings have no laps to fit a profile over). ``lam`` None: the smoothing
     is chosen by cross-validation (:func:`_cv_lambda`) at the first iteration. ``free`` None: the
-    knots fitted are those ``starts`` pass in :data:`MIN_LAPS_SEEN` laps (:func:`laps_seen`); a
+    knots fitted are those the recordings' windows pass in :data:`MIN_LAPS_SEEN` laps (:func:`laps_seen`); a
     refit on a training fold keeps the knots of the fit on all the recordings (cross-validation
     asks whether what one lap shows at a place predicts another lap there)."""
     from gprace.diagnose import name as nm
@@ -333,8 +333,10 @@ def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None =
     K = basis.K
     spec = EFFECTS[name].params["values"]
     base = neutral(name)
-    if free is None:
-        free = laps_seen(prob.data, starts, prob.H, basis) >= MIN_LAPS_SEEN
+    if free is None and MIN_LAPS_SEEN <= 1:  # every knot: one no window passes follows its
+        free = np.ones(K, dtype=bool)  # neighbours through the penalty (not the neutral value)
+    elif free is None:  # from every window of the recordings: a subsample (the screening's) has gaps
+        free = laps_seen(prob.data, prob.data.windows(prob.H), prob.H, basis) >= MIN_LAPS_SEEN
     if not free.any():
         return None
     Z = _constraint(name, K, free)
