@@ -255,9 +255,14 @@ def test_compiled_predictions_equal_the_numpy_model(audi, norisring):
 
     if compiler() is None:
         pytest.skip("no C compiler")
+    from gprace.diagnose import profiles as pf
+
     r = _rec(audi, norisring, laps=0.6)
     starts = core.build_dataset([r]).windows(15)[::7]
     m = len(starts)
+    L = float(norisring.length)
+    kn = np.linspace(0.0, L, 40, endpoint=False)
+    basis, rng = pf.Basis(L, 48, 6), np.random.default_rng(5)
     cases = [
         ("force", []),
         ("force", [EFFECTS["downforce"](c_l=2.0), EFFECTS["road_bank"](angle=0.05, s_start=200.0, s_end=400.0),
@@ -265,6 +270,14 @@ def test_compiled_predictions_equal_the_numpy_model(audi, norisring):
         ("kinematic", [EFFECTS["steering_lag"](tau=0.08), EFFECTS["combined_slip"](k=np.linspace(0.1, 1.0, m))]),
         ("speed", [EFFECTS["drivetrain_lag"](tau=0.2), EFFECTS["steering_lag"](tau=0.05),
                    EFFECTS["yaw_inertia"](factor=1.2), EFFECTS["road_grade"](angle=0.03, s_start=50.0, s_end=300.0)]),
+        # profiles: periodic over the lap, open (end values held), and the fitting device of
+        # gprace.diagnose.profiles with one row of knot values per window set
+        ("force", [EFFECTS["road_bank_profile"](knots=list(kn), values=list(0.08 * np.sin(kn / 150.0)),
+                                                lap_length=L),
+                   EFFECTS["friction_profile"](knots=[100.0, 400.0, 700.0], values=[0.9, 1.2, 0.7], lap_length=0.0),
+                   EFFECTS["steering_lag"](tau=0.06)]),
+        ("kinematic", [pf.batched_effect("road_grade_profile", basis, 0.02 * rng.standard_normal((3, basis.K)),
+                                         np.arange(m) % 3)]),
     ]
     for mode, effects in cases:
         d = {k: v.copy() for k, v in r.data.items()}
@@ -328,3 +341,44 @@ def test_calibration_bounds_stay_inside_what_a_car_can_have(audi):
     # a car far from the limits keeps its stated ranges
     lo0, hi0 = cal.bounds(audi, [cal.BY_NAME["steering_offset"]], 30.0)
     assert (lo0[0], hi0[0]) == (-0.1, 0.1)
+
+
+def test_calibration_intervals_never_collapse(audi, norisring):
+    """Two ways an interval used to be of zero width: (a) a few windows whose open-loop prediction
+    diverges (a 1e-8 change of a stiffness moves it by noise floors) dominate the fit's Jacobian;
+    they are left out of the covariance, and the intervals stay those of the smooth windows; (b) a
+    parameter pressed against a bound gets a one-sided interval from the bound inwards, not
+    [bound, bound]."""
+    from dataclasses import replace as dc_replace
+
+    from gprace.diagnose import calibrate as cal, diagnose as dg
+
+    hidden = [EffectConfig(name="cornering_stiffness", params={"rear": 1.25})]
+    r = _rec(audi, norisring, hidden, laps=1.6, seed=7, speed_scale=0.3)
+    p = dg.prepare([r], 15, audi.wheelbase)
+    s = dg.screen(p, audi, 0)
+    ctx = dg._context(p, audi, s)
+    params = [cal.BY_NAME[n] for n in ("cornering_stiffness_front", "cornering_stiffness_rear", "steering_offset")]
+    lo, hi = cal.bounds(audi, params, cal.v_top(p.data))
+    x0 = cal.start(audi, params)
+    f = cal.covariance(ctx.prob, cal.fit(ctx.prob, params, x0, lo, hi, ctx.fit_w), lo, hi)
+    assert f.windows_used > 0.98 and not f.at_bound.any()
+    sd = f.sd()
+    assert np.all(sd > 0) and abs(np.exp(f.x[1]) - 1.25) < 0.05
+    # (a) five windows whose finite-difference response exploded
+    per = ctx.prob.H * 3
+    bad = np.zeros(len(f.win), bool)
+    bad[[3, 50, 120, 200, 333]] = True
+    jac = f.jac.copy()
+    jac[np.repeat(bad, per)] *= 1e8
+    g = cal.covariance(ctx.prob, dc_replace(f, jac=jac), lo, hi)
+    assert g.windows_used < f.windows_used and not cal.smooth_windows(ctx.prob, dc_replace(f, jac=jac), lo, hi)[bad].any()
+    assert np.all(np.abs(g.sd() / sd - 1.0) < 0.3), (g.sd(), sd)
+    # (b) the rear stiffness capped below its true factor: at the bound, one-sided interval
+    hi_b = hi.copy()
+    hi_b[1] = np.log(1.1)
+    fb = cal.covariance(ctx.prob, cal.fit(ctx.prob, params, x0, lo, hi_b, ctx.fit_w), lo, hi_b)
+    assert fb.at_bound[1]
+    rep = {q["name"]: q for q in fb.report(audi)}["cornering_stiffness_rear"]
+    lo95, hi95 = rep["ci95"]
+    assert rep["at_bound"] and hi95 == pytest.approx(1.1 * rep["nominal"], rel=1e-6) and lo95 < hi95 - 1e-6 * hi95

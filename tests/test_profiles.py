@@ -283,3 +283,29 @@ def test_fitted_profile_at_its_bound_is_a_valid_effect():
     e = f.effect()
     assert min(e.values["values"]) >= 0.1 and max(e.values["values"]) <= 1.5
     assert EffectConfig(name="friction_profile", params=f.config_params()).params["values"][0] >= 0.1
+
+
+def test_profile_knots_seen_in_one_lap_only_are_not_fitted(vehicle, oval_run, oval_bank, monkeypatch):
+    """1.5 laps of the banked oval, knots required in two laps (``MIN_LAPS_SEEN``, 1 by default):
+    a knot the windows pass in two laps is fitted (the bank there recovered), one passed once stays
+    at the neutral value and has no interval."""
+    from gprace.diagnose import profiles as pr
+
+    monkeypatch.setattr(pr, "MIN_LAPS_SEEN", 2)
+
+    data0 = _problem(vehicle, oval_run)[0].data
+    su = data0.s_unwrapped()
+    L = float(data0.L[0])
+    run = oval_run.slice(su - su[0] < 1.5 * L)
+    prob, starts = _problem(vehicle, run, every=3)
+    basis = pr.make_basis(prob.data, prob.H)
+    seen = pr.laps_seen(prob.data, starts, prob.H, basis)
+    assert set(np.unique(seen)) <= {1, 2} and 0.3 < np.mean(seen >= 2) < 0.75
+    fit = pr.fit_profile(prob, "road_bank_profile", starts)
+    once = seen < pr.MIN_LAPS_SEEN
+    assert np.all(fit.x[once] == 0.0) and np.array_equal(fit.profile.free, ~once)
+    truth = np.interp(basis.knots, oval_bank["knots"], oval_bank["values"], period=L)
+    big = ~once & (np.abs(truth) > 0.2)
+    assert big.any() and np.all(np.abs(fit.x[big] - truth[big]) < 0.25 * np.abs(truth[big]))
+    pr.interval(prob, fit, starts)
+    assert np.all(np.isnan(fit.profile.lower[once])) and np.all(fit.profile.upper[~once] > fit.profile.lower[~once])

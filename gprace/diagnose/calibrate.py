@@ -283,6 +283,8 @@ class CalFit:
     lo: np.ndarray | None = None  # bounds of the fitted coordinates
     hi: np.ndarray | None = None
     profile: np.ndarray | None = None  # d(loss)/d(coordinate offset^2) with the others refitted
+    sd_bound: np.ndarray | None = None  # (p,) spread of a parameter at a bound were it free (one-sided interval)
+    windows_used: float = 1.0  # share of the windows whose predictions respond smoothly (the covariance's)
 
     def sd(self) -> np.ndarray:
         if self.cov is None:
@@ -306,9 +308,13 @@ class CalFit:
         rel = self.relevance(vehicle)
         for i, (p, z, sd, r, b) in enumerate(zip(self.params, self.x, self.sd(), self.ratio, self.at_bound)):
             nom = nominal_value(vehicle, p)
-            if b and self.lo is not None:  # pressed against a bound: the bound itself
-                z = self.lo[i] if z - self.lo[i] < self.hi[i] - z else self.hi[i]
             lo, hi = float(from_coord(p, z - 1.96 * sd, nom)), float(from_coord(p, z + 1.96 * sd, nom))
+            if b and self.lo is not None:  # pressed against a bound: one-sided, from the bound inwards
+                low_side = z - self.lo[i] < self.hi[i] - z
+                z = self.lo[i] if low_side else self.hi[i]
+                w = 1.96 * float(self.sd_bound[i]) if self.sd_bound is not None else np.inf
+                inner = float(np.clip(z + w if low_side else z - w, self.lo[i], self.hi[i]))
+                lo, hi = sorted((float(from_coord(p, z, nom)), float(from_coord(p, inner, nom))))
             value = float(from_coord(p, z, nom))
             out.append({"name": p.name, "field": p.field, "unit": p.unit, "nominal": nom, "value": value,
                         "ci95": [lo, hi], "spread_ratio": float(r), "at_bound": bool(b),
@@ -332,13 +338,45 @@ def fit(prob, params: list[CalParam], x0: np.ndarray, lo: np.ndarray, hi: np.nda
                   lo=np.asarray(lo, float), hi=np.asarray(hi, float))
 
 
+SMOOTH_STEP = 1e-3
+"""Second finite-difference step of :func:`smooth_windows`, in units of the prior spread."""
+SMOOTH_TOL = 0.25
+"""A window's response is smooth when its two finite-difference Jacobians agree to this share."""
+
+
+def smooth_windows(prob, f: CalFit, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(m,) bool: the fit's windows whose predictions respond smoothly to the parameters.
+
+    The fit's Jacobian (steps of 1e-8) is compared per window with a second one of steps
+    :data:`SMOOTH_STEP` of the prior spread: where the open-loop prediction diverges (the model
+    spins off in the window: a tiny change of a stiffness moves it by several noise floors, and
+    it saturates), the two disagree by orders of magnitude. Such a window carries no local
+    information about the parameters, yet its huge derivatives would make the interval of every
+    parameter collapse to zero width (INI F1TENTH, new-user import: Jacobian columns of 1e8
+    from 5 of 400 windows, intervals [1.0976, 1.0976]). Left out of the covariance only."""
+    p, m = len(f.x), len(f.win)
+    d = SMOOTH_STEP * (hi - lo) / np.sqrt(12.0)
+    d = np.where(f.x + d > hi, -d, d)
+    R = residual_sets(prob, f.params, f.x[None, :] + np.diag(d), f.win).reshape(p, m, -1)
+    R = np.where(np.isfinite(R), R, 1e3)
+    r0 = f.res.reshape(m, -1)
+    J2 = (R - r0[None]) / d[:, None, None]  # (p, m, n)
+    J1 = np.transpose(f.jac.reshape(m, -1, p), (2, 0, 1))
+    diff = np.linalg.norm(J1 - J2, axis=2)
+    size = np.linalg.norm(J1, axis=2) + np.linalg.norm(J2, axis=2)
+    floor = 1e-6 * np.median(size, axis=1, keepdims=True) + 1e-12
+    return np.all(diff <= SMOOTH_TOL * size + floor, axis=0)
+
+
 def covariance(prob, f: CalFit, lo: np.ndarray, hi: np.ndarray) -> CalFit:
     """Cluster-sandwich covariance of ``f`` (2-s blocks) in prior units with a tiny ridge; sets
-    ``cov`` (fitted coordinates), ``ratio`` (posterior / prior spread) and ``at_bound``.
+    ``cov`` (fitted coordinates), ``ratio`` (posterior / prior spread) and ``at_bound``, over the
+    windows whose predictions respond smoothly (:func:`smooth_windows`).
 
     A parameter the fit pressed against a bound is held there (the sandwich is not a spread at a
-    bound, where the gradient does not vanish): its interval is the bound and it counts as
-    determined by the data; the others' covariance is that of the fit with it fixed."""
+    bound, where the gradient does not vanish): it counts as determined by the data, the others'
+    covariance is that of the fit with it fixed, and its interval is one-sided, from the bound
+    inwards by the spread it would have were it free (``sd_bound``)."""
     sd_prior = (hi - lo) / np.sqrt(12.0)
     tol = 1e-4 * (hi - lo)
     at = (f.x - lo < tol) | (hi - f.x < tol)
@@ -346,13 +384,22 @@ def covariance(prob, f: CalFit, lo: np.ndarray, hi: np.ndarray) -> CalFit:
     p = len(f.x)
     cov = np.zeros((p, p))
     ratio = np.zeros(p)
-    if len(free):
-        J = f.jac[:, free] * sd_prior[free]  # d residual / d (parameter in prior units)
-        per = prob.H * 3
-        bid = np.repeat(blocks(prob.data, f.win), per)
-        _, inv = np.unique(bid, return_inverse=True)
+    per = prob.H * 3
+    ok = smooth_windows(prob, f, lo, hi) if p else np.ones(len(f.win), bool)
+    if not ok.any():  # nothing responds smoothly: nothing is determined
+        ok[:] = True
+        jac_ok = np.zeros_like(f.jac)
+    else:
+        jac_ok = f.jac
+    rows = np.repeat(ok, per)
+    Jall, res = jac_ok[rows], f.res[rows]
+    bid = np.repeat(blocks(prob.data, f.win[ok]), per)
+    _, inv = np.unique(bid, return_inverse=True)
+
+    def sandwich(cols):
+        J = Jall[:, cols] * sd_prior[cols]  # d residual / d (parameter in prior units)
         Gb = np.zeros((inv.max() + 1, J.shape[1]))
-        np.add.at(Gb, inv, J * f.res[:, None])
+        np.add.at(Gb, inv, J * res[:, None])
         A = J.T @ J
         A = A + RIDGE * max(float(np.trace(A)), 1.0) * np.eye(len(A))
         Ai = np.linalg.inv(A)
@@ -363,12 +410,20 @@ def covariance(prob, f: CalFit, lo: np.ndarray, hi: np.ndarray) -> CalFit:
         blind = evals < 1e-6 * max(float(evals.max()), 1e-300)
         if blind.any():
             r = np.maximum(r, np.abs(evecs[:, blind]).max(axis=1))
+        return cov_s, r
+
+    if len(free):
+        cov_s, r = sandwich(free)
         ratio[free] = r
         cov[np.ix_(free, free)] = cov_s * np.outer(sd_prior[free], sd_prior[free])
-    f.cov, f.ratio, f.at_bound = cov, ratio, at
-    Af = f.jac.T @ f.jac  # the profile of the linearised cost (all parameters, at a bound too)
+    sd_bound = np.zeros(p)
+    if at.any():  # the spread each would have were it free (the others as fitted)
+        _, r_all = sandwich(np.arange(p))
+        sd_bound[at] = r_all[at] * sd_prior[at]
+    f.cov, f.ratio, f.at_bound, f.sd_bound, f.windows_used = cov, ratio, at, sd_bound, float(ok.mean())
+    Af = Jall.T @ Jall  # the profile of the linearised cost (all parameters, at a bound too)
     Af = Af + RIDGE * max(float(np.trace(Af)), 1e-300) * np.eye(p)
-    f.profile = 1.0 / np.maximum(np.diag(np.linalg.inv(Af)), 1e-300) / max(len(f.res), 1)
+    f.profile = 1.0 / np.maximum(np.diag(np.linalg.inv(Af)), 1e-300) / max(len(res), 1)
     return f
 
 

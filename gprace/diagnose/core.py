@@ -326,10 +326,10 @@ def _measured(model: NominalModel, S: np.ndarray) -> np.ndarray:
     """Measured channels (m, H, 6) of model states (m, H, nx)."""
     if not any(type(e).measure is not Effect.measure for e in model.effects):
         return S[..., :6]
-    out = np.empty(S.shape[:2] + (6,))
-    for j in range(S.shape[1]):  # per horizon step: sensor parameters may be per window
-        out[:, j] = model.measure(S[:, j])
-    return out
+    m, H = S.shape[:2]
+    # all horizon steps in one call: sensor parameters given per window repeat over its steps
+    flat = _subset(model, np.repeat(np.arange(m), H), m) if m > 1 else model
+    return flat.measure(S.reshape(m * H, -1)).reshape(m, H, 6)
 
 
 def _predict(model: NominalModel, data: Dataset, starts: np.ndarray, H: int, substeps: int,

@@ -625,11 +625,24 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
     partial = []
     if rejected:  # name nothing on channels the catalogue cannot explain; keep what it improves
         for e, bad in rejected:
-            notes.append(f"{e.name} fits part of the error but leaves "
-                         f"{', '.join(CHANNELS[TESTED[i]] for i in bad)} structured: not named (kept in the "
-                         f"augmented model as a partial fit: it improves held-out prediction)")
-        partial = [e for e in effects if e in [r[0] for r in rejected]]
-        effects = [e for e in effects if e not in partial]
+            left = ', '.join(CHANNELS[TESTED[i]] for i in bad)
+            if e.fit.profile is not None:
+                notes.append(f"{e.name} fits part of the error but leaves {left} structured: not named and not "
+                             f"kept (a profile follows whatever repeats at the same place lap after lap, as the "
+                             f"driven line does; fitted beside an error it does not explain, its values are no "
+                             f"property of the road)")
+            else:
+                notes.append(f"{e.name} fits part of the error but leaves {left} structured: not named (kept in "
+                             f"the augmented model as a partial fit: it improves held-out prediction)")
+        out = [r[0] for r in rejected]
+        partial = [e for e in effects if e in out and e.fit.profile is None]
+        effects = [e for e in effects if e not in out]
+        if len(partial) < len(out):  # a profile left out: the others refitted without it, evaluated again
+            if len(effects) + len(partial) > 1:
+                both = _refit_each(ctx, effects + partial)
+                effects, partial = both[: len(effects)], both[len(effects):]
+            m1 = core.model_for(vehicle, p.data, [e.fit.effect() for e in effects + partial])
+            ev1 = evaluate(p, m1, s.sigma, seed + 2, scale=s.scale) if effects or partial else s.nominal
     fits = [e.fit for e in effects + partial]
     heldout = _heldout(ctx, fits) if fits else None
     return Verified(tuple(effects), ev1, heldout, tuple(notes), tuple(partial))

@@ -45,6 +45,14 @@ NEUTRAL = {
 }
 """Values at which each effect without states changes nothing (the universal function's default)."""
 SENSOR_ONLY = ("gyro_bias", "velocity_misalignment")  # act on the measurement only (applied in numpy)
+KERNEL_FLAGS = ("-O3", "-march=native", "-fno-math-errno", "-fno-trapping-math")
+"""Compiler flags of the kernel (cached per machine, so tuned to its processor); no -ffast-math:
+the driver relies on infinities (a recording without laps) and NaN passing through."""
+PROFILES = tuple(n for n, c in EFFECTS.items() if getattr(c, "profile", False))
+"""Effects given along the lap by knots (:class:`~gprace.model.effects.ProfileEffect`): their value
+at the car's position is interpolated by the driver (numpy's rule, periodic over the lap) from a
+table per window and passed to the derivative beside the curvature, so the knot values never
+enter the compiled code (one variant serves every knot count and every batch of profiles)."""
 
 _DRIVER_C = r"""
 /* numpy's floating remainder: the sign of the divisor */
@@ -68,14 +76,28 @@ static inline double kappa_at(double s, double L, double off, const double *ks, 
     return interp1((isfinite(L) ? pymod(s, L) : s) + off, ks, kv, nk);
 }
 
+/* curvature kap[0] and the NPROF profile values kap[1..] at s for window i (of m): profile q has
+   pn[q] knots at pk + pko[q] (extended by one on each side when periodic, pL[q] > 0) and its values
+   in row prow[q * m + i] of the table at pv + pvo[q] */
+static inline void stage_inputs(double s, long i, long m, double L, double off, const double *ks, const double *kv,
+                                long nk, const double *pk, const long *pko, const long *pn, const double *pL,
+                                const double *pv, const long *pvo, const long *prow, double *kap) {
+    kap[0] = kappa_at(s, L, off, ks, kv, nk);
+    for (long q = 0; q < NPROF; q++) {
+        double x = pL[q] > 0 ? pymod(s, pL[q]) : s;
+        kap[1 + q] = interp1(x, pk + pko[q], pv + pvo[q] + prow[q * m + i] * pn[q], pn[q]);
+    }
+}
+
 /* out (m, H, NXS): windows i start from X0[i] (m, NXS) and step with the inputs U[k0[i] + j]
    (rows clamped to nu - 1), RK4 with `sub` substeps of dt / sub, curvature per stage from the
-   table (ks, kv) at s wrapped to the lap L[i] (infinite: no wrap) plus the offset off[i];
-   parameters P + i * pstride (NP values). Returns 0. */
+   table (ks, kv) at s wrapped to the lap L[i] (infinite: no wrap) plus the offset off[i], and the
+   profiles' values (stage_inputs); parameters P + i * pstride (NP values). Returns 0. */
 int gprace_predict(long m, long H, long sub, double dt, const double *X0, const long *k0, const double *U,
                    long nu, const double *P, long pstride, const double *ks, const double *kv, long nk,
-                   const double *L, const double *off, double *out) {
-    double x[NXS], x2[NXS], k1[NXS], k2[NXS], k3[NXS], k4[NXS], kap, u[2];
+                   const double *L, const double *off, const double *pk, const long *pko, const long *pn,
+                   const double *pL, const double *pv, const long *pvo, const long *prow, double *out) {
+    double x[NXS], x2[NXS], k1[NXS], k2[NXS], k3[NXS], k4[NXS], kap[1 + NPROF], u[2];
     casadi_real w[SZW > 0 ? SZW : 1];
     casadi_int iw[SZIW > 0 ? SZIW : 1];
     const casadi_real *arg[4];
@@ -84,18 +106,18 @@ int gprace_predict(long m, long H, long sub, double dt, const double *X0, const 
     for (long i = 0; i < m; i++) {
         const double *p = P + i * pstride;
         for (int q = 0; q < NXS; q++) x[q] = X0[i * NXS + q];
-        arg[1] = u; arg[2] = &kap; arg[3] = p;
+        arg[1] = u; arg[2] = kap; arg[3] = p;
         for (long j = 0; j < H; j++) {
             long r = k0[i] + j; if (r > nu - 1) r = nu - 1;
             u[0] = U[2 * r]; u[1] = U[2 * r + 1];
             for (long t = 0; t < sub; t++) {
-                kap = kappa_at(x[5], L[i], off[i], ks, kv, nk); arg[0] = x; res[0] = k1; DERIV(arg, res, iw, w, 0);
+                stage_inputs(x[5], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, kap); arg[0] = x; res[0] = k1; DERIV(arg, res, iw, w, 0);
                 for (int q = 0; q < NXS; q++) x2[q] = x[q] + 0.5 * h * k1[q];
-                kap = kappa_at(x2[5], L[i], off[i], ks, kv, nk); arg[0] = x2; res[0] = k2; DERIV(arg, res, iw, w, 0);
+                stage_inputs(x2[5], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, kap); arg[0] = x2; res[0] = k2; DERIV(arg, res, iw, w, 0);
                 for (int q = 0; q < NXS; q++) x2[q] = x[q] + 0.5 * h * k2[q];
-                kap = kappa_at(x2[5], L[i], off[i], ks, kv, nk); arg[0] = x2; res[0] = k3; DERIV(arg, res, iw, w, 0);
+                stage_inputs(x2[5], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, kap); arg[0] = x2; res[0] = k3; DERIV(arg, res, iw, w, 0);
                 for (int q = 0; q < NXS; q++) x2[q] = x[q] + h * k3[q];
-                kap = kappa_at(x2[5], L[i], off[i], ks, kv, nk); arg[0] = x2; res[0] = k4; DERIV(arg, res, iw, w, 0);
+                stage_inputs(x2[5], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, kap); arg[0] = x2; res[0] = k4; DERIV(arg, res, iw, w, 0);
                 for (int q = 0; q < NXS; q++) x[q] = x[q] + (h / 6.0) * (k1[q] + 2 * k2[q] + 2 * k3[q] + k4[q]);
             }
             for (int q = 0; q < NXS; q++) out[(i * H + j) * NXS + q] = x[q];
@@ -131,15 +153,17 @@ def _layout(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | No
 
 
 @functools.cache
-def _kernel(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | None = None):
-    """(ctypes function, Layout) of a compiled variant, or None (no compiler, or a failed build)."""
+def _kernel(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | None = None,
+            profiles: tuple[str, ...] = ()):
+    """(ctypes function, Layout) of a compiled variant, or None (no compiler, or a failed build).
+    ``profiles``: the profile effects present, whose values come in beside the curvature."""
     import casadi as ca
 
     from gprace.backends.compiled import compiled_source
     from gprace.model.nominal import _casadi_ops
 
     lay = _layout(longitudinal, lags, only)
-    x, u, k = ca.SX.sym("x", lay.nx), ca.SX.sym("u", 2), ca.SX.sym("kappa")
+    x, u, k = ca.SX.sym("x", lay.nx), ca.SX.sym("u", 2), ca.SX.sym("kappa", 1 + len(profiles))
     P = ca.SX.sym("p", lay.np)
     p = Params(**{f: P[lay.index[("params", f)]] for f in PARAM_FIELDS}, longitudinal=longitudinal)
     effects, z0 = [], 0
@@ -148,22 +172,70 @@ def _kernel(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | No
         e.z0 = z0
         z0 += e.n_states
         effects.append(e)
-    xdot = dynamics([x[i] for i in range(lay.nx)], [u[0], u[1]], k, p, effects, _casadi_ops())
+    for q, n in enumerate(profiles):  # the profile's value at s is the input k[1 + q]
+        e = _symbolic_profile(n, k[1 + q])
+        e.z0 = z0
+        effects.append(e)
+    xdot = dynamics([x[i] for i in range(lay.nx)], [u[0], u[1]], k[0], p, effects, _casadi_ops())
     F = ca.Function("gprace_deriv", [x, u, k, P], [ca.vertcat(*xdot)])
     gen = ca.CodeGenerator("gprace_deriv.c", {"with_header": False, "with_mem": False})
     gen.add(F)
     src = gen.dump() + f"\n#define NXS {lay.nx}\n#define SZW {F.sz_w()}\n#define SZIW {F.sz_iw()}\n" \
-        f"#define DERIV gprace_deriv\n" + _DRIVER_C
+        f"#define NPROF {len(profiles)}\n#define DERIV gprace_deriv\n" + _DRIVER_C
     fx = "all" if only is None else ("-".join("".join(w[0] for w in n.split("_")) for n in only) or "none")
+    if profiles:
+        fx += "_p" + "-".join("".join(w[0] for w in n.split("_")) for n in profiles)
     tag = f"diagnose_predict_{longitudinal}_{'_'.join(lags) or 'nolag'}_{fx}"
-    lib = compiled_source(tag, src, ("-O2", "-fno-math-errno"), "diagnosis prediction kernel")
+    lib = compiled_source(tag, src, KERNEL_FLAGS, "diagnosis prediction kernel")
     if lib is None:
         return None
     fn = ctypes.CDLL(str(lib)).gprace_predict
     dp, lp, L_ = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_long), ctypes.c_long
-    fn.argtypes = [L_, L_, L_, ctypes.c_double, dp, lp, dp, L_, dp, L_, dp, dp, L_, dp, dp, dp]
+    fn.argtypes = [L_, L_, L_, ctypes.c_double, dp, lp, dp, L_, dp, L_, dp, dp, L_, dp, dp,
+                   dp, lp, lp, dp, dp, lp, lp, dp]
     fn.restype = ctypes.c_int
     return fn, lay
+
+
+def _symbolic_profile(name: str, value):
+    """An instance of the catalogue's profile ``name`` whose value at the car's position is the
+    symbol ``value`` (same hooks, so the same physics as the numpy model's)."""
+    cls = EFFECTS[name]
+    sym = type(f"Symbolic{cls.__name__}", (cls,), {"value": lambda self, c: value})
+    neutral = 1.0 if cls.params["values"].unit == "-" else 0.0
+    return sym(knots=[0.0, 1.0], values=[neutral, neutral], lap_length=0.0)
+
+
+def profile_table(e, m: int) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """(knots, period, values (rows, K), row of each of the ``m`` windows) of a profile effect:
+    a catalogue one (one row), or a fitting device of :mod:`gprace.diagnose.profiles` carrying
+    one row of knot values per window set (``table()``)."""
+    if hasattr(e, "table"):
+        return e.table()
+    return (np.asarray(e._knots, float), float(e._period), np.atleast_2d(np.asarray(e._vals, float)),
+            np.zeros(m, dtype=np.int64))
+
+
+def _profile_inputs(profs: list, m: int):
+    """The driver's profile arguments (stage_inputs in the C): knots extended by one on each side
+    of a periodic profile (numpy.interp's ``period`` rule), tables and per-window rows."""
+    pk, pko, pn, pL, pv, pvo, prow = [], [], [], [], [], [], []
+    ok, ov = 0, 0
+    for e in profs:
+        kn, L, V, row = profile_table(e, m)
+        if L > 0:
+            kn = np.concatenate([[kn[-1] - L], kn, [kn[0] + L]])
+            V = np.hstack([V[:, -1:], V, V[:, :1]])
+        pk.append(kn), pko.append(ok), pn.append(len(kn)), pL.append(L)
+        pv.append(V.ravel()), pvo.append(ov), prow.append(np.broadcast_to(np.asarray(row, np.int64), (m,)))
+        ok += len(kn)
+        ov += V.size
+    if not profs:
+        z, zi = np.zeros(1), np.zeros(1, dtype=np.int64)
+        return z, zi, zi, z, z, zi, zi
+    c = np.ascontiguousarray
+    return (c(np.concatenate(pk)), c(pko, dtype=np.int64), c(pn, dtype=np.int64), c(pL, dtype=float),
+            c(np.concatenate(pv)), c(pvo, dtype=np.int64), c(np.concatenate(prow), dtype=np.int64))
 
 
 def plan(model: NominalModel) -> tuple[str, tuple[str, ...], list[Effect]] | None:
@@ -174,6 +246,10 @@ def plan(model: NominalModel) -> tuple[str, tuple[str, ...], list[Effect]] | Non
     if len(set(names)) != len(names):
         return None
     for e in model.effects:
+        if e.name in PROFILES:  # the catalogue's profile, or a fitting device derived from it
+            if not isinstance(e, EFFECTS[e.name]) or not (hasattr(e, "table") or type(e) is EFFECTS[e.name]):
+                return None
+            continue
         if EFFECTS.get(e.name) is not type(e) or not (e.name in NEUTRAL or e.name in LAGS or e.name in SENSOR_ONLY):
             return None
     cat = [n for n in EFFECTS if n in names]
@@ -221,11 +297,13 @@ def predict_states(model: NominalModel, data, starts: np.ndarray, H: int, subste
     pl = plan(model)
     if pl is None:
         return None
-    kern = _kernel(pl[0], pl[1], tuple(e.name for e in pl[2] if e.name in NEUTRAL))
+    profs = sorted((e for e in pl[2] if e.name in PROFILES), key=lambda e: PROFILES.index(e.name))
+    kern = _kernel(pl[0], pl[1], tuple(e.name for e in pl[2] if e.name in NEUTRAL), tuple(e.name for e in profs))
     if kern is None:
         return None
     fn, lay = kern
     m = len(starts)
+    prof_args = _profile_inputs(profs, m)
     P = np.ascontiguousarray(parameter_rows(model, lay, m))
     X0 = np.ascontiguousarray(X0, dtype=float)
     k0 = np.ascontiguousarray(starts, dtype=np.int64)
@@ -241,5 +319,5 @@ def predict_states(model: NominalModel, data, starts: np.ndarray, H: int, subste
 
     fn(m, H, int(substeps), float(data.dt), ptr(X0), ptr(k0, ctypes.POINTER(ctypes.c_long)), ptr(U),
        len(U), ptr(P), 0 if len(P) == 1 else lay.np, ptr(data.ks), ptr(data.kv), len(data.ks), ptr(L), ptr(off),
-       ptr(out))
+       *(ptr(a) if a.dtype == float else ptr(a, ctypes.POINTER(ctypes.c_long)) for a in prof_args), ptr(out))
     return out

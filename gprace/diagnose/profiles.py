@@ -44,6 +44,13 @@ KNOTS_MAX = 200
 """At most this many knots per lap (a 5 km lap: 25 m apart)."""
 MIN_LAP_COVER = 1.2
 """Recorded distance needed, in laps: a profile fitted to one passage explains nothing held out."""
+MIN_LAPS_SEEN = 1
+"""A knot is fitted only where the fit's windows pass it in at least this many laps; elsewhere the
+profile is held at its neutral value (no interval). 2 was tried (what one passage shows at a place
+is no property of the road: the IAC fold trained on 1.45 laps fitted a grade along the part seen
+once and the held-out lap's v_x got twice worse; with 2 it did not) and not kept: on a 1.6-lap
+recording a friction profile restricted to the part seen twice followed an effect outside the
+catalogue that repeats there and was named beside combined_slip (docs/decisions.md, diag3)."""
 
 
 @dataclass(frozen=True)
@@ -86,6 +93,7 @@ class ProfileFit:
     basis: Basis
     neutral: float  # the value meaning "no effect" (0 rad, friction factor 1)
     lam: float = np.nan  # smoothing actually used (absolute)
+    free: np.ndarray | None = None  # (K,) knots fitted (seen in MIN_LAPS_SEEN laps); the others neutral
     edf: float = np.nan  # effective degrees of freedom
     lower: np.ndarray | None = None  # pointwise 95 % interval of the values at the knots
     upper: np.ndarray | None = None
@@ -156,6 +164,9 @@ def _batched_class(name: str):
             V, sid = self._V, self._sid
             return V[sid, i] * (1.0 - w) + V[sid, (i + 1) % self._basis.K] * w
 
+        def table(self):  # for the compiled predictions (gprace.diagnose.fastpredict)
+            return self._basis.knots, self._basis.L, np.atleast_2d(self._V), np.asarray(self._sid)
+
     Batched.__name__ = f"Batched{base.__name__}"
     return Batched
 
@@ -201,6 +212,24 @@ def _touched(data: Dataset, starts: np.ndarray, H: int, basis: Basis) -> tuple[n
     return np.mod(j, basis.K), ok
 
 
+def laps_seen(data: Dataset, starts: np.ndarray, H: int, basis: Basis) -> np.ndarray:
+    """(K,) in how many different laps the windows ``starts`` pass each knot (its support: within
+    one knot spacing of the window's path)."""
+    su = data.s_unwrapped()
+    a = np.minimum(su[starts], su[starts + H])
+    b = np.maximum(su[starts], su[starts + H])
+    h = basis.h
+    jlo = np.floor(a / h - 1.0).astype(np.int64)
+    jhi = np.ceil(b / h + 1.0).astype(np.int64)
+    o = np.arange(int((jhi - jlo).max()) + 1)
+    j = jlo[:, None] + o[None, :]
+    ok = j <= jhi[:, None]
+    rec = np.broadcast_to(data.rec[starts][:, None], j.shape)
+    key = np.stack([np.mod(j, basis.K)[ok], rec[ok], np.floor_divide(j, basis.K)[ok]], axis=1)
+    knot = np.unique(key, axis=0)[:, 0]
+    return np.bincount(knot, minlength=basis.K)
+
+
 def jacobian(prob, name: str, basis: Basis, v0: np.ndarray, starts: np.ndarray):
     """Residuals at ``v0`` (m*H*3,) and their sparse Jacobian in the knot values (m*H*3, K)."""
     from scipy import sparse
@@ -226,13 +255,18 @@ def jacobian(prob, name: str, basis: Basis, v0: np.ndarray, starts: np.ndarray):
 # penalised Gauss-Newton, smoothing by cross-validation
 
 
-def _constraint(name: str, K: int) -> np.ndarray | None:
-    """Basis (K, K-1) of the allowed coefficient space, or None when every profile is allowed:
-    a closed lap climbs as much as it falls (mean grade 0); bank and friction are free."""
+def _constraint(name: str, K: int, free: np.ndarray | None = None) -> np.ndarray | None:
+    """Basis of the allowed coefficient space, or None when every profile is allowed: only the
+    ``free`` knots move (:data:`MIN_LAPS_SEEN`), and a closed lap climbs as much as it falls
+    (mean grade 0); bank and friction are otherwise free."""
+    E = None if free is None or free.all() else np.eye(K)[:, free]
     if name != "road_grade_profile":
-        return None
-    q, _ = np.linalg.qr(np.column_stack([np.ones(K), np.eye(K)[:, : K - 1]]))
-    return q[:, 1:]
+        return E
+    F = K if E is None else E.shape[1]
+    if F < 2:
+        return np.zeros((K, 0))
+    q, _ = np.linalg.qr(np.column_stack([np.ones(F), np.eye(F)[:, : F - 1]]))
+    return q[:, 1:] if E is None else E @ q[:, 1:]
 
 
 def _in(Z, M):
@@ -283,10 +317,14 @@ def _cv_lambda(J, r, fold: np.ndarray, n: int, Z, P: np.ndarray, c0: np.ndarray,
 
 
 def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None = None,
-                iterations: int = 2, lam: float | None = None, basis: Basis | None = None):
+                iterations: int = 2, lam: float | None = None, basis: Basis | None = None,
+                free: np.ndarray | None = None):
     """Penalised Gauss-Newton fit of a profile effect; returns a :class:`~gprace.diagnose.name.Fit`
     (or None when the recordings have no laps to fit a profile over). ``lam`` None: the smoothing
-    is chosen by cross-validation (:func:`_cv_lambda`) at the first iteration."""
+    is chosen by cross-validation (:func:`_cv_lambda`) at the first iteration. ``free`` None: the
+    knots fitted are those the recordings' windows pass in :data:`MIN_LAPS_SEEN` laps (:func:`laps_seen`); a
+    refit on a training fold keeps the knots of the fit on all the recordings (cross-validation
+    asks whether what one lap shows at a place predicts another lap there)."""
     from gprace.diagnose import name as nm
 
     basis = basis or make_basis(prob.data, prob.H)
@@ -295,7 +333,15 @@ def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None =
     K = basis.K
     spec = EFFECTS[name].params["values"]
     base = neutral(name)
-    Z = _constraint(name, K)
+    if free is None and MIN_LAPS_SEEN <= 1:  # every knot: one no window passes follows its
+        free = np.ones(K, dtype=bool)  # neighbours through the penalty (not the neutral value)
+    elif free is None:  # from every window of the recordings: a subsample (the screening's) has gaps
+        free = laps_seen(prob.data, prob.data.windows(prob.H), prob.H, basis) >= MIN_LAPS_SEEN
+    if not free.any():
+        return None
+    Z = _constraint(name, K, free)
+    if Z is not None and Z.shape[1] == 0:
+        return None
     c = np.zeros(K)
     if v_init is not None:  # on these knots (a profile given on others is interpolated)
         v_init = np.asarray(v_init, float)
@@ -327,16 +373,16 @@ def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None =
         R = residual_batch(prob, name, basis, base + c, starts)[0]
     cost = float(np.mean(R**2))
     fit = nm.Fit(name, [f"v{j}" for j in range(K)], c.copy(), {}, cost)
-    fit.profile = ProfileFit(basis, base, lam=float(lam))
+    fit.profile = ProfileFit(basis, base, lam=float(lam), free=free)
     fit.win = starts
     return fit
 
 
 def refit(prob, fit, starts: np.ndarray, iterations: int = 1, keep_smoothing: bool = True):
-    """The fit again on other windows (a training fold: smoothing kept), warm-started."""
+    """The fit again on other windows (a training fold: smoothing and fitted knots kept), warm-started."""
     pf = fit.profile
     return fit_profile(prob, fit.name, starts, pf.neutral + fit.x, iterations=iterations,
-                       lam=pf.lam if keep_smoothing else None, basis=pf.basis) or fit
+                       lam=pf.lam if keep_smoothing else None, basis=pf.basis, free=pf.free) or fit
 
 
 def interval(prob, fit, starts: np.ndarray) -> None:
@@ -349,7 +395,7 @@ def interval(prob, fit, starts: np.ndarray) -> None:
     pf = fit.profile
     basis, K = pf.basis, pf.basis.K
     r, J = jacobian(prob, fit.name, basis, pf.neutral + fit.x, starts)
-    Z = _constraint(fit.name, K)
+    Z = _constraint(fit.name, K, pf.free)
     Jz = J if Z is None else J @ Z
     A_data = _dense(Jz.T @ Jz)
     Pz = _in(Z, basis.penalty())
@@ -367,6 +413,8 @@ def interval(prob, fit, starts: np.ndarray) -> None:
     if Z is not None:
         V = Z @ V @ Z.T
     sd = np.sqrt(np.maximum(np.diag(V), 0.0))
+    if pf.free is not None:  # a knot held at neutral (seen in too few laps) has no interval
+        sd = np.where(pf.free, sd, np.nan)
     v = pf.neutral + fit.x
     pf.lower, pf.upper, pf.edf = v - 1.96 * sd, v + 1.96 * sd, edf
 
