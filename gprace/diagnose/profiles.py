@@ -33,7 +33,6 @@ import numpy as np
 from gprace.diagnose.core import DYNAMIC, Dataset, errors, lag_states, predict
 from gprace.diagnose.locate import blocks
 from gprace.model import EFFECTS
-from gprace.model.dynamics import State
 
 EPS = 1e-3
 """Finite-difference step on a knot value (rad or friction factor): the effects are close to linear

@@ -193,7 +193,7 @@ def _layout(path: Path, text: str, what: str):
     """Names, header flag and line, separator, decimal mark, and where the body starts (character
     offset and file line), from the head of ``text`` only."""
     # the head: enough lines to pass the preamble and see 8 data lines
-    head_end, pos, kept, lines_seen = 0, 0, [], 0
+    pos, kept, lines_seen = 0, [], 0
     data_seen = 0
     while pos < len(text) and data_seen < 9:
         nxt = text.find("\n", pos)
