@@ -724,8 +724,15 @@ def _replan(c: _Chain, i: int) -> None:
                              warm=warm or read_plan(c.dir(i - 1) / "plan.h5", track),
                              mu_plan=lambda X, U: gp_plan.at(X, U)[0])
         if st.never_worse:
-            safety = guard.plan_safety(plan, model, gp_plan, c.mpc.grip_share)
-            if not safety["safe"] and warm is not None:
+            check = lambda p: guard.plan_safety(p, model, gp_plan, c.mpc.grip_share)  # noqa: E731
+            safety = check(plan)
+            if guard.decision(safety) == "step" and warm is not None:
+                # refused for novelty alone: the new line, slower, so that data arrive where it goes
+                plan, q, after = guard.novelty_step(plan, check, float(warm.lap_time))
+                safety = {**safety, "step": q, "novel_step": after["novel"]}
+                step = f"new plan driven at {q:.2f} of its speed ({safety['why']})"
+                source = f"{source}; {step}" if back else step
+            elif not safety["safe"] and warm is not None:
                 plan, limits = warm, warm.meta.get("limits", limits)
                 plan.meta = {**plan.meta, "unsafe": safety["why"]}
                 unsafe = f"last good plan (iteration {start}) driven: the new plan was not predicted safe ({safety['why']})"
@@ -892,7 +899,7 @@ def _record(i, alpha, c: _Chain, plan, run, gps, sizes, extra) -> IterationRecor
     rec["interventions"] = int(m.get("interventions", 0))
     rec["eased_steps"] = int(m.get("eased_steps", 0))
     rec["band"] = [float(v) for v in m.get("band", [])]
-    rec["status"] = lap_status({**rec}, [c.record(k) for k in range(i)], c.st.slower_tolerance)
+    rec["status"] = lap_status({**rec, **extra}, [c.record(k) for k in range(i)], c.st.slower_tolerance)
     return IterationRecord(**rec, **extra)
 
 
