@@ -20,7 +20,8 @@ acceptance checks (0 lost laps on every plant; best alpha-0 lap faster than iter
 of the plants; median share of the gap closed >= 60 % where the oracle is known).
 
 Usage: ``nice python benchmarks/timetrial_unseen.py [--only NAME,NAME] [--plants N] [--standins] [--trials T]
-[--iterations I] [--workers W] [--chunk C] [--executor dask --scheduler ADDR] [--out DIR]``.
+[--iterations I] [--workers W] [--chunk C] [--executor dask --scheduler ADDR] [--out DIR] [--table]``
+(``--table``: print the table of what is finished, run nothing).
 Long: about 2 minutes of CPU per trial and plant.
 """
 
@@ -159,6 +160,7 @@ def main(argv=None) -> None:
     ap.add_argument("--executor", default="local")
     ap.add_argument("--scheduler", default=None)
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--table", action="store_true", help="only print the table of what is finished (no runs)")
     a = ap.parse_args(argv)
     family = plants(a.plants, a.out / "plants", a.standins)
     if a.only:  # in the order given: on a loaded machine the first ones finish first
@@ -172,7 +174,7 @@ def main(argv=None) -> None:
     # batches of --chunk plants, one after the other: a plant's oracle lap runs at the end of its
     # batch, so on a loaded machine the first plants finish whole (oracle included) first
     size = a.chunk if a.chunk > 0 else len(experiments)
-    for at in range(0, len(experiments), max(size, 1)):
+    for at in range(0, 0 if a.table else len(experiments), max(size, 1)):
         try:
             iterate_many(experiments[at:at + size], executor=a.executor, workers=a.workers, scheduler=a.scheduler)
         except GpraceError as exc:  # failed trials are reported in the rows; the summaries are written
