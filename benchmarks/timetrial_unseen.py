@@ -20,7 +20,8 @@ acceptance checks (0 lost laps on every plant; best alpha-0 lap faster than iter
 of the plants; median share of the gap closed >= 60 % where the oracle is known).
 
 Usage: ``nice python benchmarks/timetrial_unseen.py [--only NAME,NAME] [--plants N] [--standins] [--trials T]
-[--iterations I] [--workers W] [--chunk C] [--executor dask --scheduler ADDR] [--out DIR]``.
+[--iterations I] [--workers W] [--chunk C] [--executor dask --scheduler ADDR] [--out DIR] [--table] [--markdown]``
+(``--table``: print the table, run nothing; its acceptance counts the finished plants only).
 Long: about 2 minutes of CPU per trial and plant.
 """
 
@@ -159,6 +160,9 @@ def main(argv=None) -> None:
     ap.add_argument("--executor", default="local")
     ap.add_argument("--scheduler", default=None)
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--table", action="store_true", help="only print the table (no runs); the acceptance over "
+                    "the finished plants")
+    ap.add_argument("--markdown", action="store_true", help="print a Markdown table instead of JSON")
     a = ap.parse_args(argv)
     family = plants(a.plants, a.out / "plants", a.standins)
     if a.only:  # in the order given: on a loaded machine the first ones finish first
@@ -172,18 +176,49 @@ def main(argv=None) -> None:
     # batches of --chunk plants, one after the other: a plant's oracle lap runs at the end of its
     # batch, so on a loaded machine the first plants finish whole (oracle included) first
     size = a.chunk if a.chunk > 0 else len(experiments)
-    for at in range(0, len(experiments), max(size, 1)):
+    for at in range(0, 0 if a.table else len(experiments), max(size, 1)):
         try:
             iterate_many(experiments[at:at + size], executor=a.executor, workers=a.workers, scheduler=a.scheduler)
         except GpraceError as exc:  # failed trials are reported in the rows; the summaries are written
             print(f"timetrial_unseen: {exc}", file=sys.stderr)
     table = {}
-    for (name, _), (_, folder) in zip(family.items(), experiments):
+    for (name, _), (st, folder) in zip(family.items(), experiments):
         try:
-            table[name] = row(build_summary(folder))
+            summary = build_summary(folder)
+            table[name] = {**row(summary), "finished": len(summary["rows"]) == st.trials * (st.iterations + 1)
+                           and (folder / "oracle.json").exists()}
         except GpraceError as exc:
-            table[name] = {"error": str(exc), "lost": [str(exc)], "faster_than_iteration0": False, "gap_closed": None}
-    print(json.dumps(jsonable({"rows": table, "acceptance": acceptance(table)}), indent=1))
+            table[name] = {"error": str(exc), "lost": [str(exc)], "faster_than_iteration0": False, "gap_closed": None,
+                           "finished": False}
+    done = {k: v for k, v in table.items() if v["finished"]}
+    result = {"rows": table, "acceptance": acceptance(done if a.table else table)}
+    print(markdown(result) if a.markdown else json.dumps(jsonable(result), indent=1))
+
+
+def markdown(result: dict) -> str:
+    """The rows and the acceptance as a Markdown table (unfinished plants marked)."""
+    def f(v, fmt="{:.2f}"):
+        return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else fmt.format(v)
+
+    lines = ["| plant | laps | iter. 0 | best alpha 0 | oracle | gap closed | interventions (it. 0) | fell back | "
+             "GP err track / plan | cov track / plan |", "| --- " * 10 + "|"]
+    for name, r in result["rows"].items():
+        if "error" in r:
+            lines.append(f"| {name} | error: {r['error']} |" + " |" * 8)
+            continue
+        lines.append(f"| {name}{'' if r['finished'] else ' (running)'} | {r['laps']} | {f(r['iteration0'])} | "
+                     f"{f(r['best_alpha0'])} | {f(r['oracle'])} {r['oracle_basis'] or ''} | {f(r['gap_closed'])} | "
+                     f"{r['interventions']} ({r['interventions_iteration0']}) | {r['fell_back']} | "
+                     f"{f(r['err_tracking'])} / {f(r['err_planning'])} | {f(r['cov_tracking'])} / {f(r['cov_planning'])} |")
+    acc = result["acceptance"]
+    lines.append("")
+    lines.append(f"plants {acc['plants']}; lost laps {acc['lost_laps']} {acc['plants_with_lost_laps']}; best alpha-0 lap "
+                 f"faster than iteration 0 on {f(acc['share_faster_than_iteration0'])}; median gap closed "
+                 f"{f(acc['median_gap_closed'])} over {acc['plants_with_oracle']} plants with an oracle")
+    for name, r in result["rows"].items():
+        for lost in r.get("lost", []):
+            lines.append(f"- {name}: {lost}")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -15,12 +15,18 @@ import numpy as np
 from gprace.report.figures import fig_lap_times
 
 
+def _num(v) -> float:
+    """A number of summary.json: non-finite ones (a lost lap's time, iteration 0's GP errors) are null."""
+    return float("nan") if v is None else float(v)
+
+
 def main(folder: Path, png: Path) -> None:
     rows = json.loads((folder / "summary.json").read_text())["rows"]
     for r in rows:
-        print(f"iteration {r['iteration']} trial {r['trial']}: planned {r['planned']:.2f} s, "
-              f"driven {r['driven']:.2f} s, GP errors tracking {r['err_tracking']:.3g} planning {r['err_planning']:.3g}")
-    data = {k: np.array([r[k] for r in rows], float) for k in ("iteration", "planned", "driven")}
+        print(f"iteration {r['iteration']} trial {r['trial']}: planned {_num(r['planned']):.2f} s, "
+              f"driven {_num(r['driven']):.2f} s, GP errors tracking {_num(r['err_tracking']):.3g} "
+              f"planning {_num(r['err_planning']):.3g}")
+    data = {k: np.array([_num(r[k]) for r in rows], float) for k in ("iteration", "planned", "driven")}
     fig_lap_times({folder.name: data}).savefig(png, dpi=100)
     print(f"figure: {png}")
 

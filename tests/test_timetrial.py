@@ -68,3 +68,14 @@ def test_iterate_rejects_bad_settings(tmp_path):
     (tmp_path / "y" / "settings.json").write_text(json.dumps({"alphas": [0.3]}))
     with pytest.raises(InputError, match="other settings"):
         iterate(iterate_settings, tmp_path / "y")
+
+
+def test_iterate_runs_a_process_per_task_by_default():
+    """3 equal trials and the oracle on 2 cores: 4 processes share the cores evenly (2 processes ran
+    2 trials, then 1 beside the oracle); an explicit --workers is kept; at most 3 per core."""
+    import os
+
+    from gprace.timetrial.iterate import processes
+
+    assert processes(None, 4) == 4 and processes(2, 4) == 2 and processes(None, 1) == 1
+    assert processes(None, 10_000) == 3 * (os.cpu_count() or 1)

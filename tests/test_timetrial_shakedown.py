@@ -308,6 +308,71 @@ def test_the_way_back_never_returns_to_a_level_that_lost_the_car():
     assert last_good(recs[1:], clear=lambda lim: clear_of(lim, [lost])) == 0  # none clear: the last good
 
 
+def test_a_refusal_for_novelty_alone_drives_the_new_line_slower():
+    """The guard's decision: a plan refused only because the planning GP has no data along part of
+    it is driven slower on its own line (the largest speed factor at which it stays in the data,
+    never slower than the last good lap), not replaced by the last good plan; a plan beyond the
+    slip bound still goes back. Novelty here: nodes faster than the data's 30 m/s."""
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import curvature_plan
+    from gprace.timetrial.guard import NOVEL_SHARE, decision, lap_status, novelty_step, plan_safety, time_scaled
+    from gprace.tracks import load_track
+
+    m = NominalModel(load_vehicle("audi_tt_cup"))
+    track = load_track("circle_100")
+    plan = curvature_plan(track, m, ds=8.0, speed_scale=0.8)
+
+    def check(p):  # plan_safety's slip angles, and a novelty the test knows exactly
+        res = plan_safety(p, m)
+        res["novel"] = float(np.mean(p.v_x > 30.0))
+        res["safe"] = res["safe"] and res["novel"] <= NOVEL_SHARE
+        res["why"] = "novel" if res["novel"] > NOVEL_SHARE else res["why"]
+        return res
+
+    assert check(plan)["novel"] > NOVEL_SHARE and decision(check(plan)) == "step"
+    slow = plan.lap_time / 0.8  # the last good lap: slower than any step the data allow
+    stepped, q, after = novelty_step(plan, check, slow)
+    need = 30.0 / np.quantile(plan.v_x, 1 - NOVEL_SHARE)  # the factor that brings 90 % of nodes below 30 m/s
+    assert need - 0.02 < q <= need and after["novel"] <= NOVEL_SHARE
+    assert stepped.v_x == pytest.approx(q * plan.v_x) and stepped.a_x == pytest.approx(q * q * plan.a_x)
+    assert stepped.lap_time == pytest.approx(plan.lap_time / q) and stepped.s == pytest.approx(plan.s)
+    # the last good lap is faster than that: the step stops at its pace, novelty or not
+    floor = plan.lap_time / (need + 0.05)
+    stepped, q, after = novelty_step(plan, check, floor)
+    assert q == pytest.approx(need + 0.05) and stepped.lap_time == pytest.approx(floor) and after["novel"] > NOVEL_SHARE
+    assert time_scaled(plan, 1.0).v_x == pytest.approx(plan.v_x)
+    # the slip angles refuse: back to the last good plan
+    sliding = time_scaled(plan, 1.0)
+    sliding.v_y = sliding.v_y - 0.3 * sliding.v_x
+    assert decision(check(sliding)) == "back" and decision(check(stepped if after["safe"] else plan)) != "back"
+    # a step lap is slower on purpose: judged by whether it was completed
+    recs = [{"completed": True, "alpha": 0.0, "driven": 60.0}]
+    assert lap_status({"completed": True, "alpha": 0.0, "driven": 64.0, "safety": {"step": 0.9}}, recs, 0.005) == "good"
+    assert lap_status({"completed": True, "alpha": 0.0, "driven": 64.0, "safety": {"step": 1.0}}, recs, 0.005) == "slower"
+
+
+def test_envelope_braking_follows_the_friction_circle():
+    """While the envelope is active the braking allowed is what cornering leaves of the grip: all
+    of it running straight (a car too fast for the eased reference can slow down), gentle at the
+    limit of grip (a slide), and never less than the plan's own braking share."""
+    from gprace.mpc.stability import Envelope, EnvelopeSettings, brake_share
+
+    st = EnvelopeSettings()
+    assert brake_share(0.0, 14.7, st.gentle_brake) == 1.0
+    assert brake_share(0.6 * 14.7, 14.7, st.gentle_brake) == pytest.approx(0.8)
+    assert brake_share(14.7, 14.7, st.gentle_brake) == st.gentle_brake
+    assert brake_share(-30.0, 14.7, st.gentle_brake) == st.gentle_brake  # sign-free, beyond the limit
+    env = Envelope(st, 0.05)
+    lo, hi = np.array([-0.35, -14.0]), np.array([0.35, 6.0])
+    assert env.input_bounds(lo, hi, 0.0, 0.0, 14.7)[0][1] == -14.0  # inactive: untouched
+    env.active = True
+    assert env.input_bounds(lo, hi, 0.0, 0.0, 14.7)[0][1] == pytest.approx(-14.0)
+    assert env.input_bounds(lo, hi, 0.0, 14.0, 14.7)[0][1] == pytest.approx(-14.0 * max(0.4, np.sqrt(1 - (14 / 14.7) ** 2)))
+    assert env.input_bounds(lo, hi, -10.0, 14.0, 14.7)[0][1] == pytest.approx(-8.0)  # the plan's braking share
+    assert env.input_bounds(lo, hi, 0.0, 14.0, 14.7)[1][1] == pytest.approx(st.gentle_drive * 6.0)
+
+
 @pytest.mark.parametrize("args", [["iterate", "--delay", "1.5"], ["iterate", "--delay", "-0.1"]])
 def test_a_delay_longer_than_the_horizon_is_bad_input(capsys, tmp_path, args):
     from gprace.cli import main

@@ -28,7 +28,8 @@ VEHICLE = typer.Option("audi_tt_cup", "--vehicle", help="Nominal vehicle of plan
 DICTIONARY = typer.Option(1000, "--dictionary-size", help="GP dictionary size M per GP.")
 FEATURES = typer.Option("full", "--features", help="GP inputs: full (v_x, v_y, yaw_rate, delta, a_x) or paper (v_y, yaw_rate, delta).")
 SEED = typer.Option(0, "--seed", help="Base seed.")
-WORKERS = typer.Option(2, "--workers", help="Parallel trials.")
+WORKERS = typer.Option(None, "--workers", help="Local worker processes (default: one per trial and oracle lap, "
+                       "at most 3 per core: the cores are shared evenly, and no core idles while an odd trial runs alone).")
 MCAP = typer.Option(None, "--mcap", help="Also write the recorded and planned laps, the GP's band (where a GP drove) and "
                     "the track as MCAP (Foxglove schemas).")
 DELAY = typer.Option(None, "--delay", help="Total steering and measurement delay [s] the MPC predicts over "
@@ -207,7 +208,7 @@ def iterate_cmd(
     solver: str = typer.Option("clarabel", "--solver", help="QP backend."),
     delay: float | None = DELAY,
     seed: int = SEED,
-    workers: int = WORKERS, executor: str = EXECUTOR, scheduler: str | None = SCHEDULER,
+    workers: int | None = WORKERS, executor: str = EXECUTOR, scheduler: str | None = SCHEDULER,
     out: Path = typer.Option(Path("iterate_out"), "--out", help="Folder for every artifact (rerun to resume)."),
     mcap: Path | None = MCAP,
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
@@ -220,7 +221,7 @@ def iterate_cmd(
                          features=features, grip=grip, delay=delay)
     from gprace.executor import check_execution
 
-    check_execution(executor, workers, scheduler)
+    check_execution(executor, 1 if workers is None else workers, scheduler)
     from gprace.io.artifacts import check_output
 
     check_output(mcap, "--mcap")
@@ -249,7 +250,7 @@ def eval_timetrial(
     features: str = FEATURES,
     dictionary: int = DICTIONARY,
     seed: int = SEED,
-    workers: int = WORKERS, executor: str = EXECUTOR, scheduler: str | None = SCHEDULER,
+    workers: int | None = WORKERS, executor: str = EXECUTOR, scheduler: str | None = SCHEDULER,
     out: Path = typer.Option(Path("timetrial_out"), "--out", help="Folder of both variants (rerun to resume)."),
     as_json: bool = typer.Option(False, "--json", help="Print the table as JSON."),
 ) -> None:
@@ -263,7 +264,7 @@ def eval_timetrial(
                          dictionary_size=dictionary, seed=seed, features=features)
     from gprace.executor import check_execution
 
-    check_execution(executor, workers, scheduler)
+    check_execution(executor, 1 if workers is None else workers, scheduler)
     res = compare(st, out, executor=executor, workers=workers, scheduler=scheduler)
     if as_json:
         console.json(res)

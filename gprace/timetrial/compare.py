@@ -24,7 +24,7 @@ VARIANTS = {
 }
 
 
-def compare(base, out: str | Path, executor: str = "local", workers: int = 1, scheduler: str | None = None) -> dict:
+def compare(base, out: str | Path, executor: str = "local", workers: int | None = 1, scheduler: str | None = None) -> dict:
     """Run (or resume) both variants of ``base`` (an IterateSettings) under ``out``; return the table."""
     from gprace.errors import RunFailedError
     from gprace.timetrial.iterate import build_summary, iterate_many

@@ -21,7 +21,7 @@ import time
 import numpy as np
 from pydantic import Field
 
-from gprace.config import CommandSettings
+from gprace.config import G, CommandSettings
 from gprace.errors import InputError
 from gprace.io.runs import OWN_RUN, Run
 from gprace.model.dynamics import Input, State
@@ -83,12 +83,14 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     env = Envelope(settings.envelope, dt, band)
     before = None  # the state the last solution predicted for this period
     plan_brake = 0.0  # the hardest braking the plan asks for over the horizon (before easing)
+    grip = vehicle.mu * G  # the friction circle's radius for the envelope's braking
     k = 0
     reason = ""
     wall = time.perf_counter()
     while True:
         mpc.speed_factor = env.rho
-        mpc.bounds = env.input_bounds(mpc.u_lo, mpc.u_hi, plan_brake)
+        lateral = float(y[State.V_X] * y[State.YAW_RATE])
+        mpc.bounds = env.input_bounds(mpc.u_lo, mpc.u_hi, plan_brake, lateral, grip)
         u, info = mpc.step(y)
         plan_brake = float(info["uref"][:, Input.A_X].min()) / mpc.speed_factor**2
         x = plant.state

@@ -20,7 +20,14 @@
     calibrated predictive std of the lateral-acceleration compensation above ``novel_std`` times the
     GP's noise std (a plan that leans on an extrapolated compensation is a guess).
 
-  Otherwise the last good plan is driven again (its limits too), and the record says why.
+  What is driven instead depends on why (:func:`decision`). A plan the slip angles refuse sends
+  the loop back: the last good plan is driven again (its limits too), and the record says why. A
+  plan refused **for novelty alone** is driven slower (:func:`novelty_step`): the same plan in
+  time scaled by the largest factor ``q`` at which it stays where the GP has data, never slower
+  than the last good lap. Driving the last good plan again never brings data where the wider plan
+  goes, so a refusal for novelty alone would repeat for ever (measured on commonroad_std: five
+  iterations at iteration 0's plan); the slower lap on the new line does bring them. Such a lap
+  is judged like an exploration lap, by whether it was completed (:func:`lap_status`).
 
 Pure functions over arrays; the iterate loop calls them.
 """
@@ -39,8 +46,8 @@ def lap_status(record: dict, earlier: list[dict], tolerance: float) -> str:
     """``good``, ``lost`` or ``slower`` for ``record`` given the ``earlier`` records of its trial."""
     if not record["completed"]:
         return "lost"
-    if record["alpha"] != 0.0:
-        return "good"
+    if record["alpha"] != 0.0 or (record.get("safety") or {}).get("step", 1.0) < 1.0:
+        return "good"  # exploring, or a novelty step (a slower lap on purpose): judged by completion
     best = [r["driven"] for r in earlier if r["completed"] and r["alpha"] == 0.0 and np.isfinite(r["driven"])]
     if best and record["driven"] > min(best) * (1.0 + tolerance):
         return "slower"
@@ -90,3 +97,39 @@ def plan_safety(plan, model, gp_plan=None, grip_share: float = 0.9, novel_std: f
     if novel > novel_share:
         why.append(f"{100 * novel:.0f} % of the plan where the planning GP has no data")
     return {"safe": not why, "why": "; ".join(why), "slip_rear": slip_rear, "slip_front": slip_front, "novel": novel}
+
+
+def decision(safety: dict) -> str:
+    """What to drive for a plan of :func:`plan_safety`: ``drive`` (predicted safe), ``step`` (refused
+    only because the planning GP has no data along part of it: drive it slower, :func:`novelty_step`)
+    or ``back`` (its slip angles are beyond what the tracking MPC can follow: the last good plan)."""
+    if safety.get("safe", True):
+        return "drive"
+    if safety.get("slip_rear", 0.0) <= 1.0 and safety.get("slip_front", 0.0) <= 1.0:
+        return "step"
+    return "back"
+
+
+def time_scaled(plan, q: float):
+    """``plan`` run ``q`` times as fast along the same line (speeds and yaw rate times ``q``, the
+    longitudinal acceleration times ``q^2``, times over ``q``): the scaling the stability envelope
+    eases the reference with."""
+    from dataclasses import replace
+
+    return replace(plan, v_x=q * plan.v_x, v_y=q * plan.v_y, yaw_rate=q * plan.yaw_rate, a_x=q * q * plan.a_x,
+                   t=plan.t / q, lap_time=plan.lap_time / q, meta={**plan.meta, "time_scale": float(q)})
+
+
+def novelty_step(plan, check, floor_lap_time: float, novel_share: float = NOVEL_SHARE, step: float = 0.02):
+    """``(scaled plan, q, its safety)``: the plan at the largest speed factor ``q`` (from 1 down in
+    steps of ``step``) whose share of novel nodes, by ``check(plan) -> plan_safety dict``, is at
+    most ``novel_share``, and never slower than ``floor_lap_time`` (the last good plan's lap: at
+    that pace the lap is still driven when novelty remains, to bring data along the new line)."""
+    q_floor = min(1.0, plan.lap_time / floor_lap_time) if floor_lap_time > 0 else 1.0
+    qs = np.arange(1.0 - step, q_floor, -step)
+    for q in [*qs, q_floor]:
+        scaled = time_scaled(plan, float(q))
+        safety = check(scaled)
+        if safety["novel"] <= novel_share or q == q_floor:
+            return scaled, float(q), safety
+    raise AssertionError("unreachable")

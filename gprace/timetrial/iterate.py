@@ -168,7 +168,7 @@ class Steps:
 # the loop
 
 
-def iterate(settings: IterateSettings, out: str | Path, executor: str = "local", workers: int = 1,
+def iterate(settings: IterateSettings, out: str | Path, executor: str = "local", workers: int | None = 1,
             scheduler: str | None = None, progress=None) -> dict:
     """Run (or resume) the experiment in ``out``; return the summary. On a terminal one bar counts
     the laps driven (:func:`lap_markers`), with an ETA; it moves while the trials run in other processes."""
@@ -187,7 +187,7 @@ def lap_markers(settings: IterateSettings, out: Path) -> list[Path]:
     return [steps / f"{name}.done" for name in refs + trials + ["oracle"]]
 
 
-def iterate_many(experiments, executor: str = "local", workers: int = 1, scheduler: str | None = None,
+def iterate_many(experiments, executor: str = "local", workers: int | None = 1, scheduler: str | None = None,
                  bar=None) -> list[dict]:
     """Run (or resume) several experiments ``[(settings, out), ...]`` with all their trials in one batch.
 
@@ -216,7 +216,7 @@ def _run_prepared(prepared, references, tasks, executor, workers, scheduler) -> 
     from gprace.executor import run_batch
 
     # the reference runs of all experiments in one batch first (each a lap or two of simulate)
-    done = run_batch(_reference_task, references, executor=executor, workers=workers, scheduler=scheduler,
+    done = run_batch(_reference_task, references, executor=executor, workers=processes(workers, len(references)), scheduler=scheduler,
                      label=f"iterate: {len(references)} reference run(s)") if references else []
     bad = [r for r in done if not r.ok]
     if bad:
@@ -227,7 +227,8 @@ def _run_prepared(prepared, references, tasks, executor, workers, scheduler) -> 
     # the oracle lap runs beside the trials (it is one more task of the batch), once per shared set
     tasks.sort(key=lambda t: "oracle" in t)
     label = f"iterate: {sum('oracle' not in t for t in tasks)} trial(s)" + (" and the oracle lap" if tasks[-1:] and "oracle" in tasks[-1] else "")
-    results = run_batch(run_chain, tasks, executor=executor, workers=workers, scheduler=scheduler, label=label)
+    results = run_batch(run_chain, tasks, executor=executor, workers=processes(workers, len(tasks)), scheduler=scheduler,
+                        label=label)
     for _, out, share in prepared:
         if share is not None and (share / "oracle.json").exists() and not Steps(out).done("oracle"):
             shutil.copy2(share / "oracle.json", out / "oracle.json")
@@ -242,6 +243,18 @@ def _run_prepared(prepared, references, tasks, executor, workers, scheduler) -> 
         first = failed[0].error.splitlines()[0]
         raise RunFailedError(f"iterate: {len(failed)} of {len(tasks)} trials failed ({first}); rerun the same command to resume")
     return summaries
+
+
+def processes(workers: int | None, tasks: int) -> int:
+    """Local worker processes for a batch of ``tasks``: ``workers``, or by default (None) one per
+    task, at most 3 per core. The trials are chains of equal length: 3 trials on 2 processes run
+    2 then 1 (a core idles for a whole chain), 3 processes share the 2 cores evenly (README job:
+    wall time 1.5 instead of 2 chains)."""
+    import os
+
+    if workers is not None:
+        return int(workers)
+    return max(1, min(int(tasks), 3 * (os.cpu_count() or 1)))
 
 
 def _shares_references(a: IterateSettings, b: IterateSettings) -> bool:
@@ -725,8 +738,15 @@ def _replan(c: _Chain, i: int) -> None:
                              warm=warm or read_plan(c.dir(i - 1) / "plan.h5", track),
                              mu_plan=lambda X, U: gp_plan.at(X, U)[0])
         if st.never_worse:
-            safety = guard.plan_safety(plan, model, gp_plan, c.mpc.grip_share)
-            if not safety["safe"] and warm is not None:
+            check = lambda p: guard.plan_safety(p, model, gp_plan, c.mpc.grip_share)  # noqa: E731
+            safety = check(plan)
+            if guard.decision(safety) == "step" and warm is not None:
+                # refused for novelty alone: the new line, slower, so that data arrive where it goes
+                plan, q, after = guard.novelty_step(plan, check, float(warm.lap_time))
+                safety = {**safety, "step": q, "novel_step": after["novel"]}
+                step = f"new plan driven at {q:.2f} of its speed ({safety['why']})"
+                source = f"{source}; {step}" if back else step
+            elif not safety["safe"] and warm is not None:
                 plan, limits = warm, warm.meta.get("limits", limits)
                 plan.meta = {**plan.meta, "unsafe": safety["why"]}
                 unsafe = f"last good plan (iteration {start}) driven: the new plan was not predicted safe ({safety['why']})"
@@ -893,7 +913,7 @@ def _record(i, alpha, c: _Chain, plan, run, gps, sizes, extra) -> IterationRecor
     rec["interventions"] = int(m.get("interventions", 0))
     rec["eased_steps"] = int(m.get("eased_steps", 0))
     rec["band"] = [float(v) for v in m.get("band", [])]
-    rec["status"] = lap_status({**rec}, [c.record(k) for k in range(i)], c.st.slower_tolerance)
+    rec["status"] = lap_status({**rec, **extra}, [c.record(k) for k in range(i)], c.st.slower_tolerance)
     return IterationRecord(**rec, **extra)
 
 
