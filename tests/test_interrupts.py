@@ -252,7 +252,7 @@ def test_a_race_cut_short_is_not_recorded_and_the_resumed_table_equals_an_uninte
     real = race_module.run_race
 
     def interrupted_race(task):
-        if task["id"].endswith("-1"):  # the second race: stopped inside its NMPC solves
+        if task.id.endswith("-1"):  # the second race: stopped inside its NMPC solves
             _signal_soon(0.2)
         return real(task)
 
@@ -276,7 +276,7 @@ def test_dask_tasks_are_cancelled_and_nothing_is_recorded_after_the_signal(tmp_p
     real = race_module.run_race
 
     def interrupted_race(task):
-        if task["id"].endswith("-0"):
+        if task.id.endswith("-0"):
             _signal_soon(0.2)
         return real(task)
 

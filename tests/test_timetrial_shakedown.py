@@ -204,7 +204,8 @@ def test_stability_envelope_triggers_on_a_slide_and_not_on_a_clean_lap(stadium):
 
 def test_lost_lap_is_data_not_an_input_error():
     """The spin of issue 37: a lap lost in a long slide has v_y of a km/h-looking magnitude. The
-    loop's own run keeps it (and reads it back); the same columns as a user's file are refused."""
+    loop's own run keeps it (and reads it back); as a user's file its columns are accepted too
+    (the path confirms their units), and refused in km/h."""
     from gprace.io.runs import OWN_RUN, Run, check_columns, read_run, write_run
     from gprace.config import load_vehicle
     from gprace.model import NominalModel
@@ -219,8 +220,13 @@ def test_lost_lap_is_data_not_an_input_error():
     weak = _plant(CORNERS["lowest grip, longest lag"])
     run = drive(plan, weak, track, m, DriveSettings(envelope=EnvelopeSettings(enabled=False)), seed=100)
     assert not run.meta["completed"] and run.meta[OWN_RUN]
-    with pytest.raises(InputError, match="typical magnitude"):
-        check_columns({k: v.copy() for k, v in run.data.items()}, "user.csv")
+    # the same columns as a user's file: the spin's v_y is confirmed by the path, so it is data
+    # there too (issue 39); the lap in km/h is still refused
+    check_columns({k: v.copy() for k, v in run.data.items()}, "user.csv")
+    kmh = {k: v.copy() for k, v in run.data.items()}
+    kmh["v_x"], kmh["v_y"] = 3.6 * kmh["v_x"], 3.6 * kmh["v_y"]
+    with pytest.raises(InputError, match="km/h"):
+        check_columns(kmh, "user.csv")
     import tempfile
     from pathlib import Path
 
@@ -228,8 +234,9 @@ def test_lost_lap_is_data_not_an_input_error():
         back = read_run(write_run(run, Path(d) / "run.h5"))
     Z, Y = features(back, m, track, "tracking")
     assert len(Z) > 20 and np.all(np.isfinite(Y))
-    with pytest.raises(InputError):
-        Run({k: v.copy() for k, v in run.data.items()}, {}, "user.csv")
+    Run({k: v.copy() for k, v in run.data.items()}, {}, "user.csv")  # a user's run of it: read as well
+    with pytest.raises(InputError, match="km/h"):
+        Run(kmh, {}, "user.csv")
 
 
 def test_a_lost_lap_does_not_stop_the_loop_and_the_next_goes_back(tmp_path, monkeypatch):
