@@ -19,7 +19,6 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
     ) -> None:
         """Print length, min radius, width range and point count of a track, or a raceline's (TUM or F1TENTH CSV); optionally plot it."""
-        from gprace.console import console
         from gprace.errors import InputError
         from gprace.tracks import load_track
 
@@ -40,25 +39,19 @@ def register(app: typer.Typer) -> None:
         info = track.summary()
         if plot is not None:
             plot_track(track, plot)
-            info["plot"] = str(plot)
-        if as_json:
-            console.json(info)
-            return
-        console.result(f"track       {info['name']} ({'closed' if info['closed'] else 'open'})")
-        console.result(f"length      {info['length_m']:.2f} m")
-        console.result(f"min radius  {info['min_radius_m']:.2f} m")
-        console.result(f"width       {info['width_min_m']:.2f} .. {info['width_max_m']:.2f} m")
-        console.result(f"points      {info['n_points']}")
-        console.result(f"smoothing   {info['smoothing_m']:.3g} m")
-        if plot is not None:
-            console.result(f"plot        {plot}")
+        _print_summary(info, [
+            f"track       {info['name']} ({'closed' if info['closed'] else 'open'})",
+            f"length      {info['length_m']:.2f} m",
+            f"min radius  {info['min_radius_m']:.2f} m",
+            f"width       {info['width_min_m']:.2f} .. {info['width_max_m']:.2f} m",
+            f"points      {info['n_points']}",
+            f"smoothing   {info['smoothing_m']:.3g} m"], plot, as_json)
 
     app.add_typer(track_app, name="track")
 
 
 def show_raceline(path: str, on_track: str | None, plot: Path | None, as_json: bool) -> None:
     """``track show RACELINE [--track T]``: the raceline's summary, and where it lies on a track."""
-    from gprace.console import console
     from gprace.tracks import load_track
     from gprace.tracks.raceline import raceline_summary, raceline_track, read_raceline
 
@@ -67,25 +60,34 @@ def show_raceline(path: str, on_track: str | None, plot: Path | None, as_json: b
     info = raceline_summary(rl, track)
     if plot is not None:
         plot_track(track or raceline_track(rl), plot, line=(rl.x, rl.y))
+    lines = [f"raceline    {path} ({info['format']} format, closed loop)",
+             f"length      {info['length_m']:.2f} m, {info['points']} points",
+             f"lap time    {info['lap_time_s']:.3f} s at its speeds ({info['speed_min_mps']:.2f} .. {info['speed_max_mps']:.2f} m/s)",
+             f"ax          {info['ax_min_mps2']:.2f} .. {info['ax_max_mps2']:.2f} m/s^2",
+             f"min radius  {info['min_radius_m']:.2f} m"]
+    if "track" in info:
+        where = "inside" if info["inside"] else "OUTSIDE"
+        lines += [f"on track    {info['track']} ({info['track_length_m']:.2f} m"
+                  + (", driven against its file's direction" if info["against_track_direction"] else "") + ")",
+                  f"e_y         {info['e_y_min_m']:.3f} .. {info['e_y_max_m']:.3f} m; {where} the borders, "
+                  f"closest {info['margin_min_m']:.3f} m"]
+    elif "margin_min_m" in info:
+        lines.append(f"borders     closest {info['margin_min_m']:.3f} m (its own d_right / d_left)")
+    _print_summary(info, lines, plot, as_json)
+
+
+def _print_summary(info: dict, lines: list[str], plot: Path | None, as_json: bool) -> None:
+    """A summary as JSON, or as fixed-width lines with the plot's path last."""
+    from gprace.console import console
+
+    if plot is not None:
         info["plot"] = str(plot)
+        lines = [*lines, f"plot        {plot}"]
     if as_json:
         console.json(info)
         return
-    console.result(f"raceline    {path} ({info['format']} format, closed loop)")
-    console.result(f"length      {info['length_m']:.2f} m, {info['points']} points")
-    console.result(f"lap time    {info['lap_time_s']:.3f} s at its speeds ({info['speed_min_mps']:.2f} .. {info['speed_max_mps']:.2f} m/s)")
-    console.result(f"ax          {info['ax_min_mps2']:.2f} .. {info['ax_max_mps2']:.2f} m/s^2")
-    console.result(f"min radius  {info['min_radius_m']:.2f} m")
-    if "track" in info:
-        where = "inside" if info["inside"] else "OUTSIDE"
-        console.result(f"on track    {info['track']} ({info['track_length_m']:.2f} m"
-                       + (", driven against its file's direction" if info["against_track_direction"] else "") + ")")
-        console.result(f"e_y         {info['e_y_min_m']:.3f} .. {info['e_y_max_m']:.3f} m; {where} the borders, "
-                       f"closest {info['margin_min_m']:.3f} m")
-    elif "margin_min_m" in info:
-        console.result(f"borders     closest {info['margin_min_m']:.3f} m (its own d_right / d_left)")
-    if plot is not None:
-        console.result(f"plot        {plot}")
+    for line in lines:
+        console.result(line)
 
 
 def plot_track(track, path: Path, line=None) -> None:
