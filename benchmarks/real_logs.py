@@ -134,8 +134,7 @@ def in_bounds(rep: dict, vehicle) -> tuple[bool, list[str], list[str]]:
     every knot value). Returns (all inside, what is outside, plausibility notes: a value a real car
     could have but few do, e.g. a radius of gyration beyond ``config.K_PLAUSIBLE``)."""
     from gprace.config import K_PLAUSIBLE, MU_PLAUSIBLE
-    from gprace.diagnose import calibrate as cal
-    from gprace.model import EFFECTS
+    from gprace.diagnose import calibrate as cal, name as nm
 
     out, notes = [], []
 
@@ -157,13 +156,14 @@ def in_bounds(rep: dict, vehicle) -> tuple[bool, list[str], list[str]]:
         if q.name == "peak_friction" and not MU_PLAUSIBLE[0] <= v <= MU_PLAUSIBLE[1]:
             notes.append(f"peak_friction {v:.3g} (usual {MU_PLAUSIBLE[0]} to {MU_PLAUSIBLE[1]})")
     for e in rep["effects"] + rep.get("partial_effects", []):
-        spec = EFFECTS[e["name"]].params
         for k, p in e["parameters"].items():
-            if not k.startswith("s_"):
-                check(f"{e['name']}.{k}", p["value"], spec[k].lower, spec[k].upper)
+            if not k.startswith("s_"):  # the catalogue's bounds narrowed to what the car can have
+                check(f"{e['name']}.{k}", p["value"], *nm.physical_bounds(e["name"], k, vehicle, None))
+            if p.get("at_bound"):
+                notes.append(f"{e['name']}.{k} {p['value']:.4g} at its physical bound")
         if e.get("profile"):
             for v in e["profile"]["value"]:
-                check(f"{e['name']}.values", v, spec["values"].lower, spec["values"].upper)
+                check(f"{e['name']}.values", v, *nm.physical_bounds(e["name"], "values", vehicle, None))
     return not out, out, notes
 
 

@@ -270,6 +270,8 @@ def test_compiled_predictions_equal_the_numpy_model(audi, norisring):
         ("kinematic", [EFFECTS["steering_lag"](tau=0.08), EFFECTS["combined_slip"](k=np.linspace(0.1, 1.0, m))]),
         ("speed", [EFFECTS["drivetrain_lag"](tau=0.2), EFFECTS["steering_lag"](tau=0.05),
                    EFFECTS["yaw_inertia"](factor=1.2), EFFECTS["road_grade"](angle=0.03, s_start=50.0, s_end=300.0)]),
+        # lags in the other order than the catalogue's (the naming adds them as found): states permuted
+        ("speed", [EFFECTS["steering_lag"](tau=0.12), EFFECTS["drivetrain_lag"](tau=0.3)]),
         # profiles: periodic over the lap, open (end values held), and the fitting device of
         # gprace.diagnose.profiles with one row of knot values per window set
         ("force", [EFFECTS["road_bank_profile"](knots=list(kn), values=list(0.08 * np.sin(kn / 150.0)),

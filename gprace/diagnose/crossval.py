@@ -47,7 +47,7 @@ class Block:
     params: tuple = ()
 
 
-def effect_block(fit, data) -> Block:
+def effect_block(fit, data, vehicle=None) -> Block:
     """The block of a fitted effect (:class:`gprace.diagnose.name.Fit`); a profile as a block with
     nothing free (held at its own fit: its smoothing is chosen inside its fit)."""
     from gprace.diagnose import name as nm
@@ -55,7 +55,7 @@ def effect_block(fit, data) -> Block:
     if fit.profile is not None:
         return Block(fit.name, (), fit.values(), np.zeros(0), np.zeros(0), np.zeros(0), 1e-3)
 
-    lo, hi = nm._bounds(fit.name, fit.free, data)
+    lo, hi = nm._bounds(fit.name, fit.free, data, vehicle)
     step = 1e-3 if any(k.startswith("s_") for k in fit.free) else float(np.sqrt(np.finfo(float).eps))
     return Block(fit.name, tuple(fit.free), dict(fit.fixed), np.asarray(fit.x, float), lo, hi, step)
 
@@ -188,7 +188,7 @@ def prescreen(prob, name: str, starts: np.ndarray, inits: list[dict]):
 
     free = nm.free_params(name)
     fixed = {k: EFFECTS[name].params[k].default for k in EFFECTS[name].params if k in nm.FIXED}
-    lo_all, hi_all = nm._bounds(name, free, prob.data)
+    lo_all, hi_all = nm._bounds(name, free, prob.data, prob.vehicle)
     step = 1e-3 if any(k.startswith("s_") for k in free) else float(np.sqrt(np.finfo(float).eps))
     best = None
     for init in inits:

@@ -327,7 +327,7 @@ def recalibrate(c: Calibrated, ctx: Ctx, named: Named, nominal: VehicleConfig) -
     prob = replace(ctx.prob, vehicle=nominal, base=[])
     lo, hi = cal.bounds(nominal, c.fit.params, cal.v_top(prob.data))
     blocks = [cv_.calibration_block(c.fit.params, c.fit.x, lo, hi)]
-    blocks += [cv_.effect_block(e.fit, prob.data) for e in named.effects]
+    blocks += [cv_.effect_block(e.fit, prob.data, nominal) for e in named.effects]
     blocks = cv_.joint_fit(prob, blocks, ctx.fit_w, max_nfev=JOINT_NFEV)
     effects = tuple(e if e.fit.profile is not None else replace(e, fit=replace(e.fit, x=b.x))
                     for e, b in zip(named.effects, blocks[1:]))  # a profile is held at its own fit
@@ -421,9 +421,13 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, c: Calibrated, seed: 
         best, cv, top = None, {}, []
         joint: dict[str, cv_.Block] = {}
         if len(chosen) < MAX_EFFECTS:
-            best, cv, top = _best_effect(prob, loc, s, ctx, dyn_struct, fits, rnd, log)
+            cv, top = _best_effect(prob, loc, s, ctx, dyn_struct, fits, rnd, log)
             if c.applied and top:  # may the calibration give back what it absorbed of the effect?
-                best, joint = _joint_with_calibration(replace(prob, vehicle=nominal), c, top, cv, ctx, log)
+                joint = _joint_with_calibration(replace(prob, vehicle=nominal), c, top, cv, ctx, log)
+            best = _pick(ctx, l0_ch, cv, top, rnd, log)
+            if top:
+                searched.append({"round": rnd + 1, "candidates": {f.name: float(cv[f.name].mean()) for f in top},
+                                 "baseline": float(l0_ch.mean())})
         # the calibration or the best effect first? (in a tie the calibration: calibrate, then name)
         cal_first = candidate and (best is None or not _clearly_better(
             ctx, cv[best.name].mean(axis=1), c.heldout.mean(axis=1)))
@@ -446,11 +450,6 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, c: Calibrated, seed: 
                 l0 = l0_ch[:, chb].mean(axis=1)
                 l1 = cv[best.name][:, chb].mean(axis=1)
                 effect_ok, where, t = _significant(ctx, l0, l1)
-                log(f"diagnose: round {rnd + 1}: best {best.name} held-out gain on "
-                    f"{', '.join(CHANNELS[i] for i in chb)} {100 * (l0.mean() - l1.mean()) / max(l0.mean(), 1e-12):.1f}% "
-                    f"(t = {t:.1f}, {where or 'not significant'})")
-                searched.append({"round": rnd + 1, "candidates": {f.name: float(cv[f.name].mean()) for f in top},
-                                 "baseline": float(l0_ch.mean())})
                 if effect_ok:
                     break
         else:  # neither was accepted
@@ -496,12 +495,12 @@ SCREEN_NFEV = 12
 
 
 def _joint_with_calibration(prob: nm.Problem, c: Calibrated, top: list, cv: dict, ctx: Ctx,
-                            log: Callable[[str], None]) -> tuple[nm.Fit, dict]:
+                            log: Callable[[str], None]) -> dict[str, cv_.Block]:
     """The best candidates refitted together with the calibrated parameters (``prob`` on the
     nominal vehicle, the effects already chosen in it), cross-validated jointly. A calibrated
     inertia that took a steering lag's place, or a stiffness that took a downforce's, gives it
-    back; a candidate keeps whichever held-out loss is lower. Returns the best and, per candidate
-    that gained, the calibration block it was fitted with."""
+    back; a candidate keeps whichever held-out loss is lower (``top`` and ``cv`` updated in
+    place). Returns, per candidate that gained, the calibration block it was fitted with."""
     lo, hi = cal.bounds(prob.vehicle, c.fit.params, cal.v_top(prob.data))
     joint = {}
     # a profile keeps its own fit (its smoothing is chosen inside it) and takes none of the
@@ -509,7 +508,7 @@ def _joint_with_calibration(prob: nm.Problem, c: Calibrated, top: list, cv: dict
     # would otherwise keep the downforce from giving the stiffness back
     scalar = [f for f in sorted(top, key=lambda g: cv[g.name].mean()) if f.profile is None]
     for f in scalar[:JOINT_TOP]:
-        blocks = [cv_.calibration_block(c.fit.params, c.fit.x, lo, hi), cv_.effect_block(f, prob.data)]
+        blocks = [cv_.calibration_block(c.fit.params, c.fit.x, lo, hi), cv_.effect_block(f, prob.data, prob.vehicle)]
         blocks = cv_.joint_fit(prob, blocks, ctx.fit_w, max_nfev=JOINT_ROUND_NFEV)
         lj = cv_.cv_losses(prob, blocks, ctx.eval_w, ctx.fold)
         if lj.mean() < cv[f.name].mean():
@@ -519,7 +518,28 @@ def _joint_with_calibration(prob: nm.Problem, c: Calibrated, top: list, cv: dict
             i = top.index(f)
             top[i] = nm.Fit(f.name, f.free, blocks[1].x, f.fixed, f.cost)
             joint[f.name] = blocks[0]
-    return min(top, key=lambda g: cv[g.name].mean()), joint
+    return joint
+
+
+def _pick(ctx: Ctx, l0_ch: np.ndarray, cv: dict, top: list, rnd: int,
+          log: Callable[[str], None]) -> nm.Fit | None:
+    """The round's effect: among the cross-validated candidates whose held-out gain on their own
+    channels is significant (:func:`_significant`), the one with the lowest held-out loss over all
+    channels; None when none is. Not the lowest loss first and then its test: one channel far
+    above its noise floor (IAC: v_x, a measured a_x, 22 times) makes the total loss that
+    channel's, and a candidate acting on it by a few per cent (a grade profile, t = 2) then hides
+    a significant one on another channel (a velocity misalignment, 41 % on v_y, t = 5.8), and the
+    round stopped with nothing named."""
+    ok_fits = []
+    for f in sorted(top, key=lambda g: cv[g.name].mean()):
+        ch = _channels(f.name)
+        l0, l1 = l0_ch[:, ch].mean(axis=1), cv[f.name][:, ch].mean(axis=1)
+        ok, where, t = _significant(ctx, l0, l1)
+        log(f"diagnose: round {rnd + 1}: {f.name} held-out gain on {', '.join(CHANNELS[i] for i in ch)} "
+            f"{100 * (l0.mean() - l1.mean()) / max(l0.mean(), 1e-12):.1f}% (t = {t:.1f}, {where or 'not significant'})")
+        if ok:
+            ok_fits.append(f)
+    return ok_fits[0] if ok_fits else None
 
 
 def _clearly_better(ctx: Ctx, l_effect: np.ndarray, l_cal: np.ndarray) -> bool:
@@ -532,10 +552,10 @@ def _clearly_better(ctx: Ctx, l_effect: np.ndarray, l_cal: np.ndarray) -> bool:
 
 
 def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_struct: set, fits: list,
-                 rnd: int, log: Callable[[str], None]) -> tuple[nm.Fit | None, dict, list]:
-    """The catalogue effect with the lowest held-out loss this round: every candidate one
-    linearised step from every starting point, the most promising fitted on, the best three
-    cross-validated. (best, {name: (m, 3) held-out losses}, the cross-validated fits)."""
+                 rnd: int, log: Callable[[str], None]) -> tuple[dict, list]:
+    """The catalogue effects cross-validated this round: every candidate one linearised step
+    from every starting point, the most promising fitted on, the best three cross-validated.
+    ({name: (m, 3) held-out losses}, the cross-validated fits); :func:`_pick` chooses among them."""
     names = [n for n in EFFECTS if n not in {f.name for f in fits} and n not in s.not_identifiable
              and n not in ctx.skip and {CHANNELS.index(ch) for ch in EFFECTS[n].channels} & dyn_struct]
     log(f"diagnose: round {rnd + 1}: screening {len(names)} candidate effects")
@@ -549,7 +569,7 @@ def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_stru
         if f is not None:
             cands.append(f)
     if not cands:
-        return None, {}, []
+        return {}, []
     cands.sort(key=lambda f: f.cost)
     # only the most promising continue to the full screening fit, warm-started
     # (a window and its profile share one slot: profiles.leading)
@@ -558,7 +578,7 @@ def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_stru
     top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in _slots(cands, nm.SCREEN_TOP)]
     cv = {f.name: _cv_channels(replace(ctx, prob=prob), [f]) for f in top}
     top = window_or_profile(top, cv, ctx.bid)  # parsimony: the window unless the profile is better
-    return min(top, key=lambda f: cv[f.name].mean()), cv, top
+    return cv, top
 
 
 def _slots(cands: list, k: int) -> list:
@@ -759,6 +779,8 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
         for g in nom.regions[ch]:
             regions_json.append({"channel": g.channel, "s_start": round(g.s_start, 1), "s_end": round(g.s_end, 1),
                                  "description": f"{g.description}; seen in {g.laps_seen} of {g.laps_total} lap(s)"})
+    fitted_on = c.vehicle if c.applied else vehicle  # the car the effects were fitted against
+
     def effect_json(e: NamedEffect) -> dict[str, Any]:
         spec = EFFECTS[e.name].params
         params = {}
@@ -766,11 +788,15 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
             if k in nm.FIXED:
                 continue
             lo, hi = e.fit.ci.get(k, (float("nan"), float("nan")))
-            params[k] = {"value": float(v), "ci95": [float(lo), float(hi)], "unit": spec[k].unit}
+            params[k] = {"value": float(v), "ci95": [float(lo), float(hi)], "unit": spec[k].unit,
+                         "at_bound": not k.startswith("s_") and nm.at_bound(e.name, k, float(v), fitted_on, p.data)}
+        prof = e.fit.profile_json()
+        if prof is not None:
+            prof["at_bound"] = any(nm.at_bound(e.name, "values", float(v), fitted_on, p.data) for v in prof["value"])
         return {"name": e.name, "parameters": params, "channels": e.channels,
                 "heldout_rmse_before": e.heldout_before, "heldout_rmse_after": e.heldout_after,
                 "improvement": round(e.improvement, 4), "ambiguous_with": list(e.ambiguous_with),
-                "significant_where": e.where, "profile": e.fit.profile_json()}
+                "significant_where": e.where, "profile": prof}
 
     eff_json = [effect_json(e) for e in effects]
     partial_json = [effect_json(e) for e in (ver.partial if verdict == "mismatch" else ())]
@@ -947,7 +973,7 @@ def _cv_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
     chosen inside its fit, not a block of the linearised step)."""
     prob, eval_w, fold = ctx.prob, ctx.eval_w, ctx.fold
     if not any(f.profile is not None for f in fits):
-        return cv_.cv_losses(prob, [cv_.effect_block(f, prob.data) for f in fits], eval_w, fold)
+        return cv_.cv_losses(prob, [cv_.effect_block(f, prob.data, prob.vehicle) for f in fits], eval_w, fold)
     out = np.empty((len(eval_w), 3))
     for fo in np.unique(fold):
         tr = eval_w[fold != fo][:: max(1, len(eval_w) // 400)]

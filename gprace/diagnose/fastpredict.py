@@ -241,7 +241,9 @@ def _profile_inputs(profs: list, m: int):
 def plan(model: NominalModel) -> tuple[str, tuple[str, ...], list[Effect]] | None:
     """(longitudinal, lags, catalogue effects) when the universal function can run ``model``,
     else None (an effect outside the catalogue or of a subclass, one kind twice, lags or a steering
-    offset in an order whose arithmetic the universal (catalogue) order would change)."""
+    offset in an order whose arithmetic the universal (catalogue) order would change). Lags in
+    another order than the catalogue's run too: they act on different inputs, so only the layout
+    of their states differs, which :func:`predict_states` permutes."""
     names = [e.name for e in model.effects]
     if len(set(names)) != len(names):
         return None
@@ -257,8 +259,6 @@ def plan(model: NominalModel) -> tuple[str, tuple[str, ...], list[Effect]] | Non
     # sums and products: any order gives the same numbers (to rounding). What order changes: the
     # layout of the lag states, and a steering offset added before a steering lag replaces the
     # angle (the lag's state then holds no offset).
-    if [n for n in names if n in LAGS] != [n for n in cat if n in LAGS]:
-        return None
     if "steering_offset" in names and "steering_lag" in names \
             and names.index("steering_offset") < names.index("steering_lag"):
         return None
@@ -303,6 +303,16 @@ def predict_states(model: NominalModel, data, starts: np.ndarray, H: int, subste
         return None
     fn, lay = kern
     m = len(starts)
+    # the model's lag states in its own order -> the kernel's (catalogue) order, and back
+    own = [n for n in (e.name for e in model.effects) if n in LAGS]
+    perm = None
+    if own != list(pl[1]):
+        pos, j = {}, NX
+        for e in model.effects:
+            pos[e.name] = j
+            j += e.n_states
+        perm = np.r_[np.arange(NX), [pos[n] + i for n in pl[1] for i in range(EFFECTS[n].n_states)]].astype(int)
+        X0 = X0[:, perm]
     prof_args = _profile_inputs(profs, m)
     P = np.ascontiguousarray(parameter_rows(model, lay, m))
     X0 = np.ascontiguousarray(X0, dtype=float)
@@ -320,4 +330,8 @@ def predict_states(model: NominalModel, data, starts: np.ndarray, H: int, subste
     fn(m, H, int(substeps), float(data.dt), ptr(X0), ptr(k0, ctypes.POINTER(ctypes.c_long)), ptr(U),
        len(U), ptr(P), 0 if len(P) == 1 else lay.np, ptr(data.ks), ptr(data.kv), len(data.ks), ptr(L), ptr(off),
        *(ptr(a) if a.dtype == float else ptr(a, ctypes.POINTER(ctypes.c_long)) for a in prof_args), ptr(out))
+    if perm is not None:
+        back = np.empty_like(out)
+        back[..., perm] = out
+        return back
     return out

@@ -168,7 +168,48 @@ def lap_bounds(data: Dataset) -> tuple[float, float]:
     return float(np.nanmin(s)) - 5.0, float(np.nanmax(s)) + 5.0
 
 
-def _bounds(name: str, free: list[str], data: Dataset):
+FRICTION_FACTORS = {("tire_friction", "front"), ("tire_friction", "rear"), ("friction_patch", "factor"),
+                    ("friction_profile", "values")}
+"""Effect parameters that multiply the peak friction mu: bounded so that mu times the factor stays
+among the tire-road ratios that exist (``config.MU_POSSIBLE``, what ``VehicleConfig`` refuses
+beyond, as the calibrated peak friction)."""
+DOWNFORCE_G = (-0.5, 4.0)
+"""Aero load at the recording's top speed in units of the car's weight: at most 4 (beyond any
+race car's: an F1 car makes about 3.5 at its top speed), lift at most half the weight."""
+
+
+def physical_bounds(name: str, key: str, vehicle, data: Dataset | None) -> tuple[float, float]:
+    """The bounds of an effect parameter: the catalogue's, narrowed to what the car can have
+    physically. A friction factor keeps ``mu x factor`` inside ``MU_POSSIBLE`` (IAC's partial
+    tire_friction reached a rear x2.8 on a mu of 1.5, a tire-road ratio of 4.2); a downforce keeps
+    its load at the top speed inside :data:`DOWNFORCE_G`; a CoG height driving the load transfer
+    stays below the rear lever ``l_r`` (higher, 1 g of braking lifts the rear wheels). Without a
+    vehicle, the catalogue's bounds."""
+    from gprace.config import G, MU_POSSIBLE
+
+    spec = EFFECTS[name].params[key]
+    lo, hi = float(spec.lower), float(spec.upper)
+    if vehicle is None:
+        return lo, hi
+    if (name, key) in FRICTION_FACTORS:
+        lo, hi = max(lo, MU_POSSIBLE[0] / vehicle.mu), min(hi, MU_POSSIBLE[1] / vehicle.mu)
+    elif (name, key) == ("downforce", "c_l") and data is not None:
+        v2 = max(float(np.quantile(np.abs(data.Y[:, State.V_X]), 0.99)), 1.0) ** 2
+        w = vehicle.mass * G / v2
+        lo, hi = max(lo, DOWNFORCE_G[0] * w), min(hi, DOWNFORCE_G[1] * w)
+    elif (name, key) == ("load_transfer", "cog_height"):
+        hi = min(hi, vehicle.l_r)
+    return lo, hi
+
+
+def at_bound(name: str, key: str, value: float, vehicle, data: Dataset | None, rel: float = 1e-3) -> bool:
+    """Is ``value`` pressed against a bound of :func:`physical_bounds` (within ``rel`` of the range)?"""
+    lo, hi = physical_bounds(name, key, vehicle, data)
+    tol = rel * (hi - lo)
+    return bool(value <= lo + tol or value >= hi - tol)
+
+
+def _bounds(name: str, free: list[str], data: Dataset, vehicle=None):
     cls = EFFECTS[name]
     lo, hi = [], []
     s_lo, s_hi = lap_bounds(data)
@@ -179,7 +220,8 @@ def _bounds(name: str, free: list[str], data: Dataset):
         elif k == "tau":  # lags far below the sample period are not identifiable (and stiff)
             lo.append(max(spec.lower, 0.01)), hi.append(spec.upper)
         else:
-            lo.append(spec.lower), hi.append(spec.upper)
+            a, b = physical_bounds(name, k, vehicle, data)
+            lo.append(a), hi.append(b)
     return np.array(lo), np.array(hi)
 
 
@@ -225,7 +267,7 @@ def fit_effect(prob: Problem, name: str, starts: np.ndarray, inits: list[dict[st
         return profiles.fit_profile(prob, name, starts, v0, iterations=_iterations(max_nfev))
     free = free_params(name)
     fixed = {k: EFFECTS[name].params[k].default for k in EFFECTS[name].params if k in FIXED}
-    lo, hi = _bounds(name, free, prob.data)
+    lo, hi = _bounds(name, free, prob.data, prob.vehicle)
     step = 1e-3 if any(k.startswith("s_") for k in free) else float(np.sqrt(np.finfo(float).eps))
     xs = np.array([SCALE.get(k, max(abs(hi[i] - lo[i]) * 0.05, 1e-3)) for i, k in enumerate(free)])
     best: Fit | None = None

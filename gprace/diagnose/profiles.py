@@ -348,7 +348,7 @@ def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None =
         c = np.interp(basis.knots, k0, v_init, period=basis.L) - base
     c = _out(Z, _in(Z, c)) if Z is not None else c
     P = basis.penalty()
-    lo, hi = spec.lower - base, spec.upper - base
+    lo, hi = (v - base for v in nm.physical_bounds(name, "values", prob.vehicle, prob.data))
     lo, hi = lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo)  # base + c stays inside despite rounding
     n = prob.H * 3
     best = None  # (penalised objective, c) of the best point evaluated

@@ -123,11 +123,12 @@ def _effect_lines(e: Effect) -> list[str]:
     out = [f"  effect {e.name}{amb}: improvement {100 * e.improvement:.0f}%{where}"]
     for k, p in e.parameters.items():
         lo, hi = p.ci95
-        out.append(f"      {k} = {p.value:.4g} {p.unit}  (95% [{lo:.4g}, {hi:.4g}])")
+        out.append(f"      {k} = {p.value:.4g} {p.unit}  (95% [{lo:.4g}, {hi:.4g}])"
+                   + ("  at its physical bound" if p.at_bound else ""))
     if e.profile is not None:
         from gprace.report.sections.diagnosis import profile_text
 
-        out.append(f"      {profile_text(e)}")
+        out.append(f"      {profile_text(e)}" + ("  (at its physical bound somewhere)" if e.profile.at_bound else ""))
     return out
 
 

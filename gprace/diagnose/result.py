@@ -95,6 +95,8 @@ class Parameter(Frozen):
     value: Num = Field(description="fitted value")
     ci95: list[Num] = Field(min_length=2, max_length=2, description="95 % interval [low, high] (null: not computed)")
     unit: str = Field("", description="unit of the value")
+    at_bound: bool = Field(False, description="pressed against a bound of what the car can have physically "
+                                               "(gprace.diagnose.name.physical_bounds)")
 
 
 class EffectProfile(Frozen):
@@ -109,6 +111,8 @@ class EffectProfile(Frozen):
     lap_length: Num = Field(description="period of the profile [m]")
     smoothing: Num = Field(NAN, description="roughness penalty chosen by cross-validation (relative to the data)")
     edf: Num | None = Field(None, description="effective degrees of freedom of the fitted profile")
+    at_bound: bool = Field(False, description="a knot value pressed against a bound of what the car can have "
+                                              "physically (gprace.diagnose.name.physical_bounds)")
 
     @model_validator(mode="after")
     def _one_value_per_knot(self) -> "EffectProfile":
