@@ -89,3 +89,11 @@ def test_a_friction_factor_cannot_leave_its_physical_bound(monkeypatch):
     front = held.values()["front"]
     assert lo - 1e-9 <= front < lo + 0.01 and nm.at_bound("tire_friction", "front", front, audi, data)
     assert held.cost > free.cost  # the bound costs fit: the data wanted less grip
+
+
+def test_at_bound_is_in_the_json_only_when_true():
+    """A parameter at its physical bound says so; one inside keeps the JSON it had before the flag."""
+    from gprace.diagnose.result import Parameter
+
+    assert Parameter(value=2.0, ci95=[1.8, 2.0], at_bound=True).model_dump()["at_bound"] is True
+    assert "at_bound" not in Parameter(value=1.2, ci95=[1.0, 1.4]).model_dump()

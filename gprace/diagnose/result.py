@@ -89,6 +89,12 @@ class Region(Frozen):
                              "'unexplained after the named effects: ...'")
 
 
+def _without_false_flag(out: dict) -> dict:
+    if out.get("at_bound") is False:
+        out.pop("at_bound")
+    return out
+
+
 class Parameter(Frozen):
     """A fitted parameter of a named effect."""
 
@@ -97,6 +103,11 @@ class Parameter(Frozen):
     unit: str = Field("", description="unit of the value")
     at_bound: bool = Field(False, description="pressed against a bound of what the car can have physically "
                                                "(gprace.diagnose.name.physical_bounds)")
+
+    @model_serializer(mode="wrap")
+    def _drop_false(self, handler):
+        """A parameter inside its bounds keeps the JSON it had before the flag existed."""
+        return _without_false_flag(handler(self))
 
 
 class EffectProfile(Frozen):
@@ -113,6 +124,10 @@ class EffectProfile(Frozen):
     edf: Num | None = Field(None, description="effective degrees of freedom of the fitted profile")
     at_bound: bool = Field(False, description="a knot value pressed against a bound of what the car can have "
                                               "physically (gprace.diagnose.name.physical_bounds)")
+
+    @model_serializer(mode="wrap")
+    def _drop_false(self, handler):
+        return _without_false_flag(handler(self))
 
     @model_validator(mode="after")
     def _one_value_per_knot(self) -> "EffectProfile":
