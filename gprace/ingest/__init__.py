@@ -5,7 +5,7 @@
 
 ``mapping`` (the recording map, TOML), ``readers`` (one per format), ``process`` (resampling,
 gaps, unit checks, projection), ``refline`` (reference line from the driven path), ``dispatch``
-(what :func:`gprace.io.runs.read_run` hands over), ``commands`` (``gprace import``).
+(:func:`~gprace.ingest.dispatch.read_any`: a run or a raw recording, imported), ``commands`` (``gprace import``).
 """
 
 from gprace.ingest.importer import import_recording

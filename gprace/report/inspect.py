@@ -382,9 +382,9 @@ def _describe_portable(path: Path, f) -> dict[str, Any]:
 
 
 def _describe_csv(path: Path) -> dict[str, Any]:
-    from gprace.io.runs import read_run
+    from gprace.ingest.dispatch import read_any
 
-    run = read_run(path)
+    run = read_any(path)
     info: dict[str, Any] = {"path": str(path), "format": "csv", "kind": "run"}
     for k in RESERVED[1:]:
         info[k] = ""

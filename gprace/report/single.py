@@ -99,9 +99,9 @@ def figures_for(path: str | Path, features: tuple[str, str] | None = None, again
         raise InputError(f"{path}: no such file")
     suffix = path.suffix.lower()
     if suffix == ".csv":
-        from gprace.io.runs import read_run
+        from gprace.ingest.dispatch import read_any
 
-        run = read_run(path)
+        run = read_any(path)
         return [(f"{path.name}: states and inputs", F.fig_run(run.data, against, title=path.name))]
     if suffix == ".json":
         obj = json.loads(path.read_text())
