@@ -24,7 +24,7 @@ def register(app: typer.Typer) -> None:
         """Compare recordings with the nominal model; name, fit and write the effects it leaves out."""
         from gprace.config import load_vehicle
         from gprace.diagnose.diagnose import diagnose
-        from gprace.diagnose.report import plot_residuals, summary_lines, write_augmented
+        from gprace.diagnose.report import summary_lines, write_augmented
         from gprace.ingest.dispatch import read_any
 
         from gprace.io.artifacts import check_output
@@ -38,6 +38,8 @@ def register(app: typer.Typer) -> None:
         if output is not None:
             write_augmented(res.vehicle, output, res.result)
         if plot is not None:
+            from gprace.report.sections.diagnosis import plot_residuals
+
             plot_residuals(res, plot)
         if json_out:
             console.json(res.report)
