@@ -8,7 +8,8 @@ gaps, unit checks, projection), ``refline`` (reference line from the driven path
 (:func:`~gprace.ingest.dispatch.read_any`: a run or a raw recording, imported), ``commands`` (``gprace import``).
 """
 
+from gprace.ingest.dispatch import read_any
 from gprace.ingest.importer import import_recording
 from gprace.ingest.mapping import RecordingMap, load_map
 
-__all__ = ["RecordingMap", "import_recording", "load_map"]
+__all__ = ["RecordingMap", "import_recording", "load_map", "read_any"]
