@@ -18,6 +18,8 @@ import numpy as np
 import pytest
 
 from gprace.cli import main
+from gprace.errors import InputError
+from gprace.ingest.dispatch import read_any
 from gprace.io.runs import read_run, write_run_csv
 
 from shared_data import TUM_TRACKS as TRACKS
@@ -432,20 +434,27 @@ def test_one_silent_source_is_a_gap_too(sim, tmp_path):
     assert imp.meta["rows_dropped"] == 29
 
 
-def test_read_run_dispatches_raw_recordings(sim, tmp_path):
-    """Every stage reading a recording takes the raw formats too (map's track, else the path)."""
+def test_read_any_imports_raw_recordings_read_run_does_not(sim, tmp_path):
+    """Every stage reading a user's recording takes the raw formats too (map's track, else the
+    path) through ``read_any``; ``read_run`` reads gprace runs only (issue 40: the ingest layer
+    decides when a file is imported)."""
     bag = write_mcap(sim, tmp_path / "bag")
     (tmp_path / "bag.map.toml").write_text(f'track = "{NORIS}"\n')
-    run = read_run(bag.parent)
+    run = read_any(bag.parent)
     assert run.meta["reference"] == "track" and run.dt == 0.05
     e, _ = _compare(run, sim["run"], sim["track"])
     assert e["e_y"] < 0.05 and e["s"] < 0.1
     csv = write_global_csv(sim, tmp_path / "log.csv")
-    run2 = read_run(csv)  # no map: the reference line from the path
+    run2 = read_any(csv)  # no map: the reference line from the path
     assert run2.meta["reference"] == "path" and set(run2.data) >= {"s", "e_y", "kappa"}
+    with pytest.raises(InputError, match="is a folder"):
+        read_run(bag.parent)
+    with pytest.raises(InputError, match="missing column"):
+        read_run(csv)
     # a Frenet CSV is read as before
     write_run_csv(sim["run"], tmp_path / "frenet.csv")
-    assert "reference" not in read_run(tmp_path / "frenet.csv").meta
+    assert "reference" not in read_any(tmp_path / "frenet.csv").meta
+    np.testing.assert_array_equal(read_any(tmp_path / "frenet.csv")["v_x"], read_run(tmp_path / "frenet.csv")["v_x"])
     code, out, err = _cli("-q", "select-data", bag.parent, "--gp", "tracking", "--max-points", "50",
                           "--selection", "random", "--vehicle", "audi_tt_cup", "-o", tmp_path / "data.h5")
     assert code == 0, err

@@ -24,20 +24,22 @@ def register(app: typer.Typer) -> None:
         """Compare recordings with the nominal model; name, fit and write the effects it leaves out."""
         from gprace.config import load_vehicle
         from gprace.diagnose.diagnose import diagnose
-        from gprace.diagnose.report import plot_residuals, summary_lines, write_augmented
-        from gprace.io.runs import read_run
+        from gprace.diagnose.report import summary_lines, write_augmented
+        from gprace.ingest.dispatch import read_any
 
         from gprace.io.artifacts import check_output
 
         check_output(output)
         check_output(plot, "--plot")
         veh = load_vehicle(vehicle)
-        runs = [read_run(p) for p in recordings]
+        runs = [read_any(p) for p in recordings]
         res = diagnose(runs, veh, horizon=horizon, seed=seed, augmented_name=str(output) if output else None,
                        log=console.info)
         if output is not None:
             write_augmented(res.vehicle, output, res.result)
         if plot is not None:
+            from gprace.report.sections.diagnosis import plot_residuals
+
             plot_residuals(res, plot)
         if json_out:
             console.json(res.report)

@@ -35,6 +35,7 @@ def select_data_cmd(
     """Build or extend a GP dataset: features of RUNs, diverse (or random) selection of M points."""
     from gprace.errors import ConfigError
     from gprace.gp.stages import select_data
+    from gprace.ingest.dispatch import read_any
 
     from gprace.io.artifacts import check_output
 
@@ -42,7 +43,7 @@ def select_data_cmd(
     if not outlier_kappa >= 0:
         raise ConfigError(f"--outlier-kappa must be >= 0 (standard deviations; 0 disables the gate), got {outlier_kappa}")
     res = select_data(inputs, output, gp, max_points, selection, vehicle, model, kernel, step,
-                      outlier_kappa if outlier_kappa > 0 else None, seed, features)
+                      outlier_kappa if outlier_kappa > 0 else None, seed, features, read=read_any)
     for note in res["notes"]:
         console.warn(note)
     if json_out:
@@ -92,8 +93,9 @@ def evaluate_gp_cmd(
 ) -> None:
     """GP error on a recording: RMSE, MAE and 95% calibration per output, next to the nominal model's RMSE."""
     from gprace.gp.stages import evaluate_gp
+    from gprace.ingest.dispatch import read_any
 
-    res = evaluate_gp(model, run, vehicle)
+    res = evaluate_gp(model, run, vehicle, read=read_any)
     for note in res["notes"]:
         console.warn(note)
     if json_out:

@@ -226,7 +226,7 @@ def collect_cmd(
 
 
 def train_cmd(
-    dataset: Path = typer.Argument(..., help="An h2h_dataset file."),
+    dataset: Path = typer.Argument(..., help="An opponent GP dataset (from h2h collect or h2h explore)."),
     model: Path = typer.Argument(..., help="Output GP model file."),
     size: Optional[int] = typer.Option(None, "--select", help="Diverse selection of this many points first."),
     hyper_model: Optional[Path] = typer.Option(None, "--hyper-model", help="GP whose hyperparameters drive the selection."),

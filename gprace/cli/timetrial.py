@@ -155,19 +155,7 @@ def run_cmd(
         gp = load_predictor(model, "tracking")
     p0, tr = load_plan(plan, track, m.vehicle, gp=gp, dt=mpc.dt)  # a plan file, or a raceline CSV on --track
     if alpha > 0:
-        if gp is None:
-            raise ConfigError("--alpha > 0 needs --model (exploration ranks candidates by the tracking GP's variance)")
-        from gprace.explore.algorithm import CandidateGrid
-        from gprace.io.artifacts import read_artifact
-
-        if candidates is not None:
-            c = read_artifact(candidates, "candidates")
-            grid = CandidateGrid(c.arrays["Z"], c.arrays["v"], c.arrays["scale"])
-        else:
-            from gprace.gp import train_inputs
-            from gprace.timetrial.iterate import make_grid
-
-            grid = make_grid(gp.gp, train_inputs(gp.gp), mpc, 7)  # the GP's data in data units, as the MPC's features
+        grid = _exploration_grid(gp, candidates, mpc)
     settings = DriveSettings(laps=laps, mpc=mpc)
     plant_cfg = load_plant(plant)
     console.info(f"run: driving {plan} on {plant} for {laps:g} lap(s) with the tracking MPC"
@@ -179,19 +167,44 @@ def run_cmd(
 
         write_plan_run(mcap, tr, p0, run, m, gp, mpc.dt, mpc.N, [f"gprace run {plan} on {plant}: {run.meta['reason'] or 'completed'}"])
     mt = run.meta
+    _print_run(output, mt, as_json)
+    if not mt["completed"]:  # a failed run (the record is kept for inspection): exit 1
+        raise RunFailedError(f"run: {mt['reason']}; the partial run is in {output}")
+
+
+def _exploration_grid(gp, candidates: Path | None, mpc):
+    """Algorithm 1's candidates for ``run --alpha``: the ``--candidates`` file, else built from the
+    tracking GP's training inputs in data units (the MPC's features)."""
+    from gprace.errors import ConfigError
+    from gprace.explore.algorithm import CandidateGrid
+    from gprace.io.artifacts import read_artifact
+
+    if gp is None:
+        raise ConfigError("--alpha > 0 needs --model (exploration ranks candidates by the tracking GP's variance)")
+    if candidates is not None:
+        c = read_artifact(candidates, "candidates")
+        return CandidateGrid(c.arrays["Z"], c.arrays["v"], c.arrays["scale"])
+    from gprace.gp import train_inputs
+    from gprace.timetrial.iterate import make_grid
+
+    return make_grid(gp.gp, train_inputs(gp.gp), mpc, 7)
+
+
+def _print_run(output: Path, mt: dict, as_json: bool) -> None:
+    """The result of ``gprace run``: JSON, or one line."""
+    from gprace.console import console
+
     if as_json:
         console.json({"output": str(output), **{k: mt[k] for k in ("lap_time", "planned_lap_time", "completed", "reason",
                                                                   "border_hit_steps", "fallbacks")},
                       "solve_time_median_ms": 1e3 * mt["solve_time_median"]})
-    else:
-        lap = (f"lap {mt['lap_time']:.2f} s" if math.isfinite(mt["lap_time"])
-               else "no full lap" if mt["completed"] else "lap not completed")
-        console.result(
-            f"{output}: {lap} (planned {mt['planned_lap_time']:.2f} s), completed {mt['completed']}, "
-            f"border-hit steps {mt['border_hit_steps']}, fallbacks {mt['fallbacks']}, QP median {1e3 * mt['solve_time_median']:.2f} ms"
-        )
-    if not mt["completed"]:  # a failed run (the record is kept for inspection): exit 1
-        raise RunFailedError(f"run: {mt['reason']}; the partial run is in {output}")
+        return
+    lap = (f"lap {mt['lap_time']:.2f} s" if math.isfinite(mt["lap_time"])
+           else "no full lap" if mt["completed"] else "lap not completed")
+    console.result(
+        f"{output}: {lap} (planned {mt['planned_lap_time']:.2f} s), completed {mt['completed']}, "
+        f"border-hit steps {mt['border_hit_steps']}, fallbacks {mt['fallbacks']}, QP median {1e3 * mt['solve_time_median']:.2f} ms"
+    )
 
 
 def iterate_cmd(

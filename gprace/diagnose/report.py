@@ -126,28 +126,18 @@ def _effect_lines(e: Effect) -> list[str]:
         out.append(f"      {k} = {p.value:.4g} {p.unit}  (95% [{lo:.4g}, {hi:.4g}])"
                    + ("  at its physical bound" if p.at_bound else ""))
     if e.profile is not None:
-        from gprace.report.sections.diagnosis import profile_text
-
         out.append(f"      {profile_text(e)}" + ("  (at its physical bound somewhere)" if e.profile.at_bound else ""))
     return out
 
 
-def plot_residuals(res, path: str | Path) -> Path:
-    """The residual-along-track figure of the report (:func:`gprace.report.figures.fig_residual_track`:
-    nominal and augmented model, located windows, the noise twin's +-1 sigma band) as a PNG.
-    ``res`` is a :class:`~gprace.diagnose.diagnose.Diagnosis` or its result; the figure is drawn
-    from the stored residual profile, nothing is simulated."""
-    from gprace.report.figures import fig_residual_track, write_png
+def profile_text(e: Effect) -> str:
+    """A profile in words: its extreme value, where, with the interval there."""
+    import numpy as np
 
-    r = getattr(res, "result", res)
-    prof = r.residual_profile
-    if prof is None:
-        raise InputError("the diagnosis result has no stored residual profile (it predates it); "
-                         "rerun `gprace diagnose ... --json`")
-    effects = ", ".join(e.name for e in r.effects) or "none"
-    fig = fig_residual_track(prof.s, prof.before, prof.after, [g.model_dump() for g in r.regions],
-                             f"multi-step ({r.horizon} steps) prediction error along the track; effects: {effects}",
-                             noise=prof.noise, effects=[e.model_dump() for e in r.effects])
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)  # like -o: check_output vetted the folder at the start
-    return write_png(fig, path, dpi=110)
+    p = e.profile
+    v = np.asarray(p.value, float)
+    neutral = 1.0 if p.unit == "-" else 0.0
+    i = int(np.nanargmax(np.abs(v - neutral)))
+    return (f"profile along the lap ({len(v)} knots, {p.edf if p.edf is not None else float('nan'):.1f} "
+            f"effective parameters): extreme {v[i]:.4g} {p.unit} at s = {p.s[i]:.0f} m "
+            f"[{p.ci95_low[i]:.4g}, {p.ci95_high[i]:.4g}]")

@@ -40,6 +40,7 @@ def select_data(
     outlier_kappa: float | None = 4.0,
     seed: int = 0,
     features: str = "paper",
+    read=None,
 ) -> dict[str, Any]:
     """Features of the runs among ``inputs`` streamed into a dictionary of at most ``max_points``.
 
@@ -47,6 +48,8 @@ def select_data(
     points are the initial dictionary, and for ``diverse`` its selection hyperparameters are
     reused). Hyperparameters for ``diverse`` come, in this order, from ``model`` (a gp_model),
     the continued dataset, or a quick exact-GP fit on at most 300 points of all the data.
+    ``read``: the reader of a run path (default :func:`gprace.io.runs.read_run`; the CLI passes
+    :func:`gprace.ingest.dispatch.read_any`, which imports raw recordings first).
     """
     from gprace.gp.dataset import GPDataset, write_dataset
     from gprace.gp.features import dyn_feature_set, feature_map
@@ -65,7 +68,7 @@ def select_data(
     input_names = list(dyn_feature_set(features))
     veh = _load_vehicle(vehicle)
 
-    previous, Zs, Ys, sources, dts, envelopes = _read_inputs(inputs, gp, input_names, features, step, veh)
+    previous, Zs, Ys, sources, dts, envelopes = _read_inputs(inputs, gp, input_names, features, step, veh, read)
     dt = dts[0]
     bad = [s for s, d in zip(sources, dts) if abs(d - dt) > 1e-6 * dt]
     prev_dt = previous.attrs.get("dt") if previous is not None else None
@@ -98,7 +101,7 @@ def select_data(
             "stats": stats, "envelope": [e.to_dict() for e in envelopes], "notes": _notes(envelopes)}
 
 
-def _read_inputs(inputs, gp: str, input_names: list[str], features: str, step: str, veh):
+def _read_inputs(inputs, gp: str, input_names: list[str], features: str, step: str, veh, read=None):
     """The features of every run among ``inputs``, and the one dataset to continue from (if any),
     checked against the requested feature map, inputs and step."""
     from gprace.gp.dataset import GPDataset, is_dataset, read_dataset
@@ -121,7 +124,7 @@ def _read_inputs(inputs, gp: str, input_names: list[str], features: str, step: s
             if previous.attrs.get("step", step) != step:
                 raise InputError(f"{path}: dataset built with the {previous.attrs.get('step')} step, but --step {step}")
             continue
-        run = read_run(path)
+        run = (read or read_run)(path)
         keep, env = envelope(run.data, str(path), veh.wheelbase if veh is not None else None)
         Z, Y = run_features(run, gp, veh, step, features, keep)
         if len(Z) == 0:
@@ -231,7 +234,7 @@ def retrain(data: str | Path, output: str | Path, backend: str = "exact", kernel
             "points": int(len(ds.Z)), "seconds": elapsed, "outputs": outputs}
 
 
-def evaluate_gp(model: str | Path, run: str | Path, vehicle: str | None = None) -> dict[str, Any]:
+def evaluate_gp(model: str | Path, run: str | Path, vehicle: str | None = None, read=None) -> dict[str, Any]:
     """Per-output error metrics of a saved tracking/planning GP on one recording."""
     from gprace.gp.base import load_model
     from gprace.gp.evaluate import gp_metrics
@@ -243,7 +246,7 @@ def evaluate_gp(model: str | Path, run: str | Path, vehicle: str | None = None) 
     fm = saved.feature_map
     if fm not in ("tracking", "planning"):
         raise InputError(f"{model}: GP of feature map {fm or 'unknown'!r}; evaluate gp handles tracking and planning GPs")
-    rec = read_run(run)
+    rec = (read or read_run)(run)
     step = str(saved.attrs.get("step", "euler"))
     veh = _load_vehicle(vehicle)
     keep, env = envelope(rec.data, str(run), veh.wheelbase if veh is not None else None)

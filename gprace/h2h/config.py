@@ -6,7 +6,7 @@ dt 0.1 s, N = 10). Where that set-up is silent, the choices are documented on th
 
 from __future__ import annotations
 
-from pydantic import Field, field_validator
+from pydantic import Field, NonNegativeFloat, field_validator
 
 from gprace.config import Frozen
 
@@ -14,23 +14,23 @@ from gprace.config import Frozen
 class MPCConfig(Frozen):
     """Weights and limits of one car's NMPC (ego or opponent)."""
 
-    q_contour: float = Field(50.0, ge=0, description="weight of e_y^2 (contouring to the centre line)")
-    q_progress: float = Field(200.0, ge=0, description="reward per metre of progress s_N - s_0")
+    q_contour: NonNegativeFloat = Field(50.0, description="weight of e_y^2 (contouring to the centre line)")
+    q_progress: NonNegativeFloat = Field(200.0, description="reward per metre of progress s_N - s_0")
     r_input: tuple[float, float] = Field((2.0, 2.0), description="weights of delta^2 and a_x^2")
     r_rate: tuple[float, float] = Field((20.0, 20.0), description="weights of the input changes")
     speed_max: float = Field(1.6, gt=0, description="hard speed limit [m/s]")
     speed_soft: float = Field(1.4, gt=0, description="soft speed limit [m/s] (quadratic slack)")
     accel: tuple[float, float] = Field((-1.0, 0.55), description="a_x bounds [m/s^2]")
     steering_max: float = Field(0.435, gt=0, description="|delta| bound [rad]")
-    q_block: float = Field(0.0, ge=0, description="blocking weight Q_block / (1 + ds)^2 (opponent only)")
-    border_margin: float = Field(0.13, ge=0, description="distance of the car's centre from a border [m] at small "
+    q_block: NonNegativeFloat = Field(0.0, description="blocking weight Q_block / (1 + ds)^2 (opponent only)")
+    border_margin: NonNegativeFloat = Field(0.13, description="distance of the car's centre from a border [m] at small "
                                  "heading errors; beyond about 0.29 rad the NLP keeps the footprint's lateral "
                                  "extent plus 1 cm (gprace.h2h.nmpc.border_margin)")
-    slack_linear: float = Field(2000.0, ge=0, description="linear penalty of the collision slack")
-    slack_quadratic: float = Field(2e4, ge=0, description="quadratic penalty of the collision slack")
-    border_linear: float = Field(1e5, ge=0, description="linear penalty of the track-border slack")
-    border_quadratic: float = Field(1e7, ge=0, description="quadratic penalty of the track-border slack")
-    speed_slack: float = Field(200.0, ge=0, description="quadratic penalty of the soft speed excess")
+    slack_linear: NonNegativeFloat = Field(2000.0, description="linear penalty of the collision slack")
+    slack_quadratic: NonNegativeFloat = Field(2e4, description="quadratic penalty of the collision slack")
+    border_linear: NonNegativeFloat = Field(1e5, description="linear penalty of the track-border slack")
+    border_quadratic: NonNegativeFloat = Field(1e7, description="quadratic penalty of the track-border slack")
+    speed_slack: NonNegativeFloat = Field(200.0, description="quadratic penalty of the soft speed excess")
     substeps: int = Field(2, ge=1, description="RK4 sub-steps of the prediction model (dt/2 is stable "
                           "above 0.4 m/s; below, the model blends into a kinematic one)")
     max_iter: int = Field(60, ge=5, description="IPOPT iteration limit")
@@ -64,13 +64,13 @@ class H2HConfig(Frozen):
     mpc_length: float = Field(0.36, gt=0, description="car length seen by the collision constraint")
     mpc_width: float = Field(0.2, gt=0)
     disk_radius: float = Field(0.111, gt=0, description="radius of the 4 disks covering the ego")
-    std_factor: float = Field(1.0, ge=0, description="ellipse inflation per predicted std [m/m]")
-    after_overtake: float = Field(1.5, ge=0, description="seconds simulated after the overtake")
+    std_factor: NonNegativeFloat = Field(1.0, description="ellipse inflation per predicted std [m/m]")
+    after_overtake: NonNegativeFloat = Field(1.5, description="seconds simulated after the overtake")
     max_time: float = Field(40.0, gt=0, description="safety stop [s]")
-    end_margin: float = Field(0.3, ge=0, description="a run ends when a car is this close to the track end [m]")
+    end_margin: NonNegativeFloat = Field(0.3, description="a run ends when a car is this close to the track end [m]")
     q_explore: tuple[float, float, float] = Field((20.0, 60.0, 5.0), description="J_expl weights on s, e_y, v_x")
     stalemate_steps: int = Field(8, ge=1, description="steps with little change of the relative configuration")
-    stalemate_tol: float = Field(0.02, ge=0, description="change threshold of (gap s, gap e_y) per step")
+    stalemate_tol: NonNegativeFloat = Field(0.02, description="change threshold of (gap s, gap e_y) per step")
     hold_steps: int = Field(5, ge=1, description="steps a target is held after a stalemate")
     sensor_std: tuple[float, float, float, float, float, float] = Field(
         (0.0,) * 6, description="measurement noise std of each car's state [v_x, v_y, yaw_rate, e_psi, e_y, s] "

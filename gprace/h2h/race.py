@@ -268,11 +268,11 @@ def _explorer(task: RaceTask, cfg: H2HConfig, predictor, alpha: float):
     """The exploring ego's target picker (Algorithm 1 on its dataset), None when alpha is 0."""
     if alpha <= 0:
         return None
+    from gprace.gp.dataset import read_dataset
     from gprace.h2h.explore import Explorer
-    from gprace.io.artifacts import read_artifact
 
-    data = read_artifact(task.explore_data, "h2h_dataset")
-    return Explorer.from_data(predictor.gp, data.arrays["Z"], data.arrays["Y"], alpha,
+    data = read_dataset(task.explore_data)
+    return Explorer.from_data(predictor.gp, data.Z, data.Y, alpha,
                               stalemate_steps=cfg.stalemate_steps, stalemate_tol=cfg.stalemate_tol,
                               hold_steps=cfg.hold_steps)
 

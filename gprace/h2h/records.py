@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, NonNegativeFloat, NonNegativeInt, model_validator
 
 from gprace.config import Frozen
 from gprace.errors import ArtifactError
@@ -85,17 +85,17 @@ class RaceAttrs(RecordAttrs):
     track: str = Field("", description="name of the generated track")
     track_length: float = Field(NAN, description="length of the track [m]")
     predictor: str = Field("", description="the ego's predictor (its label in the evaluation)")
-    alpha: float = Field(0.0, ge=0, description="exploration weight of the ego")
+    alpha: NonNegativeFloat = Field(0.0, description="exploration weight of the ego")
     end_reason: str = Field("", description="why the race ended: time, overtaken, track_end, diverged, "
                             "or a stop kind of gprace.sim.stop (empty: it did not run)")
     overtake_time: float = Field(NAN, description="time of the overtake [s]; NaN without one")
     border_hit: bool = Field(False, description="the ego touched a border")
     border_hit_opp: bool = Field(False, description="the opponent touched a border")
     collision: bool = Field(False, description="the cars touched")
-    steps: int = Field(0, ge=0, description="steps of 0.1 s raced")
-    fallbacks_ego: int = Field(0, ge=0, description="steps the ego drove on its previous plan (a failed solve)")
-    fallbacks_opp: int = Field(0, ge=0, description="the same for the opponent")
-    stalemates: int = Field(0, ge=0, description="stalemates the exploring ego broke (0 without exploration)")
+    steps: NonNegativeInt = Field(0, description="steps of 0.1 s raced")
+    fallbacks_ego: NonNegativeInt = Field(0, description="steps the ego drove on its previous plan (a failed solve)")
+    fallbacks_opp: NonNegativeInt = Field(0, description="the same for the opponent")
+    stalemates: NonNegativeInt = Field(0, description="stalemates the exploring ego broke (0 without exploration)")
     wall_s: float = Field(NAN, description="wall-clock time of the race and its GP pairs [s]")
 
 

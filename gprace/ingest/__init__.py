@@ -5,10 +5,11 @@
 
 ``mapping`` (the recording map, TOML), ``readers`` (one per format), ``process`` (resampling,
 gaps, unit checks, projection), ``refline`` (reference line from the driven path), ``dispatch``
-(what :func:`gprace.io.runs.read_run` hands over), ``commands`` (``gprace import``).
+(:func:`~gprace.ingest.dispatch.read_any`: a run or a raw recording, imported), ``commands`` (``gprace import``).
 """
 
+from gprace.ingest.dispatch import read_any
 from gprace.ingest.importer import import_recording
 from gprace.ingest.mapping import RecordingMap, load_map
 
-__all__ = ["RecordingMap", "import_recording", "load_map"]
+__all__ = ["RecordingMap", "import_recording", "load_map", "read_any"]

@@ -1,4 +1,6 @@
-"""Which recordings need the importer when a stage reads them (:func:`gprace.io.runs.read_run`).
+"""Which recordings need the importer when a stage reads them: :func:`read_any` is the reader of
+the stages that take a user's file (a gprace run as :func:`gprace.io.runs.read_run` reads it, or
+a raw recording imported first).
 
 A raw recording is a ROS bag / MCAP / rosbag2 folder, an MDF4 file, or a CSV whose header (found
 as :mod:`gprace.io.table` finds it: after a comment preamble, or in the last comment line)
@@ -52,3 +54,17 @@ def read_recording(path: str | Path):
         console.info(f"{path}: raw recording, no track in a map ({sc.name}): projected on a reference line made from the driven path")
     run, _ = import_recording(path, track=rmap.track, rmap=rmap, dt=DEFAULT_DT)
     return run
+
+
+def read_any(path: str | Path):
+    """A run from any recording a user may give: a raw recording through the importer
+    (:func:`read_recording`), a gprace run (HDF5, Frenet CSV) by :func:`gprace.io.runs.read_run`."""
+    from gprace.errors import InputError
+    from gprace.io.runs import read_run
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if is_raw_recording(path):
+        return read_recording(path)
+    return read_run(path)

@@ -75,7 +75,6 @@ def import_recording(path, *, track=None, rmap: RecordingMap | None = None,
     input; nothing is written here.
     """
     from gprace.io.runs import Run
-    from gprace.tracks import load_track
 
     paths = _paths(path)
     if not (np.isfinite(dt) and 0 < dt <= 1.0):
@@ -97,18 +96,7 @@ def import_recording(path, *, track=None, rmap: RecordingMap | None = None,
     if not np.any(speed > MOVING):
         raise InputError(f"{source}: no moving sample: the car stands still throughout (largest speed "
                          f"{float(speed.max()):.3g} m/s over {float(gs.t[m][-1] - gs.t[m][0]):.1f} s); nothing to import")
-    if track is None:
-        trk = path_reference(gs.x[m], gs.y[m], smoothing=rmap.reference_smoothing,
-                             half_width=rmap.reference_width, name=f"path of {paths[0].name}", source=source)
-        gs.notes.append(f"no track: {'a closed line averaged over the laps' if trk.closed else 'an open line along the path'} "
-                        f"({trk.length:.4g} m) is the reference")
-        reference = "path"
-    else:
-        trk = load_track(track, smoothing=track_smoothing) if not hasattr(track, "to_frenet") else track
-        reference = "track"
-        if _drives_backwards(trk, gs):
-            trk = trk.reversed()
-            gs.notes.append(f"the car drives track {trk.name} against its direction: the track is reversed (s from its start, the other way round)")
+    trk, reference = _reference(track, gs, m, rmap, track_smoothing, f"path of {paths[0].name}", source)
     fr = project(gs, trk, source, origin_at_start=reference == "path")
     if reference == "track":
         cut = off_track(dict(fr, v_x=gs.v_x[m]), trk, speed, gs.t[m], dt, source, rmap, gs.notes)
@@ -128,6 +116,38 @@ def import_recording(path, *, track=None, rmap: RecordingMap | None = None,
     if gs.v_cmd is not None:
         data["v_cmd"] = gs.v_cmd[m]
     n_gaps = int(data["segment"][-1])
+    meta = _run_meta(paths, raw, rmap, gs, trk, reference, track, dt, float(t[0]), n_gaps, int((~m).sum()))
+    if log is not None:
+        for note in gs.notes:
+            log(f"{paths[0].name}: {note}")
+        if n_gaps:
+            log(f"{paths[0].name}: {n_gaps} gap(s); {meta['rows_dropped']} grid rows left out (column 'segment')")
+    return Run(data, meta, source=source), trk
+
+
+def _reference(track, gs, m: np.ndarray, rmap: RecordingMap, track_smoothing: float | None, path_name: str,
+               source: str):
+    """The line the recording is projected on and what it is (``"track"`` or ``"path"``): the
+    given track (reversed when the car drives it the other way round), else a reference line
+    made from the driven path; notes in ``gs.notes``."""
+    from gprace.tracks import load_track
+
+    if track is None:
+        trk = path_reference(gs.x[m], gs.y[m], smoothing=rmap.reference_smoothing,
+                             half_width=rmap.reference_width, name=path_name, source=source)
+        gs.notes.append(f"no track: {'a closed line averaged over the laps' if trk.closed else 'an open line along the path'} "
+                        f"({trk.length:.4g} m) is the reference")
+        return trk, "path"
+    trk = load_track(track, smoothing=track_smoothing) if not hasattr(track, "to_frenet") else track
+    if _drives_backwards(trk, gs):
+        trk = trk.reversed()
+        gs.notes.append(f"the car drives track {trk.name} against its direction: the track is reversed (s from its start, the other way round)")
+    return trk, "track"
+
+
+def _run_meta(paths: list[Path], raw, rmap: RecordingMap, gs, trk, reference: str, track, dt: float, t0: float,
+              n_gaps: int, rows_dropped: int) -> dict:
+    """The imported run's ``meta``: where it came from (files, hashes, map), onto what, and how."""
     track_id = str(getattr(trk, "source", None) or trk.name) if reference == "track" else "path"
     meta = {
         "dt": dt,
@@ -142,9 +162,9 @@ def import_recording(path, *, track=None, rmap: RecordingMap | None = None,
         "map_toml": rmap.to_toml(),
         "map_hash": rmap.digest(),
         "import_version": IMPORT_VERSION,
-        "t0": float(t[0]),
+        "t0": t0,
         "gaps": n_gaps,
-        "rows_dropped": int((~m).sum()),
+        "rows_dropped": rows_dropped,
         "origins": {q: raw.signals[q].origin for q in raw.signals},
         "inputs": inputs_meta(gs, raw, rmap),
         "notes": gs.notes,
@@ -153,12 +173,7 @@ def import_recording(path, *, track=None, rmap: RecordingMap | None = None,
         meta["source_files"] = [str(p.resolve()) for p in paths]
     if reference == "track" and isinstance(track, (str, Path)) and Path(track).exists():
         meta["track_sha256"] = file_hash(Path(track))
-    if log is not None:
-        for note in gs.notes:
-            log(f"{paths[0].name}: {note}")
-        if n_gaps:
-            log(f"{paths[0].name}: {n_gaps} gap(s); {meta['rows_dropped']} grid rows left out (column 'segment')")
-    return Run(data, meta, source=source), trk
+    return meta
 
 
 MOVING = 0.1

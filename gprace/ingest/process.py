@@ -163,22 +163,7 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
     """Resample every quantity onto one grid and derive the full global state (module docstring)."""
     S = raw.signals
     notes: list[str] = []
-    if S.get("x") is not None and S.get("y") is not None:
-        pos = ("x", "y")
-    elif S.get("lat") is not None and S.get("lon") is not None:
-        pos = ("lat", "lon")
-    else:
-        raise raw.missing("position", ("x", "y"))
-    if "delta" not in S and "steering_wheel" not in S:
-        raise raw.missing("steering angle", ("delta", "steering_wheel"))
-    used = list(pos) + [q for q in ("yaw", "yaw_rate", "a_x", "v_cmd") if q in S]
-    if "yaw" not in S and "course" in S:
-        used.append("course")
-    for group in (("v_x", "v_y"), ("speed", "course"), ("v_east", "v_north"), ("speed",)):
-        if group[0] in S and (len(group) == 1 or group[1] in S or group[0] == "v_x"):
-            used += [q for q in group if q in S and q not in used]
-            break
-    used.append("delta" if "delta" in S else "steering_wheel")
+    pos, used = _used_signals(raw)
     start = max(float(S[q].t[0]) for q in used)
     end = min(float(S[q].t[-1]) for q in used)
     if not end > start + 2 * dt:
@@ -204,10 +189,58 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
     else:
         x, y = vals["x"], vals["y"]
     valid = _position_jumps(raw, tg, x, y, vals, valid, dt, notes)
+    yaw, v_x, v_y, valid = _heading_and_velocity(vals, x, y, valid, dt, notes)
+    yaw_rate, valid = _measured_or_rate(vals, "yaw_rate", yaw, valid, dt, notes, "the heading")
+    delta = vals["delta"] if "delta" in vals else vals["steering_wheel"] / rmap.steering_ratio
+    a_x_source = "column" if "a_x" in vals else "derived"
+    a_x, valid = _measured_or_rate(vals, "a_x", v_x, valid, dt, notes, "the change of v_x")
+    if a_x_source == "derived":
+        # the longitudinal acceleration of the body, as an accelerometer along x measures it: in
+        # the rotating body frame dv_x/dt = a_x + r v_y (the model's kinematic v_x equation, which
+        # reads a derived a_x); dv_x/dt itself would count r v_y twice (INI F1TENTH: 15-step v_x
+        # errors 0.64 m/s learned against 0.45 nominal)
+        a_x = a_x - yaw_rate * v_y
+        notes[-1] = "no a_x: from the change of v_x less r v_y (the body's longitudinal acceleration)"
+    origin = {q: S[q].origin for q in S}
+    gs = GlobalState(tg, x, y, yaw, v_x, v_y, yaw_rate, delta, a_x, valid, notes, origin,
+                     vals.get("v_cmd"), a_x_source)
+    if rmap.check_units:
+        check_units(raw, gs, vals, dt)
+    return gs
+
+
+def _used_signals(raw: Raw) -> tuple[tuple[str, str], list[str]]:
+    """The position pair (``x, y`` or ``lat, lon``) and every quantity the global state is made
+    from: position, heading, the first complete velocity group, steering, what else is there."""
+    S = raw.signals
+    if S.get("x") is not None and S.get("y") is not None:
+        pos = ("x", "y")
+    elif S.get("lat") is not None and S.get("lon") is not None:
+        pos = ("lat", "lon")
+    else:
+        raise raw.missing("position", ("x", "y"))
+    if "delta" not in S and "steering_wheel" not in S:
+        raise raw.missing("steering angle", ("delta", "steering_wheel"))
+    used = list(pos) + [q for q in ("yaw", "yaw_rate", "a_x", "v_cmd") if q in S]
+    if "yaw" not in S and "course" in S:
+        used.append("course")
+    for group in (("v_x", "v_y"), ("speed", "course"), ("v_east", "v_north"), ("speed",)):
+        if group[0] in S and (len(group) == 1 or group[1] in S or group[0] == "v_x"):
+            used += [q for q in group if q in S and q not in used]
+            break
+    used.append("delta" if "delta" in S else "steering_wheel")
+    return pos, used
+
+
+def _heading_and_velocity(vals: dict[str, np.ndarray], x: np.ndarray, y: np.ndarray, valid: np.ndarray, dt: float,
+                          notes: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Yaw and body-frame velocities ``(yaw, v_x, v_y, valid)`` from what the recording has, in
+    this order: yaw, course, the path's heading; v_x (and v_y), speed and course, east/north
+    velocities, speed along the path, successive positions. Derived quantities narrow ``valid``
+    to where the positions' differences exist."""
     vxw, okx = seg_gradient(x, valid, dt)
     vyw, oky = seg_gradient(y, valid, dt)
     path_heading = np.unwrap(np.arctan2(vyw, vxw))
-
     if "yaw" in vals:
         yaw = vals["yaw"]
     elif "course" in vals:
@@ -237,23 +270,7 @@ def global_state(raw: Raw, rmap: RecordingMap, dt: float) -> GlobalState:
         v_x, v_y = c * vxw + s_ * vyw, -s_ * vxw + c * vyw
         valid = valid & okx & oky
         notes.append("no velocities: from successive positions")
-    yaw_rate, valid = _measured_or_rate(vals, "yaw_rate", yaw, valid, dt, notes, "the heading")
-    delta = vals["delta"] if "delta" in vals else vals["steering_wheel"] / rmap.steering_ratio
-    a_x_source = "column" if "a_x" in vals else "derived"
-    a_x, valid = _measured_or_rate(vals, "a_x", v_x, valid, dt, notes, "the change of v_x")
-    if a_x_source == "derived":
-        # the longitudinal acceleration of the body, as an accelerometer along x measures it: in
-        # the rotating body frame dv_x/dt = a_x + r v_y (the model's kinematic v_x equation, which
-        # reads a derived a_x); dv_x/dt itself would count r v_y twice (INI F1TENTH: 15-step v_x
-        # errors 0.64 m/s learned against 0.45 nominal)
-        a_x = a_x - yaw_rate * v_y
-        notes[-1] = "no a_x: from the change of v_x less r v_y (the body's longitudinal acceleration)"
-    origin = {q: S[q].origin for q in S}
-    gs = GlobalState(tg, x, y, yaw, v_x, v_y, yaw_rate, delta, a_x, valid, notes, origin,
-                     vals.get("v_cmd"), a_x_source)
-    if rmap.check_units:
-        check_units(raw, gs, vals, dt)
-    return gs
+    return yaw, v_x, v_y, valid
 
 
 def check_clock(raw: Raw, used: list[str], start: float, end: float, dt: float) -> None:

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+import gprace.ingest.mcap_fast as mcap_fast
 from gprace.errors import InputError, at_row
 from gprace.ingest.mapping import QUANTITIES, UNITS, DIMENSION, RecordingMap, si_factor
 
@@ -300,8 +301,6 @@ def read_ros(path: Path, rmap: RecordingMap) -> Raw:
         "delta": f"topic {tp.ackermann!r}", "yaw_rate": f"topic {tp.imu!r} or {tp.odometry!r}",
     }
     wanted = {tp.odometry: ODOMETRY, tp.pose: POSE, tp.imu: IMU, tp.ackermann: ACKERMANN}
-    from gprace.ingest import mcap_fast
-
     got = None
     mc = mcap_fast.mcap_file(path)
     if mc is not None:

@@ -197,23 +197,7 @@ def envelope(data: dict[str, np.ndarray], source: str = "<memory>",
     v_stand = standstill_speed(vx, wheelbase)
     ts = time_scale(wheelbase)
 
-    code = np.zeros(n, dtype=np.int8)  # index into REASONS
-    stand = np.abs(vx) < v_stand
-    code = np.where(stand, 1, code)
-    code = np.where(vx < -0.5 * v_stand, 2, code)
-    speed = np.maximum(np.abs(vx), 1e-9)
-    spin = np.abs(np.arctan2(vy, speed)) > SPIN_SLIP
-    if "yaw_rate" in data and "delta" in data and wheelbase:
-        # only against the steering: the road's curvature alone is no reference (a car weaving on a
-        # straight at 35 m/s turns at 0.3 rad/s on its tires, 1 g "in excess" of v_x kappa = 0)
-        r_kin = np.abs(vx * np.tan(np.asarray(data["delta"], dtype=float)) / wheelbase)
-        if "kappa" in data:
-            r_kin = np.maximum(r_kin, np.abs(vx * np.asarray(data["kappa"], dtype=float)))
-        excess = (np.abs(np.asarray(data["yaw_rate"], dtype=float)) - r_kin) * speed
-        spin |= excess > SPIN_EXCESS_G * G
-    spin |= np.abs(epsi) > WRONG_WAY
-    spin = _sustained(spin, max(int(round(SUSTAIN_S * ts / max(dt, 1e-9))), 1)) & ~stand
-    code = np.where(spin & (vx >= -0.5 * v_stand), 3, code).astype(np.int8)
+    code = _reason_codes(data, vx, vy, epsi, v_stand, ts, dt, wheelbase)
 
     # widen every flagged stretch by the margin (in samples), keeping the strongest reason
     w = max(int(round(MARGIN_S * ts / max(dt, 1e-9))), 0)
@@ -232,6 +216,45 @@ def envelope(data: dict[str, np.ndarray], source: str = "<memory>",
             keep[a : b + 1] = False
             grown[a : b + 1] = np.maximum(grown[a : b + 1], 1)
 
+    ex = _exclusions(keep, grown, t, s, w, dt)
+    gaps = np.flatnonzero(np.diff(t) > GAP_FACTOR * dt)
+    for g in gaps:
+        ex.append(Exclusion("gap", int(g + 1), int(g + 1), float(t[g]), float(t[g + 1]), float(s[g]), float(s[g + 1]), 0))
+    ex.sort(key=lambda e: e.t_start)
+    moving = vx >= v_stand  # driving forward (reversing is not driving the lap)
+    return keep, EnvelopeReport(source, n, tuple(ex), int(moving.sum()), int((keep & moving).sum()), v_stand)
+
+
+def _reason_codes(data: dict[str, np.ndarray], vx: np.ndarray, vy: np.ndarray, epsi: np.ndarray, v_stand: float,
+                  ts: float, dt: float, wheelbase: float | None) -> np.ndarray:
+    """Per sample the index into :data:`REASONS` (0: inside): standing, reversing, or a sustained
+    spin (slip angle, yaw rate beyond the steering's, heading the wrong way)."""
+    n = len(vx)
+    code = np.zeros(n, dtype=np.int8)  # index into REASONS
+    stand = np.abs(vx) < v_stand
+    code = np.where(stand, 1, code)
+    code = np.where(vx < -0.5 * v_stand, 2, code)
+    speed = np.maximum(np.abs(vx), 1e-9)
+    spin = np.abs(np.arctan2(vy, speed)) > SPIN_SLIP
+    if "yaw_rate" in data and "delta" in data and wheelbase:
+        # only against the steering: the road's curvature alone is no reference (a car weaving on a
+        # straight at 35 m/s turns at 0.3 rad/s on its tires, 1 g "in excess" of v_x kappa = 0)
+        r_kin = np.abs(vx * np.tan(np.asarray(data["delta"], dtype=float)) / wheelbase)
+        if "kappa" in data:
+            r_kin = np.maximum(r_kin, np.abs(vx * np.asarray(data["kappa"], dtype=float)))
+        excess = (np.abs(np.asarray(data["yaw_rate"], dtype=float)) - r_kin) * speed
+        spin |= excess > SPIN_EXCESS_G * G
+    spin |= np.abs(epsi) > WRONG_WAY
+    spin = _sustained(spin, max(int(round(SUSTAIN_S * ts / max(dt, 1e-9))), 1)) & ~stand
+    code = np.where(spin & (vx >= -0.5 * v_stand), 3, code).astype(np.int8)
+    return code
+
+
+def _exclusions(keep: np.ndarray, grown: np.ndarray, t: np.ndarray, s: np.ndarray, w: int, dt: float) -> list[Exclusion]:
+    """One :class:`Exclusion` per excluded stretch of ``keep`` and reason (``grown``: the widened
+    reason codes, merged in place where a piece shorter than the margin ``w`` joins its stronger
+    neighbour)."""
+    n = len(t)
     ex: list[Exclusion] = []
     xs, xe = _runs(~keep)
     for a0, b0 in zip(xs, xe):  # one entry per excluded stretch and reason (a spin, then standing)
@@ -258,12 +281,7 @@ def envelope(data: dict[str, np.ndarray], source: str = "<memory>",
             reason = REASONS[int(grown[a : b + 1].max(initial=1))]
             t1 = t[b + 1] if b + 1 < n else t[b] + dt
             ex.append(Exclusion(reason, int(a), int(b), float(t[a]), float(t1), float(s[a]), float(s[b]), int(b - a + 1)))
-    gaps = np.flatnonzero(np.diff(t) > GAP_FACTOR * dt)
-    for g in gaps:
-        ex.append(Exclusion("gap", int(g + 1), int(g + 1), float(t[g]), float(t[g + 1]), float(s[g]), float(s[g + 1]), 0))
-    ex.sort(key=lambda e: e.t_start)
-    moving = vx >= v_stand  # driving forward (reversing is not driving the lap)
-    return keep, EnvelopeReport(source, n, tuple(ex), int(moving.sum()), int((keep & moving).sum()), v_stand)
+    return ex
 
 
 def _sustained(flag: np.ndarray, w: int) -> np.ndarray:

@@ -136,15 +136,12 @@ def check_columns(data: dict[str, np.ndarray], source: str, units: bool = True) 
 
 
 def read_run(path: str | Path) -> Run:
-    """A run from HDF5 or a Frenet CSV; raw recordings (ROS bag / MCAP, MDF4, a global-frame
-    CSV) go through the importer (:mod:`gprace.ingest.dispatch`)."""
+    """A run from HDF5 or a Frenet CSV, and nothing else. A stage that also takes raw recordings
+    (ROS bag / MCAP, MDF4, a global-frame CSV) reads through
+    :func:`gprace.ingest.dispatch.read_any`, which imports them first."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
-    from gprace.ingest.dispatch import is_raw_recording, read_recording
-
-    if is_raw_recording(path):
-        return read_recording(path)
     if path.is_dir():
         raise InputError(f"{path}: is a folder, not a recording file (CSV or HDF5 run, or a raw recording)")
     if path.suffix.lower() == ".csv":

@@ -418,7 +418,7 @@ def stage_import(c: Iteration, checked: Checked) -> None:
 
 def stage_select(c: Iteration) -> None:
     """Both GPs' dictionaries: this iteration's usable samples streamed into the previous ones."""
-    from gprace.io.artifacts import Artifact, write_artifact
+    from gprace.gp.dataset import loop_dataset, write_dataset
     from gprace.learn.predict import full_laps
     from gprace.timetrial import learning as L
 
@@ -439,10 +439,10 @@ def stage_select(c: Iteration) -> None:
         d, stats = L.stream_step(c.folder.out / f"hyper_{kind}.h5", prev / f"data_{kind}.h5" if prev else None, Znew, Ynew,
                                  kind, st.dictionary_size, st.selection, st.features, st.seed, st.max_fit_points, st.seed + c.k)
         lap_id = np.concatenate([_blocks(len(p[0]), len(full_laps(r, c.track.length)), j) for j, (p, r) in enumerate(zip(parts, runs))])
-        write_artifact(c.dir / f"data_{kind}.h5", Artifact(
-            "dataset", {"Z": d.Z, "Y": d.Y, "Z_new": Znew, "Y_new": Ynew, "block_new": lap_id},
-            {"n_seen": int(d.n_seen), "gp": kind, "selection": st.selection, "stats": stats,
-             "longitudinal": model.params.longitudinal}))
+        write_dataset(c.dir / f"data_{kind}.h5", loop_dataset(
+            kind, st.features, d.Z, d.Y,
+            {"n_seen": int(d.n_seen), "selection": st.selection, "stats": stats, "longitudinal": model.params.longitudinal},
+            {"Z_new": Znew, "Y_new": Ynew, "block_new": lap_id}))
 
 
 def fit_hyper_checked(Z: np.ndarray, Y: np.ndarray, kind: str, st: LearnSettings):
@@ -502,20 +502,20 @@ def block_scale(hyper, Zd: np.ndarray, Yd: np.ndarray, Z: np.ndarray, Y: np.ndar
 
 def stage_retrain(c: Iteration) -> dict:
     """Both GPs on their dictionaries with calibrated variances; returns the calibration."""
-    from gprace.io.artifacts import read_artifact
+    from gprace.gp.dataset import read_dataset
     from gprace.timetrial import learning as L
 
     out = {}
     for kind in KINDS:
-        a = read_artifact(c.dir / f"data_{kind}.h5", "dataset")
+        a = read_dataset(c.dir / f"data_{kind}.h5")
         hyper = L.load_predictor(c.folder.out / f"hyper_{kind}.h5", kind).gp
-        gp = L.refit_fixed(hyper, a.arrays["Z"], a.arrays["Y"])
+        gp = L.refit_fixed(hyper, a.Z, a.Y)
         loo = L.calibrate(gp)
-        laps = block_scale(hyper, a.arrays["Z"], a.arrays["Y"], a.arrays["Z_new"], a.arrays["Y_new"], a.arrays["block_new"])
+        laps = block_scale(hyper, a.Z, a.Y, a.extra["Z_new"], a.extra["Y_new"], a.extra["block_new"])
         scale = np.maximum(loo, laps)
         L.save_predictor(c.dir / f"gp_{kind}.h5", gp, kind, {"iteration": c.k, "dt": c.st.dt}, c.st.features, scale)
         out[kind] = {"var_scale": scale.tolist(), "loo_scale": loo.tolist(), "lap_scale": laps.tolist(),
-                     "dictionary": int(len(a.arrays["Z"])), "seen": int(a.attrs["n_seen"]), "new": int(len(a.arrays["Z_new"]))}
+                     "dictionary": int(len(a.Z)), "seen": int(a.attrs["n_seen"]), "new": int(len(a.extra["Z_new"]))}
     return out
 
 
@@ -746,13 +746,13 @@ def exploration_reference(c: Iteration, plan, gp) -> list[str]:
     """Algorithm 1's candidates (``candidates.h5``) and, along the plan, the reference the tracking
     MPC would follow with ``alpha`` (``explore_reference.csv``: where it explores, the target
     lateral velocity, yaw rate and steering replace the plan's)."""
-    from gprace.io.artifacts import Artifact, read_artifact, write_artifact, write_text_atomic
+    from gprace.gp.dataset import read_dataset
+    from gprace.io.artifacts import Artifact, write_artifact, write_text_atomic
     from gprace.mpc.tracking import MPCSettings, TrackingMPC
     from gprace.timetrial.iterate import make_grid
 
     mpc = MPCSettings(dt=c.st.dt)
-    a = read_artifact(c.dir / "data_tracking.h5", "dataset")
-    grid = make_grid(gp.gp, a.arrays["Z"], mpc, c.st.grid_values)
+    grid = make_grid(gp.gp, read_dataset(c.dir / "data_tracking.h5").Z, mpc, c.st.grid_values)
     write_artifact(c.dir / "candidates.h5", Artifact("candidates", {"Z": grid.Z, "v": grid.v, "scale": grid.scale},
                                                       {"alpha": float(c.st.alpha), "inputs": list(gp.inputs)}))
     ctl = TrackingMPC(c.model, c.track, plan, mpc, gp=gp, grid=grid, alpha=float(c.st.alpha))
@@ -845,7 +845,6 @@ def check_inputs(paths, settings: LearnSettings, out) -> Checked:
 def learn(paths, settings: LearnSettings, out, progress=None, checked: Checked | None = None) -> dict:
     """Run (or resume) the iteration of ``paths`` in ``out`` (``checked``: what
     :func:`check_inputs` found, if the caller checked already); returns its record."""
-    from gprace import __version__
     from gprace.model import NominalModel
 
     checked = checked or check_inputs(paths, settings, out)
@@ -885,16 +884,7 @@ def learn(paths, settings: LearnSettings, out, progress=None, checked: Checked |
                 folder.mark(k, name)
             adv(name)
         if not folder.done(k, "plan"):
-            console.info(f"learn: iteration {k}: plan (minimum-time NLP with the planning GP)")
-            if settings.driven and "driven" not in results:
-                plan_d, lim_d = driven_plan(c)
-                plan_d.write(c.dir / "driven.h5")
-                results["driven"] = {"path": settings.driven, "sha256": file_sha(Path(settings.driven)), "limits": lim_d}
-            c.driven_info = results.get("driven")
-            results["grip"] = next_plan_limits(c, c.facts)
-            results["plan"] = stage_plan(c, results["grip"])
-            _save_partial(folder, k, results)
-            folder.mark(k, "plan")
+            _plan_stage(c, results)
         adv("plan")
         if not folder.done(k, "export"):
             console.info(f"learn: iteration {k}: export (racelines, portable GP{', exploration' if settings.alpha is not None else ''})")
@@ -904,20 +894,8 @@ def learn(paths, settings: LearnSettings, out, progress=None, checked: Checked |
         adv("export")
         console.info(f"learn: iteration {k}: predict (the GP's band along the lap)")
         results["prediction"] = stage_predict(c, results["plan"]["limits"])
-        record = {
-            "version": LEARN_VERSION, "iteration": k, "gprace_version": __version__,
-            "created": time.strftime("%Y-%m-%dT%H:%M:%S"), "out": str(folder.out),
-            "recordings": [{**s, **f, "import": r.meta.get("source_format", "gprace run"),
-                            "notes": list(r.meta.get("notes", []))}
-                           for s, f, r in zip(sources if new else read_json(folder.it(k) / "sources.json")["recordings"],
-                                              c.facts, c.runs())],
-            "completed": results["grip"]["completed"], "limits": results["plan"]["limits"],
-            "vehicle": {"name": vehicle.name, "config_hash": vehicle.digest(), "source": settings.vehicle},
-            "track": {"name": track.name, "spec": settings.track, "reversed": bool(track.is_reversed),
-                      "length": track.length, "hash": car_identity(vehicle, track, settings)["track_hash"]},
-            "settings": settings.model_dump(mode="json"), **results,
-        }
-        write_json(folder.it(k) / "record.json", record)
+        write_json(folder.it(k) / "record.json",
+                   _record(c, sources if new else read_json(folder.it(k) / "sources.json")["recordings"], vehicle, results))
         folder.mark(k, "predict")
         adv("predict")
     else:
@@ -926,6 +904,42 @@ def learn(paths, settings: LearnSettings, out, progress=None, checked: Checked |
     rec = folder.record(k)
     rec["already_done"] = done
     return rec
+
+
+def _plan_stage(c: Iteration, results: dict) -> None:
+    """The plan stage of an iteration: the driven raceline's plan (``--driven``, once), the
+    limits of the next plan from the laps, the minimum-time plan; saved with the stage results."""
+    console.info(f"learn: iteration {c.k}: plan (minimum-time NLP with the planning GP)")
+    st = c.st
+    if st.driven and "driven" not in results:
+        plan_d, lim_d = driven_plan(c)
+        plan_d.write(c.dir / "driven.h5")
+        results["driven"] = {"path": st.driven, "sha256": file_sha(Path(st.driven)), "limits": lim_d}
+    c.driven_info = results.get("driven")
+    results["grip"] = next_plan_limits(c, c.facts)
+    results["plan"] = stage_plan(c, results["grip"])
+    _save_partial(c.folder, c.k, results)
+    c.folder.mark(c.k, "plan")
+
+
+def _record(c: Iteration, sources: list[dict], vehicle, results: dict) -> dict:
+    """The iteration's ``record.json``: its recordings (with what the import found), the plan's
+    limits, the car, the track, the settings and every stage's results."""
+    from gprace import __version__
+
+    track, settings = c.track, c.st
+    return {
+        "version": LEARN_VERSION, "iteration": c.k, "gprace_version": __version__,
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S"), "out": str(c.folder.out),
+        "recordings": [{**s, **f, "import": r.meta.get("source_format", "gprace run"),
+                        "notes": list(r.meta.get("notes", []))}
+                       for s, f, r in zip(sources, c.facts, c.runs())],
+        "completed": results["grip"]["completed"], "limits": results["plan"]["limits"],
+        "vehicle": {"name": vehicle.name, "config_hash": vehicle.digest(), "source": settings.vehicle},
+        "track": {"name": track.name, "spec": settings.track, "reversed": bool(track.is_reversed),
+                  "length": track.length, "hash": car_identity(vehicle, track, settings)["track_hash"]},
+        "settings": settings.model_dump(mode="json"), **results,
+    }
 
 
 def _partial(folder: Folder, k: int) -> dict:

@@ -81,6 +81,16 @@ def _open_h5(path: Path):
         raise ArtifactError(f"{path}: not an HDF5 file (truncated or of another format)") from None
 
 
+def _h5_kind(path: Path, f) -> str | None:
+    """The artifact kind of an open HDF5 file; None for learn's portable GP (no kind, a format);
+    an ArtifactError for any other file without a kind."""
+    if "kind" not in f.attrs and str(_decode(f.attrs.get("format", ""))) == "gprace portable GP":
+        return None
+    if "kind" not in f.attrs:
+        raise ArtifactError(f"{path}: not a gprace artifact (no 'kind' attribute)")
+    return str(_decode(f.attrs["kind"]))
+
+
 def open_artifact(path: str | Path, kind: str | tuple[str, ...] | None = None, arrays: bool = True) -> Artifact:
     """Read any artifact, nested array groups flattened to ``a/b`` names.
 
@@ -90,11 +100,9 @@ def open_artifact(path: str | Path, kind: str | tuple[str, ...] | None = None, a
     path = Path(path)
     f = _open_h5(path)
     with f:
-        if "kind" not in f.attrs and str(_decode(f.attrs.get("format", ""))) == "gprace portable GP":
+        got = _h5_kind(path, f)
+        if got is None:
             return _describe_portable(path, f)
-        if "kind" not in f.attrs:
-            raise ArtifactError(f"{path}: not a gprace artifact (no 'kind' attribute)")
-        got = str(_decode(f.attrs["kind"]))
         wanted = (kind,) if isinstance(kind, str) else kind
         if wanted is not None and got not in wanted:
             raise ArtifactError(f"{path}: is a {got!r} artifact, expected {' or '.join(map(repr, wanted))}")
@@ -343,11 +351,10 @@ def _describe_toml(path: Path) -> dict[str, Any]:
 def _describe_h5(path: Path) -> dict[str, Any]:
     f = _open_h5(path)
     with f:
-        if "kind" not in f.attrs and str(_decode(f.attrs.get("format", ""))) == "gprace portable GP":
+        kind = _h5_kind(path, f)
+        if kind is None:
             return _describe_portable(path, f)
-        if "kind" not in f.attrs:
-            raise ArtifactError(f"{path}: not a gprace artifact (no 'kind' attribute)")
-        info: dict[str, Any] = {"path": str(path), "format": "hdf5", "kind": str(_decode(f.attrs["kind"]))}
+        info: dict[str, Any] = {"path": str(path), "format": "hdf5", "kind": kind}
         for k in RESERVED[1:]:
             info[k] = _decode(f.attrs.get(k, ""))
         info["attrs"] = {k: _decode(v) for k, v in f.attrs.items() if k not in RESERVED}
@@ -382,9 +389,9 @@ def _describe_portable(path: Path, f) -> dict[str, Any]:
 
 
 def _describe_csv(path: Path) -> dict[str, Any]:
-    from gprace.io.runs import read_run
+    from gprace.ingest.dispatch import read_any
 
-    run = read_run(path)
+    run = read_any(path)
     info: dict[str, Any] = {"path": str(path), "format": "csv", "kind": "run"}
     for k in RESERVED[1:]:
         info[k] = ""
@@ -523,19 +530,15 @@ def key_results(art: Artifact) -> dict[str, Any]:
             res["noise_variance_normalised"] = np.round(np.exp(np.asarray(sn)), 6).tolist()
         return res
     if "dataset" in kind:
-        res = {}
-        Z, Y = a.get("Z"), a.get("Y")
-        if Z is not None:
-            res["points"] = int(np.shape(Z)[0])
-            res["inputs"] = at.get("inputs", at.get("input_names", [f"z{i}" for i in range(np.shape(Z)[1])]))
-        if Y is not None:
-            Yf = np.asarray(Y, float).reshape(len(Y), -1)
-            res["outputs"] = at.get("outputs", at.get("output_names", [f"y{i}" for i in range(Yf.shape[1])]))
-            if len(Yf):
-                res["output_std"] = np.round(Yf.std(axis=0), 6).tolist()
+        from gprace.gp.dataset import dataset_of
+
+        ds = dataset_of(art, "dataset")
+        res = {"points": int(len(ds.Z)), "inputs": ds.input_names, "outputs": ds.output_names}
+        if len(ds.Y):
+            res["output_std"] = np.round(ds.Y.std(axis=0), 6).tolist()
         for k in ("source", "runs", "failed", "selection", "episodes"):
-            if k in at:
-                res[k] = at[k]
+            if k in ds.attrs:
+                res[k] = ds.attrs[k]
         return res
     if kind == "h2h_run":
         res = {}

@@ -99,9 +99,9 @@ def figures_for(path: str | Path, features: tuple[str, str] | None = None, again
         raise InputError(f"{path}: no such file")
     suffix = path.suffix.lower()
     if suffix == ".csv":
-        from gprace.io.runs import read_run
+        from gprace.ingest.dispatch import read_any
 
-        run = read_run(path)
+        run = read_any(path)
         return [(f"{path.name}: states and inputs", F.fig_run(run.data, against, title=path.name))]
     if suffix == ".json":
         obj = json.loads(path.read_text())
@@ -143,13 +143,11 @@ def figures_for(path: str | Path, features: tuple[str, str] | None = None, again
         return [(f"{path.name}: posterior", F.fig_gp_posterior(gp.predict, Zd, names_in, names_out, i, j,
                                                                title=f"{path.name}: GP posterior"))]
     if "dataset" in kind:
-        Z, Y = a.get("Z"), a.get("Y")
-        if Z is None or Y is None:
-            raise InputError(f"{path}: dataset without arrays 'Z' and 'Y'")
-        names_in = [str(x) for x in at.get("inputs", at.get("input_names", []))]
-        names_out = [str(x) for x in at.get("outputs", at.get("output_names", []))]
-        i, j = pick_features(names_in or [f"z{k}" for k in range(np.shape(Z)[1])], features)
-        return [(f"{path.name}: inputs", F.fig_dataset(Z, Y, names_in, names_out, i, j, title=path.name))]
+        from gprace.gp.dataset import dataset_of
+
+        ds = dataset_of(art, str(path))
+        i, j = pick_features(ds.input_names, features)
+        return [(f"{path.name}: inputs", F.fig_dataset(ds.Z, ds.Y, ds.input_names, ds.output_names, i, j, title=path.name))]
     # any other kind: points Z coloured by a per-point array, or columns against t or s
     Z = a.get("Z")
     if Z is not None and np.ndim(Z) == 2 and len(Z):

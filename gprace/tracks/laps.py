@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gprace.tracks.track import Track
+
 MIN_LAPS = 1.02
 """A path must run on for this many laps (driven distance) before its laps are recognised; the
 overlap must also hold 1.5 % of the path (:func:`_closure`)."""
@@ -62,8 +64,6 @@ class PathLaps:
         """The reference line as a closed :class:`~gprace.tracks.Track` (already smoothed; the
         half width defaults to twice the laps' spread, at least 3 % of... see the docstring of
         :func:`reference_half_width`)."""
-        from gprace.tracks import Track
-
         w = reference_half_width(self) if half_width is None else float(half_width)
         ww = np.full(len(self.x), w)
         return Track(self.x, self.y, ww, ww, closed=True, name=name, smoothing=0.0, source=source or name)

@@ -23,6 +23,8 @@ for these training tracks; pass ``width=0.75`` to reproduce that.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from gprace.errors import InputError
@@ -82,15 +84,11 @@ def random_track_spec(
     raise InputError(f"random track: no non-overlapping track in {max_tries} draws (seed {seed})")
 
 
-def random_track(
-    seed: int,
-    n_stretches: int = 5,
-    width: float = 1.5,
-    kinds: tuple[str, ...] = KINDS,
-    lead_in: float = 2.0,
-) -> Track:
-    """An open random track; the same arguments give the identical track."""
-    spec = random_track_spec(seed, n_stretches, width, kinds, lead_in)
+def random_track(seed: int, **options: Any) -> Track:
+    """An open random track; the same arguments give the identical track. ``options`` are those
+    of :func:`random_track_spec` (``n_stretches``, ``width``, ``kinds``, ``lead_in``,
+    ``max_tries``), with its defaults: one place for them."""
+    spec = random_track_spec(seed, **options)
     return build_track(spec, spec.name, f"random track (seed {seed})")
 
 

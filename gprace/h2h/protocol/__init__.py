@@ -9,7 +9,8 @@ seeds). The tasks themselves are typed (:mod:`gprace.h2h.tasks`).
 Layout of ``--out DIR`` (every file an HDF5 artifact, written atomically)::
 
     collect/runs/run_<i>.h5       one record per collection race (oracle predictor), kind h2h_run
-    collect/dataset.h5            (Z, Y) of all collection runs, kind h2h_dataset
+    collect/dataset.h5            (Z, Y) of all collection runs, a GP dataset (gprace.gp.dataset,
+                                  feature map opponent; before issue 40 kind h2h_dataset)
     collect/validation.h5         held-out steps of the collection runs (in no dataset): fit quality
     init/runs/run_<i>.h5          the exploration's start runs (``init_runs`` oracle races on
                                   evaluation-style tracks) when the baseline collects on the
@@ -85,7 +86,7 @@ from gprace.h2h.protocol.data import (calib_tasks, collect, collect_tasks, datas
                                       read_dataset)
 from gprace.h2h.protocol.evaluation import (calibrate, coverage, offline_error_columns, offline_error_data,
                                             offline_errors, race_predictors)
-from gprace.h2h.protocol.settings import (BASELINE_TRACKS, BLOCKING_WEIGHT, CHAIN_STRIDE, DATASET_KIND, ERRORS_VERSION,
+from gprace.h2h.protocol.settings import (BASELINE_TRACKS, BLOCKING_WEIGHT, CHAIN_STRIDE, ERRORS_VERSION,
                                           GP_SETTINGS, OFFLINE, PROCESS_STD, RACED, SEED_CALIB, SEED_COLLECT,
                                           SEED_EVAL, SEED_EXPLORE, SENSOR_STD, VALIDATION_POINTS, Settings,
                                           chain_dir, parse_seeds)
@@ -94,7 +95,7 @@ from gprace.h2h.protocol.training import fit_report, models, report_fits, train
 from gprace.h2h.tasks import RACE_VERSION, task_hash
 
 __all__ = [
-    "BASELINE_TRACKS", "BLOCKING_WEIGHT", "CHAIN_STRIDE", "DATASET_KIND", "ERRORS_VERSION", "GP_SETTINGS", "OFFLINE",
+    "BASELINE_TRACKS", "BLOCKING_WEIGHT", "CHAIN_STRIDE", "ERRORS_VERSION", "GP_SETTINGS", "OFFLINE",
     "PROCESS_STD", "RACED", "RACE_VERSION", "SEED_CALIB", "SEED_COLLECT", "SEED_EVAL", "SEED_EXPLORE", "SENSOR_STD",
     "VALIDATION_POINTS", "Settings", "calib_tasks", "calibrate", "chain_dir", "collect", "collect_tasks", "coverage",
     "dataset_from_records", "eval_tasks", "explore", "fit_report", "head2head", "models", "offline_error_columns",

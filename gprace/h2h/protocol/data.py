@@ -8,28 +8,33 @@ import numpy as np
 
 from gprace.config import config_hash
 from gprace.errors import InputError
-from gprace.h2h.predictors import FEATURES, OUTPUTS
+from gprace.h2h.predictors import FEATURE_MAP, FEATURES, OUTPUTS
 from gprace.h2h.protocol.batches import run_tasks
-from gprace.h2h.protocol.settings import (CHAIN_STRIDE, DATASET_KIND, SEED_CALIB, SEED_COLLECT, SEED_EVAL,
+from gprace.h2h.protocol.settings import (CHAIN_STRIDE, SEED_CALIB, SEED_COLLECT, SEED_EVAL,
                                           SEED_EXPLORE, VALIDATION_POINTS, Settings)
 from gprace.h2h.records import Record
 from gprace.h2h.geometry import TrackSpec
 from gprace.h2h.tasks import RaceTask, task_hash
 
 def _write_dataset(path: Path, Z: np.ndarray, Y: np.ndarray, run: np.ndarray, key: dict, attrs: dict) -> Path:
-    from gprace.io.artifacts import Artifact, write_artifact
+    """The opponent GP's points as a GP dataset (:mod:`gprace.gp.dataset`), with the index of the
+    run each point came from (array ``run``) and the hash of what they were built from."""
+    from gprace.gp.dataset import GPDataset, write_dataset
 
-    art = Artifact(DATASET_KIND, arrays={"Z": Z, "Y": Y, "run": run},
-                   attrs=dict(attrs, inputs=list(FEATURES), outputs=list(OUTPUTS), n=len(Z)),
-                   config_hash=config_hash(key))
-    return write_artifact(path, art)
+    ds = GPDataset(Z, Y, FEATURE_MAP, list(FEATURES), list(OUTPUTS), dict(attrs, n=len(Z)), extra={"run": run})
+    return write_dataset(path, ds, config_hash=config_hash(key))
 
 
 def read_dataset(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    from gprace.io.artifacts import read_artifact
+    """``(Z, Y)`` of an opponent dataset (:func:`gprace.gp.dataset.read_dataset`, old layouts too);
+    an InputError for a dataset of another GP."""
+    from gprace.gp.dataset import read_dataset as read
 
-    art = read_artifact(path, DATASET_KIND)
-    return art.arrays["Z"], art.arrays["Y"]
+    ds = read(path)
+    if ds.feature_map != FEATURE_MAP:
+        raise InputError(f"{path}: a dataset of the {ds.feature_map or 'unnamed'!r} GP; the head-to-head needs the "
+                         f"{FEATURE_MAP!r} GP's data (from `gprace h2h collect` or `h2h explore`)")
+    return ds.Z, ds.Y
 
 
 def _cached(path: Path, key: dict) -> bool:

@@ -12,7 +12,6 @@ from gprace.errors import InputError
 from gprace.h2h.config import opponent_mpc
 from gprace.h2h.predictors import FEATURES, OUTPUTS
 
-DATASET_KIND = "h2h_dataset"
 SEED_EVAL, SEED_COLLECT, SEED_EXPLORE, SEED_CALIB = 0, 100_000, 200_000, 300_000
 # Noise of 1:10 cars, std per state [v_x m/s, v_y m/s, yaw_rate rad/s, e_psi rad, e_y m, s m]
 # (sources and reasoning: docs/decisions.md). Sensor: what an estimator fusing indoor

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from gprace.diagnose.report import profile_text
 from gprace.diagnose.result import DiagnosisResult, Effect, parse_result
 from gprace.errors import InputError
 from gprace.report import figures as F
@@ -89,14 +90,20 @@ def _parameters_text(e: Effect) -> str:
     return text
 
 
-def profile_text(e: Effect) -> str:
-    """A profile in words: its extreme value, where, with the interval there."""
-    import numpy as np
-
-    p = e.profile
-    v = np.asarray(p.value, float)
-    neutral = 1.0 if p.unit == "-" else 0.0
-    i = int(np.nanargmax(np.abs(v - neutral)))
-    return (f"profile along the lap ({len(v)} knots, {p.edf if p.edf is not None else float('nan'):.1f} "
-            f"effective parameters): extreme {v[i]:.4g} {p.unit} at s = {p.s[i]:.0f} m "
-            f"[{p.ci95_low[i]:.4g}, {p.ci95_high[i]:.4g}]")
+def plot_residuals(res, path: str | Path) -> Path:
+    """The residual-along-track figure of the report (:func:`~gprace.report.figures.fig_residual_track`:
+    nominal and augmented model, located windows, the noise twin's +-1 sigma band) as a PNG.
+    ``res`` is a :class:`~gprace.diagnose.diagnose.Diagnosis` or its result; the figure is drawn
+    from the stored residual profile, nothing is simulated."""
+    r = getattr(res, "result", res)
+    prof = r.residual_profile
+    if prof is None:
+        raise InputError("the diagnosis result has no stored residual profile (it predates it); "
+                         "rerun `gprace diagnose ... --json`")
+    effects = ", ".join(e.name for e in r.effects) or "none"
+    fig = F.fig_residual_track(prof.s, prof.before, prof.after, [g.model_dump() for g in r.regions],
+                               f"multi-step ({r.horizon} steps) prediction error along the track; effects: {effects}",
+                               noise=prof.noise, effects=[e.model_dump() for e in r.effects])
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)  # like -o: check_output vetted the folder at the start
+    return F.write_png(fig, path, dpi=110)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from gprace.errors import GpraceError
+from gprace.gp.dataset import dataset_of
 from gprace.report import figures as F
 from gprace.report.collect import ITER_RE, TRIAL_RE, Found, Item, Section, path_number, table
 from gprace.report.inspect import UNREADABLE, key_results, open_artifact
@@ -54,10 +55,8 @@ def gp_section(found: Found, features: tuple[str, str] | None = None, max_models
                        "(others at the dictionary median), dictionary points in black", make)
     for p in datasets[:2]:
         def make_d(p=p):
-            art = open_artifact(p)
-            names_in = [str(x) for x in art.attrs.get("inputs", art.attrs.get("input_names", []))]
-            names_out = [str(x) for x in art.attrs.get("outputs", art.attrs.get("output_names", []))]
-            return F.fig_dataset(art.arrays["Z"], art.arrays["Y"], names_in, names_out, title=str(p.relative_to(found.root)))
+            ds = dataset_of(open_artifact(p), str(p))
+            return F.fig_dataset(ds.Z, ds.Y, ds.input_names, ds.output_names, title=str(p.relative_to(found.root)))
 
         sec.add_figure(f"data_{'_'.join(p.relative_to(found.root).with_suffix('').parts)}",
                        f"{p.relative_to(found.root)}: inputs of the dataset coloured by output", make_d)
