@@ -330,7 +330,6 @@ def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None =
     if basis is None or len(starts) < 20:
         return None
     K = basis.K
-    spec = EFFECTS[name].params["values"]
     base = neutral(name)
     if free is None and MIN_LAPS_SEEN <= 1:  # every knot: one no window passes follows its
         free = np.ones(K, dtype=bool)  # neighbours through the penalty (not the neutral value)
