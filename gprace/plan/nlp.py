@@ -222,7 +222,8 @@ def _solver(model, settings: PlanSettings, n: int, h: float, ellipse: bool, opts
     import casadi as ca
 
     # the model's numbers are in the key too: a model changed in place gets a new solver
-    physics = (repr(getattr(model, "params", None)), tuple(repr(vars(e)) for e in getattr(model, "effects", ())))
+    physics = (repr(getattr(model, "params", None)), repr(model.vehicle.limits),
+               tuple(repr(vars(e)) for e in getattr(model, "effects", ())))
     key = (n, float(h), ellipse, float(settings.w_steer), float(settings.w_accel), repr(sorted(opts.items())), physics)
     ref, kept = _SOLVERS.get(id(model), (None, None))
     if ref is None or ref() is not model:
