@@ -230,3 +230,32 @@ def test_random_subsample_and_reservoir():
         assert n == 360 and len(Zm) == 30
         share.append(np.mean(Zm[:, 0] > 5.0))
     assert abs(np.mean(share) - 60 / 360) < 0.02
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_shared_kernel_shares_the_inverse_and_decides_as_one_per_output(seed):
+    """Issue 37 (the README job's time): outputs with one kernel keep one inverse; on random
+    data the dictionary, its order and the counters equal those of one inverse per output."""
+    rng = np.random.default_rng(seed)
+    Z, Y = _data(700, seed=seed, scale=1.2)
+    Y[rng.choice(700, 5, replace=False)] += 2.5  # a few outliers for the gate
+    Z0, Y0 = _data(80, seed=seed + 10)
+    ls = np.exp(rng.uniform(-0.5, 0.8, 3))
+    hyper = make_gp("exact", optimize=False, length_scale=np.vstack([ls, ls]), noise=np.full(2, 10 ** rng.uniform(-3, -1.5)),
+                    shared_kernel=True).fit(Z0, Y0).hyper_
+    assert hyper.groups() == [[0, 1]]
+    shared = DiverseSelector(hyper, 60, block=32)
+    single = DiverseSelector(hyper, 60, block=32, share=False)
+    assert shared.P[0] is shared.P[1] and single.P[0] is not single.P[1]
+    for sel in (shared, single):
+        sel.initialize(Z0[:50], Y0[:50])
+        sel.update(Z, Y)
+    assert shared.stats.replaced > 50 and shared.stats.rejected_variance > 50
+    np.testing.assert_array_equal(shared.Z, single.Z)
+    np.testing.assert_array_equal(shared.Y, single.Y)
+    assert shared.stats.as_dict() == single.stats.as_dict()
+    np.testing.assert_array_equal(shared.loo_variance(), single.loo_variance())
+    m1, v1 = shared.posterior(Z[:20])
+    m2, v2 = single.posterior(Z[:20])
+    np.testing.assert_array_equal(m1, m2)
+    np.testing.assert_array_equal(v1, v2)

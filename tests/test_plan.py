@@ -87,3 +87,32 @@ def test_top_speed_bounds_the_speed_over_ground():
     side = plan_min_time(tr, m, PlanSettings(ds=6.0), mu_plan=lambda X, U: np.column_stack([np.full(len(X), -3.0), np.zeros(len(X))]))
     assert np.hypot(side.v_x, side.v_y).max() <= 30.0 * (1 + 1e-6)
     assert side.lap_time >= 2 * np.pi * (100 - tr.width_left(0.0)) / 30.0  # no faster than the cap on the inner edge
+
+
+def test_a_built_planner_serves_new_ellipse_limits_as_a_fresh_one(setup, circle_plan):
+    """Issue 37: the friction ellipse's limits are NLP parameters, so the solver built for one set
+    of limits serves the next (the time trial widens them every iteration); its plan equals that
+    of a solver built for the new limits and uses the new ellipse to its edge."""
+    from gprace.errors import SolverError
+    from gprace.plan import nlp as N
+
+    tr, m = setup
+    try:  # built for other limits (on this circle IPOPT finds those infeasible: the solver stays)
+        plan_min_time(tr, m, PlanSettings(ds=6.0, limits=(7.0, 4.0, 8.0)), warm=circle_plan)
+    except SolverError:
+        pass
+    built = set(N._SOLVERS[id(m)][1])
+    new = PlanSettings(ds=6.0, limits=(9.0, 4.0, 8.0))
+    reused = plan_min_time(tr, m, new, warm=circle_plan)
+    assert set(N._SOLVERS[id(m)][1]) == built  # no solver built for the new limits
+    other = NominalModel(load_vehicle("audi_tt_cup"))  # a new model object: a solver of its own
+    fresh = plan_min_time(tr, other, new, warm=circle_plan)
+    assert id(other) in N._SOLVERS
+    assert abs(reused.lap_time - fresh.lap_time) < 1e-9 * fresh.lap_time
+    for col in ("v_x", "yaw_rate", "e_y", "delta", "a_x"):
+        np.testing.assert_allclose(getattr(reused, col), getattr(fresh, col), atol=1e-8)
+    # the ellipse of the new limits is used up to its edge and not beyond, and binds the lap
+    lat = np.abs(reused.v_x * reused.yaw_rate) / 9.0
+    lon = np.where(reused.a_x >= 0, reused.a_x / 4.0, -reused.a_x / 8.0)
+    assert 0.99 < np.max(lat**2 + lon**2) < 1 + 1e-6
+    assert reused.lap_time > circle_plan.lap_time * 1.05

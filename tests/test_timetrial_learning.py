@@ -314,3 +314,21 @@ def test_oracle_is_unknown_for_commonroad():
 
     res = oracle_lap(IterateSettings(plant="bmw_commonroad", vehicle="bmw_320i"))
     assert res["known"] is False and "commonroad" in res["why"] and "driven" not in res
+
+
+def test_trial_modules_are_preloaded_only_for_forked_workers(monkeypatch):
+    """Issue 37: the parent imports what every trial process would import, when the workers are
+    forked (they inherit it); with spawned workers it would be work for nothing and is skipped."""
+    import importlib
+    import importlib.util
+    import multiprocessing
+
+    from gprace.timetrial import learning as L
+
+    assert all(importlib.util.find_spec(name) is not None for name in L.TRIAL_MODULES)
+    imported = []
+    monkeypatch.setattr(importlib, "import_module", imported.append)
+    monkeypatch.setattr(multiprocessing, "get_start_method", lambda allow_none=False: "spawn")
+    assert L.preload_trial_modules() is False and imported == []
+    monkeypatch.setattr(multiprocessing, "get_start_method", lambda allow_none=False: "fork")
+    assert L.preload_trial_modules() is True and imported == list(L.TRIAL_MODULES)

@@ -27,7 +27,11 @@ quick fit on a subsample):
 4. No age decay: old points leave only when they are the least informative.
 
 Cost: per output a preallocated ``M x M`` inverse ``P = (K + sn2 I)^-1`` is kept (empty slots
-hold identity rows, so its size never changes). Replacing slot ``j`` by a new point is a
+hold identity rows, so its size never changes). Outputs with identical hyperparameters (a shared
+kernel, as the time trial's GPs have) have identical ``P``, variances and leave-one-out
+variances: they share one inverse and one set of rank-one vectors, and only the posterior means
+are kept per output (``share=False`` keeps one per output; the decisions are the same bit for
+bit, half the work for two outputs). Replacing slot ``j`` by a new point is a
 rank-one downdate ``P - p p^T / p_j`` (which removes the old point) followed by a rank-one
 bordering update ``P + v v^T / s`` (which adds the new one), O(M^2). Candidates are processed in
 blocks: ``W0 = P K(dictionary, block)`` is formed once per block by one matrix product; within
@@ -87,6 +91,7 @@ class DiverseSelector:
         max_snr: float = 1e3,
         block: int = 128,
         refresh_every: int = 2000,
+        share: bool = True,
     ) -> None:
         if max_points < 1:
             raise ConfigError(f"max_points must be >= 1, got {max_points}")
@@ -102,16 +107,24 @@ class DiverseSelector:
         self.max_snr = float(max_snr)
         self._sf2 = np.exp(hyper.log_sf2)
         self._sn2 = np.maximum(np.exp(hyper.log_sn2), self._sf2 / self.max_snr)
+        # outputs that share one kernel share the inverse (groups of identical hyperparameters)
+        self._groups = hyper.groups() if share else [[o] for o in range(p)]
+        self._rep = [g[0] for g in self._groups]  # the output whose hyperparameters a group uses
+        self._gof = np.empty(p, dtype=int)  # group of each output
+        for gi, g in enumerate(self._groups):
+            self._gof[g] = gi
+        ng = len(self._groups)
         # preallocated state (never reallocated per point) -------------------------------------
-        # one Fortran-ordered inverse per output; only its lower triangle is maintained
-        self.P = [np.eye(M, order="F") for _ in range(p)]
-        self.diag = np.ones((p, M))
+        # one Fortran-ordered inverse per group; only its lower triangle is maintained
+        self._Pg = [np.eye(M, order="F") for _ in range(ng)]
+        self.P = [self._Pg[self._gof[o]] for o in range(p)]  # per output (shared objects)
+        self._diag = np.ones((ng, M))
         self.Zs = np.zeros((M, d))  # normalised inputs per slot
         self.Ys = np.zeros((M, p))  # normalised outputs per slot
         self.active = np.zeros(M, dtype=bool)
         tmax = 2 * self.block
-        self._U = np.zeros((p, M, tmax))  # rank-one vectors since the last flush
-        self._E = np.zeros((p, tmax, self.block))  # their coefficients on the block's W
+        self._U = np.zeros((ng, M, tmax))  # rank-one vectors since the last flush
+        self._E = np.zeros((ng, tmax, self.block))  # their coefficients on the block's W
         self._sig = np.zeros(tmax)
         self._t = 0
         self._changes_since_refresh = 0
@@ -136,6 +149,11 @@ class DiverseSelector:
         """Dictionary outputs ``(n, p)`` in original units (slot order)."""
         return self.Ys[self.active] * self.hyper.y_scale + self.hyper.y_mean
 
+    @property
+    def diag(self) -> np.ndarray:
+        """Diagonal ``(p, M)`` of each output's inverse."""
+        return self._diag[self._gof]
+
     def loo_variance(self) -> np.ndarray:
         """Latent leave-one-out variance ``(p, n)`` of each dictionary point (normalised units)."""
         return 1.0 / self.diag[:, self.active] - self._sn2[:, None]
@@ -148,11 +166,12 @@ class DiverseSelector:
         mean = np.empty((Zn.shape[0], self.hyper.p))
         var = np.empty_like(mean)
         act = self.active.astype(float)[:, None]
-        for o in range(self.hyper.p):
+        for gi, o in enumerate(self._rep):
             K = np.asfortranarray(self.hyper.k(o, self.Zs, Zn) * act)
-            W = dsymm(1.0, self.P[o], K, lower=1)
-            mean[:, o] = self.Ys[:, o] @ W
-            var[:, o] = self._sf2[o] - np.einsum("ij,ij->j", K, W)
+            W = dsymm(1.0, self._Pg[gi], K, lower=1)
+            for q in self._groups[gi]:
+                mean[:, q] = self.Ys[:, q] @ W
+            var[:, self._groups[gi]] = (self._sf2[o] - np.einsum("ij,ij->j", K, W))[:, None]
         return mean, var
 
     def _check(self, Z: np.ndarray, Y: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -198,9 +217,9 @@ class DiverseSelector:
     def refresh(self) -> None:
         """Recompute every inverse from a fresh factorisation (bounds round-off growth)."""
         self._t = 0
-        for o in range(self.hyper.p):
-            self.P[o][:] = self.fresh_inverse(o)
-            self.diag[o] = np.diagonal(self.P[o])
+        for gi, o in enumerate(self._rep):
+            self._Pg[gi][:] = self.fresh_inverse(o)
+            self._diag[gi] = np.diagonal(self._Pg[gi])
         self._changes_since_refresh = 0
         self.stats.refreshes += 1
 
@@ -209,9 +228,9 @@ class DiverseSelector:
         the largest entry of the fresh inverse (for tests and diagnostics)."""
         self._flush()
         err = 0.0
-        for o in range(self.hyper.p):
+        for gi, o in enumerate(self._rep):
             Pf = self.fresh_inverse(o)
-            D = np.tril(self.P[o]) - np.tril(Pf)
+            D = np.tril(self._Pg[gi]) - np.tril(Pf)
             err = max(err, float(np.max(np.abs(D)) / np.max(np.abs(Pf))))
         return err
 
@@ -228,23 +247,23 @@ class DiverseSelector:
         if t == 0:
             return
         neg, pos = self._sig[:t] < 0, self._sig[:t] > 0
-        for o in range(self.hyper.p):
-            U = self._U[o, :, :t]
+        for gi in range(len(self._groups)):
+            U = self._U[gi, :, :t]
             # symmetric rank-k updates of the lower triangle, in place
             if neg.any():
-                dsyrk(-1.0, U[:, neg], beta=1.0, c=self.P[o], lower=1, overwrite_c=1)
+                dsyrk(-1.0, U[:, neg], beta=1.0, c=self._Pg[gi], lower=1, overwrite_c=1)
             if pos.any():
-                dsyrk(1.0, U[:, pos], beta=1.0, c=self.P[o], lower=1, overwrite_c=1)
+                dsyrk(1.0, U[:, pos], beta=1.0, c=self._Pg[gi], lower=1, overwrite_c=1)
         self._t = 0
 
-    def _column(self, o: int, j: int, t: int) -> np.ndarray:
-        """Column ``j`` of the current inverse: lower-triangle storage plus pending terms."""
-        PF = self.P[o]
+    def _column(self, gi: int, j: int, t: int) -> np.ndarray:
+        """Column ``j`` of group ``gi``'s current inverse: lower-triangle storage plus pending terms."""
+        PF = self._Pg[gi]
         col = np.empty(self.M)
         col[j:] = PF[j:, j]
         col[:j] = PF[j, :j]
         if t:
-            Ut = self._U[o, :, :t]
+            Ut = self._U[gi, :, :t]
             col += Ut @ (self._sig[:t] * Ut[j])
         return col
 
@@ -265,27 +284,28 @@ class DiverseSelector:
         return self.stats
 
     def _process_block(self, C: np.ndarray, Yc: np.ndarray) -> None:
-        p = self.hyper.p
+        p, gof = self.hyper.p, self._gof
         B = C.shape[0]
         self._flush()
         act = self.active.astype(float)[:, None]
-        Kc = [np.asfortranarray(self.hyper.k(o, self.Zs, C) * act) for o in range(p)]
-        W0 = [dsymm(1.0, self.P[o], Kc[o], lower=1) for o in range(p)]
-        var = np.stack([self._sf2[o] - np.einsum("ij,ij->j", Kc[o], W0[o]) for o in range(p)])
-        mu = np.stack([self.Ys[:, o] @ W0[o] for o in range(p)])
+        # kernel columns, W = P K and the variances per group; the means per output
+        Kc = [np.asfortranarray(self.hyper.k(o, self.Zs, C) * act) for o in self._rep]
+        W0 = [dsymm(1.0, self._Pg[gi], Kc[gi], lower=1) for gi in range(len(self._rep))]
+        var = np.stack([self._sf2[o] - np.einsum("ij,ij->j", Kc[gi], W0[gi]) for gi, o in enumerate(self._rep)])
+        mu = np.stack([self.Ys[:, o] @ W0[gof[o]] for o in range(p)])
         sn2 = self._sn2[:, None]
         gate = self.gate_below * self._sf2[:, None]
         self.stats.seen += B
         pos = 0
         while pos < B:
-            v = np.maximum(var[:, pos:], 0.0)
+            v = np.maximum(var[:, pos:], 0.0)[gof]
             if self.kappa is not None:
                 out = np.any((v < gate) & (np.abs(Yc[pos:].T - mu[:, pos:]) > self.kappa * np.sqrt(v + sn2)), axis=0)
             else:
                 out = np.zeros(B - pos, dtype=bool)
             full = self.full
             if full:
-                loo = 1.0 / self.diag[:, self.active] - sn2
+                loo = 1.0 / self._diag[:, self.active][gof] - sn2
                 med = np.median(loo, axis=1)
                 enter = np.any(v > med[:, None], axis=0)
             else:
@@ -314,20 +334,23 @@ class DiverseSelector:
                  W0: list[np.ndarray], var: np.ndarray, mu: np.ndarray) -> None:
         """Put candidate ``c`` of the block into slot ``j``: downdate (remove the slot's point or
         placeholder), then bordering update (add the candidate). Updates the block's posterior
-        ``var``/``mu`` for candidates ``c+1..`` and records the two rank-one vectors."""
+        ``var`` (per group) and ``mu`` (per output) for candidates ``c+1..`` and records the two
+        rank-one vectors of each group."""
         t = self._t
         x = C[c:c + 1]
-        for o in range(self.hyper.p):
-            U, E, sig = self._U[o], self._E[o][:, :C.shape[0]], self._sig
+        for gi, o in enumerate(self._rep):
+            outs = self._groups[gi]
+            U, E, sig = self._U[gi], self._E[gi][:, :C.shape[0]], self._sig
             Ut, Et = U[:, :t], E[:t]
             # current column j of P and row j of W = P K
-            pcol = self._column(o, j, t)
+            pcol = self._column(gi, j, t)
             pj = pcol[j]
-            wj = W0[o][j, c:] + Ut[j] @ Et[:, c:]
+            wj = W0[gi][j, c:] + Ut[j] @ Et[:, c:]
             # 1. downdate: P1 = P - pcol pcol^T / pj
-            var[o, c:] += wj * wj / pj
-            mu[o, c:] -= (self.Ys[:, o] @ pcol) * wj / pj
-            self.diag[o] -= pcol * pcol / pj
+            var[gi, c:] += wj * wj / pj
+            for q in outs:
+                mu[q, c:] -= (self.Ys[:, q] @ pcol) * wj / pj
+            self._diag[gi] -= pcol * pcol / pj
             sq = np.sqrt(pj)
             U[:, t] = pcol / sq
             E[t, :c] = 0.0
@@ -335,23 +358,24 @@ class DiverseSelector:
             sig[t] = -1.0
             # 2. insert x at slot j: b = P1 k(dictionary without j, x)
             Ut1, Et1 = U[:, :t + 1], E[:t + 1]
-            b = W0[o][:, c] + Ut1 @ Et1[:, c]
+            b = W0[gi][:, c] + Ut1 @ Et1[:, c]
             b[j] = 0.0
-            k = Kc[o][:, c].copy()
+            k = Kc[gi][:, c].copy()
             k[j] = 0.0
             s = max(self._sf2[o] + self._sn2[o] - float(k @ b), self._sn2[o])
             r = self.hyper.k(o, x, C[c:])[0]
-            g = k @ W0[o][:, c:] + (k @ Ut1) @ Et1[:, c:] - r  # k^T W1 - r
-            var[o, c:] -= g * g / s
-            mu[o, c:] += (float(self.Ys[:, o] @ b) - Yc[c, o]) * g / s
+            g = k @ W0[gi][:, c:] + (k @ Ut1) @ Et1[:, c:] - r  # k^T W1 - r
+            var[gi, c:] -= g * g / s
+            for q in outs:
+                mu[q, c:] += (float(self.Ys[:, q] @ b) - Yc[c, q]) * g / s
             b[j] = -1.0  # v = b - e_j
-            self.diag[o] += b * b / s
+            self._diag[gi] += b * b / s
             sq = np.sqrt(s)
             U[:, t + 1] = b / sq
             E[t + 1, :c] = 0.0
             E[t + 1, c:] = g / sq
             sig[t + 1] = 1.0
-            Kc[o][j, c:] = r
+            Kc[gi][j, c:] = r
         self._t = t + 2
         self.Zs[j] = C[c]
         self.Ys[j] = Yc[c]

@@ -21,6 +21,12 @@ data (a parameter), never as a function of the decision variables (paper appendi
 Bounds: ``-w_r + b/2 + margin <= e_y <= w_l - b/2 - margin`` (b the car width), steering and
 acceleration limits, optionally a friction ellipse at a share ``grip`` of the model's limits, ``v_x >= v_low`` and the speed over ground ``|(v_x, v_y)| <= speed_max``, ``|e_psi| <= 1`` rad.
 Solved with IPOPT, exact Hessian, MUMPS.
+
+The ellipse's three limits are NLP parameters, not constants, so one built solver serves every
+plan of a model on the same nodes (the time trial widens the limits each iteration): building it
+(expansion, derivatives, the Hessian's structure) took 1.6 to 2 s of the 5 to 7 s of a re-plan.
+Solvers are kept per model object (:func:`_solver`). Measured on the README job's 7 re-plans of
+a trial: the same IPOPT iterations but for one (191 -> 179), plans equal to 1e-7 (issue 37).
 """
 
 from __future__ import annotations
@@ -94,11 +100,11 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
         k = int(np.argmax(lo_ey >= hi_ey))
         raise ConfigError(f"plan: track {track.name!r} is narrower than the car plus margin at s = {smp.s[k]:.1f} m")
 
-    nlp, lbg, ubg = _nlp(model, settings, n, h)
+    ellipse = ellipse_limits(model, settings)
     LB, UB, guess = _bounds_and_guess(model, settings, X0, U0, lo_ey, hi_ey)
-    args = dict(x0=guess.ravel(), lbx=LB.ravel(), ubx=UB.ravel(), lbg=lbg, ubg=ubg,
-                p=np.column_stack([smp.kappa, comp]).ravel())
-    z, stats = _solve(nlp, args, settings, track)
+    args = dict(x0=guess.ravel(), lbx=LB.ravel(), ubx=UB.ravel(),
+                p=np.concatenate([np.column_stack([smp.kappa, comp]).ravel(), ellipse or ()]))
+    z, stats = _solve(model, settings, n, h, ellipse is not None, args, track)
     vx, vy, r, epsi, ey, delta, ax = z.reshape(n, NODE).T
     sd = (vx * np.cos(epsi) - vy * np.sin(epsi)) / (1 - smp.kappa * ey)
     dt = 0.5 * h * (1 / sd + 1 / np.roll(sd, -1))
@@ -112,9 +118,10 @@ def plan_min_time(track, model, settings: PlanSettings = PlanSettings(), warm: P
     )
 
 
-def _nlp(model, settings: PlanSettings, n: int, h: float) -> tuple[dict, np.ndarray, np.ndarray]:
+def _nlp(model, settings: PlanSettings, n: int, h: float, ellipse: bool) -> tuple[dict, np.ndarray, np.ndarray]:
     """The NLP over ``n`` nodes ``h`` apart in ``s`` (trapezoidal collocation on the closed lap),
-    parameters ``(kappa, mu_vy, mu_r)`` per node; its constraint bounds."""
+    parameters ``(kappa, mu_vy, mu_r)`` per node, then (``ellipse``) the friction ellipse's
+    ``(a_lat, a_drive, a_brake)``; its constraint bounds."""
     import casadi as ca
 
     lim = model.vehicle.limits
@@ -130,8 +137,8 @@ def _nlp(model, settings: PlanSettings, n: int, h: float) -> tuple[dict, np.ndar
     w = ca.MX.sym("w", NODE * n)
     WU = ca.reshape(w, NODE, n)
     X, U = WU[:5, :], WU[5:, :]
-    pv = ca.MX.sym("p", 3 * n)
-    G, W = gmap(X, U, ca.reshape(pv, 3, n))
+    pv = ca.MX.sym("p", 3 * n + (3 if ellipse else 0))
+    G, W = gmap(X, U, ca.reshape(pv[:3 * n], 3, n))
     Xn = ca.horzcat(X[:, 1:], X[:, :1])
     Gn = ca.horzcat(G[:, 1:], G[:, :1])
     defect = Xn - X - 0.5 * h * (G + Gn)
@@ -146,9 +153,8 @@ def _nlp(model, settings: PlanSettings, n: int, h: float) -> tuple[dict, np.ndar
     g_all.append(ca.vec(X[VX, :] ** 2 + X[VY, :] ** 2))
     lbg.append(np.zeros(n))
     ubg.append(np.full(n, lim.speed_max**2))
-    ellipse = ellipse_limits(model, settings)
-    if ellipse is not None:
-        a_lat, a_drive, a_brake = ellipse
+    if ellipse:
+        a_lat, a_drive, a_brake = pv[3 * n], pv[3 * n + 1], pv[3 * n + 2]
         a_lon = ca.if_else(U[1, :] >= 0, U[1, :] / a_drive, -U[1, :] / a_brake)
         g_all.append(ca.vec(a_lon**2 + (X[VX, :] * X[R, :] / a_lat) ** 2))
         lbg.append(np.full(n, -np.inf))
@@ -174,10 +180,8 @@ def _bounds_and_guess(model, settings: PlanSettings, X0: np.ndarray, U0: np.ndar
     return LB, UB, guess
 
 
-def _solve(nlp: dict, args: dict, settings: PlanSettings, track) -> tuple[np.ndarray, dict]:
+def _solve(model, settings: PlanSettings, n: int, h: float, ellipse: bool, args: dict, track) -> tuple[np.ndarray, dict]:
     """IPOPT with the fast settings, then once more with its robust defaults if those failed."""
-    import casadi as ca
-
     from gprace.interrupt import check as check_interrupt
 
     opts = {
@@ -189,20 +193,53 @@ def _solve(nlp: dict, args: dict, settings: PlanSettings, track) -> tuple[np.nda
         "ipopt.mu_strategy": "monotone", "ipopt.mu_init": 1e-2, "ipopt.bound_push": 1e-6, "ipopt.bound_frac": 1e-6,
     }
     opts.update(_extra_opts())
-    solver = ca.nlpsol("plan", "ipopt", nlp, opts)
-    sol = solver(**args)
+    solver, lbg, ubg = _solver(model, settings, n, h, ellipse, opts)
+    sol = solver(**args, lbg=lbg, ubg=ubg)
     check_interrupt()  # IPOPT stops at Ctrl-C as if it had failed: that is no reason for the second try
     stats = solver.stats()
     if not ipopt_status(stats).usable:
         # the fast settings failed (seen with a strong GP compensation): IPOPT's robust defaults
         opts.update({"ipopt.mu_strategy": "adaptive", "ipopt.mu_init": 0.1, "ipopt.bound_push": 1e-2, "ipopt.bound_frac": 1e-2})
-        solver = ca.nlpsol("plan", "ipopt", nlp, opts)
-        sol = solver(**args)
+        solver, lbg, ubg = _solver(model, settings, n, h, ellipse, opts)
+        sol = solver(**args, lbg=lbg, ubg=ubg)
         check_interrupt()
         stats = solver.stats()
     if not ipopt_status(stats).usable:
         raise SolverError(f"plan: IPOPT did not converge on {track.name!r} ({stats['return_status']}, {stats['iter_count']} iterations)")
     return np.asarray(sol["x"]).ravel(), stats
+
+
+_SOLVERS: dict = {}  # id(model) -> (weak reference to the model, {key: (solver, lbg, ubg)})
+_SOLVERS_PER_MODEL = 4  # built solvers kept per model (node counts and options), the oldest dropped first
+
+
+def _solver(model, settings: PlanSettings, n: int, h: float, ellipse: bool, opts: dict):
+    """The IPOPT solver of :func:`_nlp` with ``opts`` and its constraint bounds, built once per
+    model object, node layout, objective weights and options (a process keeps a few per model;
+    a model that is gone takes its solvers with it)."""
+    import weakref
+
+    import casadi as ca
+
+    # the model's numbers are in the key too: a model changed in place gets a new solver
+    physics = (repr(getattr(model, "params", None)), repr(model.vehicle.limits),
+               tuple(repr(vars(e)) for e in getattr(model, "effects", ())))
+    key = (n, float(h), ellipse, float(settings.w_steer), float(settings.w_accel), repr(sorted(opts.items())), physics)
+    ref, kept = _SOLVERS.get(id(model), (None, None))
+    if ref is None or ref() is not model:
+        kept = {}
+        try:
+            ref = weakref.ref(model, lambda _, k=id(model): _SOLVERS.pop(k, None))
+        except TypeError:  # no weak references: build every time
+            ref = None
+        if ref is not None:
+            _SOLVERS[id(model)] = (ref, kept)
+    if key not in kept:
+        nlp, lbg, ubg = _nlp(model, settings, n, h, ellipse)
+        kept[key] = (ca.nlpsol("plan", "ipopt", nlp, opts), lbg, ubg)
+        while len(kept) > _SOLVERS_PER_MODEL:
+            kept.pop(next(iter(kept)))
+    return kept[key]
 
 
 def ellipse_limits(model, settings: PlanSettings) -> tuple[float, float, float] | None:

@@ -11,9 +11,10 @@ Per trial (an independent chain with its own seed; trials run in parallel throug
   iterations); (2) both GPs are retrained (hyperparameters by marginal likelihood on the first
   retrain only, then posterior refits with those hyperparameters fixed; see
   :mod:`gprace.timetrial.learning`), the exploration candidates and their weighted variances are
-  computed; (3) the lap is re-planned with the planning GP, warm-started from the last plan that
-  completed a lap, inside a friction ellipse widened from the accelerations measured on the last
-  lap (:mod:`gprace.timetrial.grip`; a failed lap narrows it); (4) the tracking MPC with the
+  computed (iterations with alpha > 0; alpha = 0 never uses them); (3) the lap is re-planned
+  with the planning GP, warm-started from the last plan that completed a lap, inside a friction
+  ellipse widened from the accelerations measured on the last lap (:mod:`gprace.timetrial.grip`;
+  a failed lap narrows it); (4) the tracking MPC with the
   tracking GP drives it with ``alpha_i``. If the re-plan fails (IPOPT reports infeasible or runs
   out of iterations), the last plan that completed a lap is driven again and the record says
   ``replan_failed``.
@@ -27,7 +28,7 @@ Folder layout (``--out DIR``)::
     settings.json                       the experiment (a rerun must match it)
     heldout.h5                          a weaving run of the plant (GP test set, shared by trials)
     calib.h5                            a weaving run of another design (GP variance calibration, shared)
-    trial_<j>/iter_<i>/plan.h5 run.h5 gp_tracking.h5 gp_planning.h5 data_*.h5 candidates.h5 record.json
+    trial_<j>/iter_<i>/plan.h5 run.h5 gp_tracking.h5 gp_planning.h5 data_*.h5 [candidates.h5] record.json
     trial_<j>/hyper_tracking.h5 hyper_planning.h5
     oracle.json oracle_plan.h5 oracle_run.h5   the oracle lap (or {"known": false})
     .steps/<name>.done                  written only after the step's artifacts are on disk
@@ -215,6 +216,10 @@ def _run_prepared(prepared, references, tasks, executor, workers, scheduler) -> 
 
     from gprace.executor import run_batch
 
+    if executor == "local":  # forked trial processes inherit what the parent imported (issue 37)
+        from gprace.timetrial.learning import preload_trial_modules
+
+        preload_trial_modules()
     # the reference runs of all experiments in one batch first (each a lap or two of simulate)
     done = run_batch(_reference_task, references, executor=executor, workers=processes(workers, len(references)), scheduler=scheduler,
                      label=f"iterate: {len(references)} reference run(s)") if references else []
@@ -679,7 +684,8 @@ MIN_FIT_SAMPLES = 20  # samples a hyperparameter fit needs
 
 
 def _retrain(c: _Chain, i: int) -> None:
-    """(2) Both GPs on their dictionaries, calibrated; the exploration candidates of the tracking GP."""
+    """(2) Both GPs on their dictionaries, calibrated; the exploration candidates of the tracking GP
+    (only where the iteration explores: alpha > 0)."""
     from gprace.io.artifacts import Artifact, read_artifact, write_artifact
     from gprace.timetrial import learning as L
 
@@ -690,7 +696,7 @@ def _retrain(c: _Chain, i: int) -> None:
         gp = L.refit_fixed(hyper, a.arrays["Z"], a.arrays["Y"])
         L.save_predictor(di / f"gp_{kind}.h5", gp, kind, {"iteration": i, "trial": c.trial}, c.st.features,
                          L.calibrate(gp, calib=c.calib[kind]))
-        if kind == "tracking":
+        if kind == "tracking" and c.st.alpha(i) > 0:  # alpha = 0 never uses the candidates (issue 37)
             grid = make_grid(gp, a.arrays["Z"], c.mpc, c.st.grid_values)
             write_artifact(di / "candidates.h5", Artifact("candidates", {"Z": grid.Z, "v": grid.v, "scale": grid.scale}))
 
@@ -818,8 +824,8 @@ def _drive_iteration(c: _Chain, i: int, alpha: float) -> None:
     di = c.dir(i)
     plan = read_plan(di / "plan.h5", c.track)
     gp_track = L.load_predictor(di / "gp_tracking.h5", "tracking")
-    a = read_artifact(di / "candidates.h5", "candidates")
-    grid = CandidateGrid(a.arrays["Z"], a.arrays["v"], a.arrays["scale"])
+    a = read_artifact(di / "candidates.h5", "candidates") if alpha > 0 else None
+    grid = CandidateGrid(a.arrays["Z"], a.arrays["v"], a.arrays["scale"]) if a is not None else None
     delay = c.delay
     run = drive(plan, c.plant, c.track, c.model, c.drive_settings(delay), gp=gp_track, grid=grid, alpha=alpha,
                 seed=c.seed * 100 + i, band=_band(c, i))

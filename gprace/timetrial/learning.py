@@ -286,6 +286,27 @@ def save_predictor(path, gp, kind: str, extra: dict | None = None, feature_set: 
     return save_model(path, gp, meta)
 
 
+# what a trial process imports beyond what the parent has when it forks the trials (measured on
+# the README job: scikit-learn's GP with pandas and joblib, scipy.stats and scipy.signal; 3 to 4 s
+# of CPU in each trial process)
+TRIAL_MODULES = ("sklearn.gaussian_process", "scipy.stats", "scipy.signal", "gprace.gp.selection",
+                 "gprace.explore.algorithm", "gprace.timetrial.drive", "gprace.timetrial.shakedown")
+
+
+def preload_trial_modules() -> bool:
+    """Import :data:`TRIAL_MODULES` once in a parent whose worker processes are forked, so every
+    trial process inherits them instead of importing them again (issue 37: the README job's time).
+    Nothing is done (False) where workers do not fork (spawn, forkserver)."""
+    import importlib
+    import multiprocessing
+
+    if multiprocessing.get_start_method(allow_none=False) != "fork":
+        return False
+    for name in TRIAL_MODULES:
+        importlib.import_module(name)
+    return True
+
+
 @dataclass
 class Dictionary:
     """A GP's training set across iterations, plus how many points it has seen."""
