@@ -728,6 +728,8 @@ def _replan(c: _Chain, i: int) -> None:
         shown = _grip_shown(c, i)
         if shown is not None:  # never plan corners faster than the grip the car has shown
             limits[0] = min(limits[0], max(shown * G.nominal_cap(model, 1.0)[0], np.asarray(last.meta.get("limits", limits))[0]))
+        if st.never_worse:
+            limits = guard.after_refusal(limits, last.meta.get("limits", limits), rec.get("safety") or {})
     if st.never_worse:  # the plan started from, and driven again if the new one is unsafe: clear of the lost laps
         ref = guard.last_good(records, clear=lambda lim: G.clear_of(lim, failed, st.widen))
     good = [k for k in range(i - 1, -1, -1) if records[k]["completed"]]
@@ -749,6 +751,7 @@ def _replan(c: _Chain, i: int) -> None:
                 step = f"new plan driven at {q:.2f} of its speed ({safety['why']})"
                 source = f"{source}; {step}" if back else step
             elif not safety["safe"] and warm is not None:
+                safety = {**safety, **guard.refused(limits)}
                 plan, limits = warm, warm.meta.get("limits", limits)
                 plan.meta = {**plan.meta, "unsafe": safety["why"]}
                 unsafe = f"last good plan (iteration {start}) driven: the new plan was not predicted safe ({safety['why']})"
