@@ -455,12 +455,12 @@ class TrackingMPC:
         The plan's limits ``(lateral, drive, brake)`` [m/s^2] (``plan.meta["limits"]``, what the car
         has been shown to take; else the nominal model's) and the lateral acceleration the car uses
         now, ``|v_x r|``: drive and braking are held to ``sqrt(1 - (a_y / lateral)^2)`` of their
-        limits, never below ``ellipse_floor`` of them nor below what the reference itself asks now. The nominal model has no combined slip: to it, drive and braking cost the
-        tires nothing sideways, and the QP used the full range to make up a metre of progress or
-        a rear slip angle (the slip row is linearised in ``v_x`` too) while the car was cornering
-        at its limit (measured: full drive, 3.5 m/s^2, at 9.1 m/s^2 lateral on a randomized BMW
-        whose plan asked 0.3, and at 11 m/s^2 lateral while the rear was stepping out on another;
-        both were lost; docs/decisions.md, issue 37, stop 44).
+        limits, never below ``ellipse_floor`` of them nor below what the reference itself asks now.
+        The nominal model has no combined slip: to it, drive and braking cost the tires nothing
+        sideways, and the QP used the whole range to make up a metre of progress while the car was
+        cornering at its limit (measured: full drive, 3.5 m/s^2, at 9.1 m/s^2 lateral on a
+        randomized BMW whose plan asked 0.3 there; the rear stepped out and the lap was lost;
+        docs/decisions.md, issue 37, stop 44).
         """
         share = self.settings.ellipse
         if share is None:
