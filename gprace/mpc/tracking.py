@@ -404,9 +404,9 @@ class TrackingMPC:
             if not self.settings.slip_by_speed:
                 # the slip angle falls with v_x, but drive on a sliding rear axle takes its lateral
                 # grip (combined slip, which the nominal model lacks): the row may not be met by
-                # speeding up. Measured: a randomized BMW whose rear stepped out in the hairpin
-                # was driven at the envelope's whole drive allowance (1 m/s^2, above the car's
-                # reference speed) for 0.5 s to shrink the row's slip angle, and spun
+                # speeding up. Measured on the iteration-0 lap of a randomized BMW with a light
+                # rear (docs/decisions.md, issue 37, stop 44): with the front bound alone it spun
+                # in the hairpin, with this as well it completed
                 G[:, State.V_X] = 0.0
             sig_a = np.sqrt(np.maximum(np.einsum("ki,kij,kj->k", G, Sig, G), 0.0))
             off = a_r - np.einsum("ki,ki->k", G, xr0)
