@@ -85,3 +85,21 @@ def test_drive_stays_inside_the_plans_friction_ellipse(circle):
     uref[0, Input.A_X] = -0.5 * brake
     b_lo, b_hi = mpc.ellipse_bounds(at_limit, uref, lo, hi)
     assert np.isclose(b_hi[Input.A_X], 0.2 * drive) and np.isclose(b_lo[Input.A_X], -0.5 * brake)
+
+
+def test_the_nominal_model_alone_while_the_envelope_is_active(circle):
+    """``use_gp = False`` (the drive loop sets it while the stability envelope is active): the QP
+    of the period is the nominal MPC's, whatever the GP says; with it the GP's mean enters."""
+    track, model, plan, x, _ = circle
+
+    def gp(Z):  # a GP that says the car turns much less than the model
+        return np.tile([0.0, -0.05], (len(Z), 1)), np.full((len(Z), 2), 1e-6)
+
+    nominal = TrackingMPC(model, track, plan, MPCSettings()).build(x)[0]
+    mpc = TrackingMPC(model, track, plan, MPCSettings(), gp=gp)
+    assert not np.allclose(mpc.build(x)[0].c, nominal.c)
+    mpc.use_gp = False
+    assert np.allclose(mpc.build(x)[0].c, nominal.c)
+    from gprace.mpc.stability import EnvelopeSettings
+
+    assert EnvelopeSettings().nominal_when_active

@@ -238,6 +238,7 @@ class TrackingMPC:
         self.steps = 0
         self.last_target: np.ndarray | None = None
         self.speed_factor = 1.0
+        self.use_gp = True  # False: the nominal model alone this period (drive: while the envelope is active)
         self.delay = float(settings.delay)
         self.sent: np.ndarray | None = None  # inputs sent, oldest first (the delay's history)
         self.predicted: np.ndarray | None = None  # the state the last QP started from (after the delay)
@@ -370,7 +371,7 @@ class TrackingMPC:
         xn[:, State.S] -= s0
         var = np.zeros((N, 2))
         mean = np.zeros((N, 2))
-        if self.gp is not None:
+        if self.gp is not None and self.use_gp:
             if hasattr(self.gp, "at_with_gradient"):
                 # the GP is linearised with the nominal model: its mean is evaluated on the nominal
                 # trajectory (the paper) and its gradient enters A and B. Measured: with the mean
