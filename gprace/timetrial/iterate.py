@@ -650,7 +650,7 @@ def _delay_before(reference: tuple, dt: float) -> float:
 def _select(c: _Chain, i: int) -> None:
     """(1) The last run's samples streamed into each GP's dictionary (hyperparameters fitted once,
     on the first run's data)."""
-    from gprace.io.artifacts import Artifact, read_artifact, write_artifact
+    from gprace.gp.dataset import loop_dataset, read_dataset, write_dataset
     from gprace.io.runs import read_run
     from gprace.timetrial import learning as L
 
@@ -674,12 +674,11 @@ def _select(c: _Chain, i: int) -> None:
         hyper = L.load_predictor(hyper_path, kind).gp
         old = None
         if i > 1:
-            a = read_artifact(dp / f"data_{kind}.h5", "dataset")
-            old = L.Dictionary(a.arrays["Z"], a.arrays["Y"], int(a.attrs["n_seen"]))
+            a = read_dataset(dp / f"data_{kind}.h5")
+            old = L.Dictionary(a.Z, a.Y, a.n_seen)
         d, stats = L.update_dictionary(old, Znew, Ynew, st.dictionary_size, st.selection, hyper.hyper_, seed=c.seed + i)
-        write_artifact(di / f"data_{kind}.h5", Artifact("dataset", {"Z": d.Z, "Y": d.Y},
-                                                         {"n_seen": int(d.n_seen), "gp": kind, "selection": st.selection,
-                                                          "stats": stats}))
+        write_dataset(di / f"data_{kind}.h5", loop_dataset(kind, st.features, d.Z, d.Y,
+                                                           {"n_seen": int(d.n_seen), "selection": st.selection, "stats": stats}))
 
 
 MIN_FIT_SAMPLES = 20  # samples a hyperparameter fit needs
