@@ -9,7 +9,6 @@ corner is where such cars are lost.
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
