@@ -413,11 +413,7 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, c: Calibrated, seed: 
             dyn_struct = set(left)
         l0_ch = np.mean(prob.residuals(cur, ctx.eval_w) ** 2, axis=1)
         if candidate and chosen:  # the calibration with the effects named so far in the model
-            cf = cal.covariance(prob, cal.fit(prob, c.fit.params, c.fit.x, *cal.bounds(
-                nominal, c.fit.params, cal.v_top(p.data)), ctx.fit_w, max_nfev=20),
-                *cal.bounds(nominal, c.fit.params, cal.v_top(p.data)))
-            cf.dropped = c.fit.dropped
-            c = replace(c, fit=cf, heldout=_cv_calibration(replace(ctx, prob=prob), nominal, cf))
+            c = _recalibrate(p, prob, ctx, nominal, c)
         best, cv, top = None, {}, []
         joint: dict[str, cv_.Block] = {}
         if len(chosen) < MAX_EFFECTS:
@@ -456,30 +452,51 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, c: Calibrated, seed: 
             break
         if not effect_ok:  # the calibration was applied: name effects against the calibrated car
             continue
-        group = [best]
-        for f in top:
-            if f is best:
-                continue
-            lf = cv[f.name][:, chb].mean(axis=1)
-            _, t_f = nm.gain_test(l0, lf, ctx.bid)
-            _, t_diff = nm.gain_test(lf, l1, ctx.bid)
-            if (lf.mean() - l1.mean()) <= nm.AMBIGUOUS_SHARE * (l0.mean() - l1.mean()) and t_diff < 2.0 \
-                    and t_f > nm.T_GAIN:
-                group.append(f)
+        group = _ambiguity_group(ctx, best, top, cv, chb, l0, l1)
         named = min(group, key=lambda f: (len(f.free), cv[f.name].mean()))
         ln = cv[named.name]
         if named.name in joint:  # named with the calibration refitted beside it: keep that calibration
             xc = joint[named.name].x
             c = replace(c, fit=replace(c.fit, x=xc),
                         vehicle=cal.with_values(nominal, cal.values(nominal, c.fit.params, xc)))
-        ch = _channels(named.name)
-        chosen.append(NamedEffect(
-            fit=named,
-            heldout_before={CHANNELS[i]: float(np.sqrt(l0_ch[:, i].mean()) * s.scale[i]) for i in ch},
-            heldout_after={CHANNELS[i]: float(np.sqrt(ln[:, i].mean()) * s.scale[i]) for i in ch},
-            improvement=float(1.0 - np.sqrt(ln[:, ch].mean() / l0_ch[:, ch].mean())),
-            ambiguous_with=tuple(f.name for f in group if f is not named), where=where))
+        chosen.append(_named_effect(named, group, l0_ch, ln, s.scale, where))
     return Named(tuple(chosen), tuple(searched)), c
+
+
+def _recalibrate(p: Prepared, prob, ctx: Ctx, nominal: VehicleConfig, c: Calibrated) -> Calibrated:
+    """The calibration candidate refitted with the effects named so far in ``prob``'s model, and
+    its held-out loss again."""
+    bounds = cal.bounds(nominal, c.fit.params, cal.v_top(p.data))
+    cf = cal.covariance(prob, cal.fit(prob, c.fit.params, c.fit.x, *bounds, ctx.fit_w, max_nfev=20), *bounds)
+    cf.dropped = c.fit.dropped
+    return replace(c, fit=cf, heldout=_cv_calibration(replace(ctx, prob=prob), nominal, cf))
+
+
+def _ambiguity_group(ctx: Ctx, best, top, cv, chb, l0, l1) -> list:
+    """``best`` and the candidates that explain nearly as much on its channels (within
+    ``AMBIGUOUS_SHARE`` of its gain, not distinguishable from it, significant themselves)."""
+    group = [best]
+    for f in top:
+        if f is best:
+            continue
+        lf = cv[f.name][:, chb].mean(axis=1)
+        _, t_f = nm.gain_test(l0, lf, ctx.bid)
+        _, t_diff = nm.gain_test(lf, l1, ctx.bid)
+        if (lf.mean() - l1.mean()) <= nm.AMBIGUOUS_SHARE * (l0.mean() - l1.mean()) and t_diff < 2.0 \
+                and t_f > nm.T_GAIN:
+            group.append(f)
+    return group
+
+
+def _named_effect(named, group, l0_ch, ln, scale, where) -> NamedEffect:
+    """The named fit with its held-out RMSEs before and after on its channels."""
+    ch = _channels(named.name)
+    return NamedEffect(
+        fit=named,
+        heldout_before={CHANNELS[i]: float(np.sqrt(l0_ch[:, i].mean()) * scale[i]) for i in ch},
+        heldout_after={CHANNELS[i]: float(np.sqrt(ln[:, i].mean()) * scale[i]) for i in ch},
+        improvement=float(1.0 - np.sqrt(ln[:, ch].mean() / l0_ch[:, ch].mean())),
+        ambiguous_with=tuple(f.name for f in group if f is not named), where=where)
 
 
 JOINT_TOP = 2
@@ -753,25 +770,7 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
     l_nom = np.mean(ctx.prob.residuals(core.model_for(vehicle, p.data), ctx.eval_w) ** 2, axis=1).mean(axis=0)
     l_cal = c.heldout.mean(axis=0) if c.applied else l_nom
     l_aug = ver.heldout_after if ver.heldout_after is not None else l_cal
-    channels_json = []
-    for st, s1, pr, ch in zip(nom.stats, aug.stats, nom.pred, TESTED):
-        d = {"name": st.name, "structured": ch in structured, "statistic": round(float(st.statistic), 3),
-             "rmse_nominal": float(st.rmse), "rmse_noise_floor": float(st.rmse_twin),
-             "rmse_augmented": float(s1.rmse),
-             "predictability": {"t": pr.t, "heldout_share": pr.gain,
-                                "where": [{"subset": x.label, "t": x.t, "heldout_share": x.gain} for x in pr.subsets]}}
-        if c.applied:
-            d["rmse_calibrated"] = float(c.baseline.nominal.stats[TESTED.index(ch)].rmse)
-        if ch in DYNAMIC:
-            d["heldout_rmse_nominal"] = float(np.sqrt(l_nom[ch]) * s.scale[ch])
-            if c.applied:
-                d["heldout_rmse_calibrated"] = float(np.sqrt(l_cal[ch]) * s.scale[ch])
-            d["heldout_rmse_augmented"] = float(np.sqrt(l_aug[ch]) * s.scale[ch])
-        if ch in structured:
-            d["regime"] = locate.regime(p.data, p.starts, p.H, nom.Ed, nom.Et, ch)
-            if pr.subsets:
-                d["regime"] += "; predictable where: " + ", ".join(x.label for x in pr.subsets)
-        channels_json.append(d)
+    channels_json = _channels_json(p, s, c, aug, l_nom, l_cal, l_aug)
     regions_json = []
     for ch in TESTED:
         if ch not in structured:
@@ -781,25 +780,8 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
                                  "description": f"{g.description}; seen in {g.laps_seen} of {g.laps_total} lap(s)"})
     fitted_on = c.vehicle if c.applied else vehicle  # the car the effects were fitted against
 
-    def effect_json(e: NamedEffect) -> dict[str, Any]:
-        spec = EFFECTS[e.name].params
-        params = {}
-        for k, v in e.fit.scalars().items():
-            if k in nm.FIXED:
-                continue
-            lo, hi = e.fit.ci.get(k, (float("nan"), float("nan")))
-            params[k] = {"value": float(v), "ci95": [float(lo), float(hi)], "unit": spec[k].unit,
-                         "at_bound": not k.startswith("s_") and nm.at_bound(e.name, k, float(v), fitted_on, p.data)}
-        prof = e.fit.profile_json()
-        if prof is not None:
-            prof["at_bound"] = any(nm.at_bound(e.name, "values", float(v), fitted_on, p.data) for v in prof["value"])
-        return {"name": e.name, "parameters": params, "channels": e.channels,
-                "heldout_rmse_before": e.heldout_before, "heldout_rmse_after": e.heldout_after,
-                "improvement": round(e.improvement, 4), "ambiguous_with": list(e.ambiguous_with),
-                "significant_where": e.where, "profile": prof}
-
-    eff_json = [effect_json(e) for e in effects]
-    partial_json = [effect_json(e) for e in (ver.partial if verdict == "mismatch" else ())]
+    eff_json = [_effect_json(e, fitted_on, p.data) for e in effects]
+    partial_json = [_effect_json(e, fitted_on, p.data) for e in (ver.partial if verdict == "mismatch" else ())]
     ex0, ex1 = _excess(nom), _excess(aug)
     unexplained = {}
     for st, ch in zip(nom.stats, TESTED):
@@ -837,6 +819,51 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
         "inputs": _inputs_json(p.data, untestable),
         "calibration": _calibration_json(c, vehicle, verdict),
     }
+
+
+def _channels_json(p: Prepared, s: Screened, c: Calibrated, aug, l_nom, l_cal, l_aug) -> list[dict[str, Any]]:
+    """One entry per tested channel: its test, RMSEs before and after, held-out losses, regime."""
+    nom = s.nominal
+    structured = nom.structured
+    channels_json = []
+    for st, s1, pr, ch in zip(nom.stats, aug.stats, nom.pred, TESTED):
+        d = {"name": st.name, "structured": ch in structured, "statistic": round(float(st.statistic), 3),
+             "rmse_nominal": float(st.rmse), "rmse_noise_floor": float(st.rmse_twin),
+             "rmse_augmented": float(s1.rmse),
+             "predictability": {"t": pr.t, "heldout_share": pr.gain,
+                                "where": [{"subset": x.label, "t": x.t, "heldout_share": x.gain} for x in pr.subsets]}}
+        if c.applied:
+            d["rmse_calibrated"] = float(c.baseline.nominal.stats[TESTED.index(ch)].rmse)
+        if ch in DYNAMIC:
+            d["heldout_rmse_nominal"] = float(np.sqrt(l_nom[ch]) * s.scale[ch])
+            if c.applied:
+                d["heldout_rmse_calibrated"] = float(np.sqrt(l_cal[ch]) * s.scale[ch])
+            d["heldout_rmse_augmented"] = float(np.sqrt(l_aug[ch]) * s.scale[ch])
+        if ch in structured:
+            d["regime"] = locate.regime(p.data, p.starts, p.H, nom.Ed, nom.Et, ch)
+            if pr.subsets:
+                d["regime"] += "; predictable where: " + ", ".join(x.label for x in pr.subsets)
+        channels_json.append(d)
+    return channels_json
+
+
+def _effect_json(e: NamedEffect, fitted_on: VehicleConfig, data: core.Dataset) -> dict[str, Any]:
+    """A named or partial effect as the JSON reports it (parameters with intervals, flagged at a bound)."""
+    spec = EFFECTS[e.name].params
+    params = {}
+    for k, v in e.fit.scalars().items():
+        if k in nm.FIXED:
+            continue
+        lo, hi = e.fit.ci.get(k, (float("nan"), float("nan")))
+        params[k] = {"value": float(v), "ci95": [float(lo), float(hi)], "unit": spec[k].unit,
+                     "at_bound": not k.startswith("s_") and nm.at_bound(e.name, k, float(v), fitted_on, data)}
+    prof = e.fit.profile_json()
+    if prof is not None:
+        prof["at_bound"] = any(nm.at_bound(e.name, "values", float(v), fitted_on, data) for v in prof["value"])
+    return {"name": e.name, "parameters": params, "channels": e.channels,
+            "heldout_rmse_before": e.heldout_before, "heldout_rmse_after": e.heldout_after,
+            "improvement": round(e.improvement, 4), "ambiguous_with": list(e.ambiguous_with),
+            "significant_where": e.where, "profile": prof}
 
 
 def _inputs_json(data: core.Dataset, untestable: dict[str, str]) -> dict[str, Any]:

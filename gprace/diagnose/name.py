@@ -311,19 +311,10 @@ def fit_effect(prob: Problem, name: str, starts: np.ndarray, inits: list[dict[st
     full = starts
     lo_all, hi_all = lo, hi
     for init in inits:
-        starts = full
-        lo, hi = lo_all.copy(), hi_all.copy()
-        if "s_start" in init:
-            a, b = init["s_start"], init["s_end"]
-            starts = _near(prob, full, a, b, margin=NEAR_MARGIN)
-            if len(starts) < 5:
-                continue
-            # edges stay where the selected windows can see them
-            i0, i1 = free.index("s_start"), free.index("s_end")
-            lo[i0], hi[i0] = max(a - NEAR_MARGIN, lo_all[i0]), min(max(a + 1.0, 0.5 * (a + b)), hi_all[i0])
-            lo[i1], hi[i1] = max(min(b - 1.0, 0.5 * (a + b) + 1.0), lo_all[i1]), min(b + NEAR_MARGIN, hi_all[i1])
-            if lo[i0] >= hi[i0] or lo[i1] >= hi[i1]:  # the region lies outside the lap
-                continue
+        where = _start_region(prob, full, free, init, lo_all, hi_all)
+        if where is None:
+            continue
+        starts, lo, hi = where
         x0 = np.clip(np.array([init[k] for k in free], dtype=float), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         try:
             sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=xs, method="trf", max_nfev=max_nfev)
@@ -338,6 +329,26 @@ def fit_effect(prob: Problem, name: str, starts: np.ndarray, inits: list[dict[st
         if best is None or cost < best.cost:
             best = Fit(name, free, sol.x, fixed, cost, J, res, win=win)
     return best
+
+
+def _start_region(prob: Problem, full: np.ndarray, free: list[str], init: dict[str, float],
+                  lo_all: np.ndarray, hi_all: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The windows and bounds one starting point is fitted on: all of them, or for a windowed
+    effect the windows near its stretch, with the edges kept where those windows see them (None
+    when too few windows reach it or the stretch lies outside the lap)."""
+    lo, hi = lo_all.copy(), hi_all.copy()
+    if "s_start" not in init:
+        return full, lo, hi
+    a, b = init["s_start"], init["s_end"]
+    starts = _near(prob, full, a, b, margin=NEAR_MARGIN)
+    if len(starts) < 5:
+        return None
+    i0, i1 = free.index("s_start"), free.index("s_end")
+    lo[i0], hi[i0] = max(a - NEAR_MARGIN, lo_all[i0]), min(max(a + 1.0, 0.5 * (a + b)), hi_all[i0])
+    lo[i1], hi[i1] = max(min(b - 1.0, 0.5 * (a + b) + 1.0), lo_all[i1]), min(b + NEAR_MARGIN, hi_all[i1])
+    if lo[i0] >= hi[i0] or lo[i1] >= hi[i1]:
+        return None
+    return starts, lo, hi
 
 
 def _near(prob: Problem, starts: np.ndarray, a: float, b: float, margin: float = 60.0) -> np.ndarray:
