@@ -685,18 +685,19 @@ MIN_FIT_SAMPLES = 20  # samples a hyperparameter fit needs
 def _retrain(c: _Chain, i: int) -> None:
     """(2) Both GPs on their dictionaries, calibrated; the exploration candidates of the tracking GP
     (only where the iteration explores: alpha > 0)."""
-    from gprace.io.artifacts import Artifact, read_artifact, write_artifact
+    from gprace.gp.dataset import read_dataset
+    from gprace.io.artifacts import Artifact, write_artifact
     from gprace.timetrial import learning as L
 
     di = c.dir(i)
     for kind in ("tracking", "planning"):
-        a = read_artifact(di / f"data_{kind}.h5", "dataset")
+        a = read_dataset(di / f"data_{kind}.h5")
         hyper = L.load_predictor(c.folder / f"hyper_{kind}.h5", kind).gp
-        gp = L.refit_fixed(hyper, a.arrays["Z"], a.arrays["Y"])
+        gp = L.refit_fixed(hyper, a.Z, a.Y)
         L.save_predictor(di / f"gp_{kind}.h5", gp, kind, {"iteration": i, "trial": c.trial}, c.st.features,
                          L.calibrate(gp, calib=c.calib[kind]))
         if kind == "tracking" and c.st.alpha(i) > 0:  # alpha = 0 never uses the candidates (issue 37)
-            grid = make_grid(gp, a.arrays["Z"], c.mpc, c.st.grid_values)
+            grid = make_grid(gp, a.Z, c.mpc, c.st.grid_values)
             write_artifact(di / "candidates.h5", Artifact("candidates", {"Z": grid.Z, "v": grid.v, "scale": grid.scale}))
 
 
@@ -814,6 +815,7 @@ def _band(c: _Chain, i: int):
 def _drive_iteration(c: _Chain, i: int, alpha: float) -> None:
     """(4) The plan driven by the GP-compensated tracking MPC, exploring with weight ``alpha``."""
     from gprace.explore.algorithm import CandidateGrid
+    from gprace.gp.dataset import read_dataset
     from gprace.io.artifacts import read_artifact
     from gprace.io.runs import write_run
     from gprace.plan import read_plan
@@ -830,7 +832,7 @@ def _drive_iteration(c: _Chain, i: int, alpha: float) -> None:
                 seed=c.seed * 100 + i, band=_band(c, i))
     write_run(run, di / "run.h5")
     gps = {k: L.load_predictor(di / f"gp_{k}.h5", k) for k in ("tracking", "planning")}
-    sizes = {k: int(read_artifact(di / f"data_{k}.h5", "dataset").arrays["Z"].shape[0]) for k in gps}
+    sizes = {k: int(read_dataset(di / f"data_{k}.h5").Z.shape[0]) for k in gps}
     extra = {**_lap_extra(run, c.model), "delay": delay,
              "delay_source": "known" if c.delay_known is not None else "estimated",
              "plan_source": plan.meta.get("source", "replan"), "safety": plan.meta.get("safety") or {}}
