@@ -430,7 +430,7 @@ class _Chain:
     def tag(self, i: int, name: str) -> str:
         return f"t{self.trial}_i{i}_{name}"
 
-    def record(self, i: int) -> dict:
+    def record(self, i: int) -> IterationRecord:
         return read_record(self.dir(i) / "record.json")
 
     @property

@@ -12,60 +12,65 @@ from pathlib import Path
 import numpy as np
 
 from gprace.errors import InputError
-from gprace.timetrial.record import IterateSummary, read_record
+from gprace.timetrial.record import FailedLap, IterateSummary, IterationSummary, SummaryRow, TrialSummary, read_record
 
 
 def build_summary(out: str | Path) -> dict:
     """All finished records of a folder, by iteration and trial (what ``evaluate iterate`` prints),
-    as a dict of the :class:`~gprace.timetrial.record.IterateSummary` layout."""
+    as a dict of the :class:`~gprace.timetrial.record.IterateSummary` layout (what ``summary.json``
+    and ``gprace iterate --json`` hold)."""
+    return summarise(out).model_dump()
+
+
+def summarise(out: str | Path) -> IterateSummary:
+    """:func:`build_summary` as the frozen :class:`~gprace.timetrial.record.IterateSummary`."""
     out = Path(out)
     if not (out / "settings.json").exists():
         raise InputError(f"{out}: not a gprace iterate folder (no settings.json)")
-    rows = []
-    for p in sorted(out.glob("trial_*/iter_*/record.json")):
-        rows.append(read_record(p))
-    rows.sort(key=lambda r: (r["iteration"], r["trial"]))
+    records = sorted((read_record(p) for p in out.glob("trial_*/iter_*/record.json")), key=lambda r: (r.iteration, r.trial))
     oracle = json.loads((out / "oracle.json").read_text()) if (out / "oracle.json").exists() else None
-    base = {r["trial"]: r["driven"] for r in rows if r["iteration"] == 0}
+    base = {r.trial: r.driven for r in records if r.iteration == 0}
     o_lap = None
     if oracle and oracle.get("known"):
         o_lap = oracle.get("driven") if oracle.get("completed") else oracle.get("planned")
         o_lap = o_lap if o_lap is not None and np.isfinite(o_lap) else None
-    by_iter = {}
-    for r in rows:
+    rows, by_iter = [], {}
+    for r in records:
         # share of the gap between the trial's iteration-0 lap and the oracle lap that this lap closed
-        b = base.get(r["trial"], float("nan"))
-        r["gap_closed"] = float((b - r["driven"]) / (b - o_lap)) if o_lap is not None and b - o_lap > 0 else float("nan")
-        by_iter.setdefault(r["iteration"], []).append(r)
-    agg = []
-    for i, rs in sorted(by_iter.items()):
-        d = np.array([r["driven"] for r in rs], float)
-        pl = np.array([r["planned"] for r in rs], float)
-        g = rs if i else []  # the laps driven with GPs (none at iteration 0)
-        agg.append({
-            "iteration": i, "alpha": rs[0]["alpha"], "trials": len(rs),
-            "planned_mean": _finite(np.mean, pl), "planned_std": _finite(np.std, pl),
-            "driven_mean": _finite(np.mean, d), "driven_std": _finite(np.std, d), "gap_mean": _finite(np.mean, d - pl),
-            **{f"err_{k}": _finite(np.mean, [r[f"err_{k}"] for r in g]) for k in ("tracking", "planning")},
-            **{f"cov_{k}": _finite(np.min, [r[f"cov_{k}"] for r in g]) for k in ("tracking", "planning")},
-            "gap_closed_min": _finite(np.min, [r["gap_closed"] for r in g]),
-            "completed": int(sum(r["completed"] for r in rs)),
-            "interventions": int(sum(r.get("interventions", 0) for r in rs)),
-            "failed": [{"trial": r["trial"], "reason": r.get("reason") or "lap not completed"}
-                       for r in rs if not r["completed"]],
-        })
-    # per trial: its iteration-0 lap, its best driven alpha-0 lap (the racing laps after the
-    # exploration) and the share of the gap to the oracle that lap closed
-    per_trial = []
-    for j, b in sorted(base.items()):
-        racing = [r for r in rows if r["trial"] == j and r["iteration"] > 0 and r["alpha"] == 0.0 and r["completed"]]
-        best = min(racing, key=lambda r: r["driven"]) if racing else None
-        per_trial.append({"trial": j, "iteration0": b, "best_alpha0": best["driven"] if best else float("nan"),
-                          "best_iteration": best["iteration"] if best else None,
-                          "gap_closed_best": best["gap_closed"] if best else float("nan")})
-    summary = {"settings": json.loads((out / "settings.json").read_text()), "oracle": oracle, "rows": rows,
-               "by_iteration": agg, "per_trial": per_trial}
-    return IterateSummary.model_validate(summary).model_dump()
+        b = base.get(r.trial, float("nan"))
+        closed = float((b - r.driven) / (b - o_lap)) if o_lap is not None and b - o_lap > 0 else float("nan")
+        rows.append(SummaryRow(**r.model_dump(), gap_closed=closed))
+        by_iter.setdefault(r.iteration, []).append(rows[-1])
+    return IterateSummary(settings=json.loads((out / "settings.json").read_text()), oracle=oracle, rows=rows,
+                          by_iteration=[_iteration(i, rs) for i, rs in sorted(by_iter.items())],
+                          per_trial=[_trial(j, b, rows) for j, b in sorted(base.items())])
+
+
+def _iteration(i: int, rs: list[SummaryRow]) -> IterationSummary:
+    """One iteration's laps over the trials: means, spreads, the GPs' worst coverage, the failed laps."""
+    d = np.array([r.driven for r in rs], float)
+    pl = np.array([r.planned for r in rs], float)
+    g = rs if i else []  # the laps driven with GPs (none at iteration 0)
+    return IterationSummary(
+        iteration=i, alpha=rs[0].alpha, trials=len(rs),
+        planned_mean=_finite(np.mean, pl), planned_std=_finite(np.std, pl),
+        driven_mean=_finite(np.mean, d), driven_std=_finite(np.std, d), gap_mean=_finite(np.mean, d - pl),
+        err_tracking=_finite(np.mean, [r.err_tracking for r in g]), err_planning=_finite(np.mean, [r.err_planning for r in g]),
+        cov_tracking=_finite(np.min, [r.cov_tracking for r in g]), cov_planning=_finite(np.min, [r.cov_planning for r in g]),
+        gap_closed_min=_finite(np.min, [r.gap_closed for r in g]),
+        completed=int(sum(r.completed for r in rs)),
+        interventions=int(sum(r.interventions for r in rs)),
+        failed=[FailedLap(trial=r.trial, reason=r.reason or "lap not completed") for r in rs if not r.completed])
+
+
+def _trial(j: int, b: float, rows: list[SummaryRow]) -> TrialSummary:
+    """Trial ``j``: its iteration-0 lap ``b``, its best driven alpha-0 lap (the racing laps after the
+    exploration) and the share of the gap to the oracle that lap closed."""
+    racing = [r for r in rows if r.trial == j and r.iteration > 0 and r.alpha == 0.0 and r.completed]
+    best = min(racing, key=lambda r: r.driven) if racing else None
+    return TrialSummary(trial=j, iteration0=b, best_alpha0=best.driven if best else float("nan"),
+                        best_iteration=best.iteration if best else None,
+                        gap_closed_best=best.gap_closed if best else float("nan"))
 
 
 def _finite(stat, values) -> float:
