@@ -22,7 +22,7 @@ def write_iterate(out, path) -> Path:
     run, the band of its tracking GP from iteration 1 on) and the oracle lap, with the track."""
     import json
 
-    from gprace.config import load_vehicle
+    from gprace.model import load_vehicle
     from gprace.io.runs import read_run
     from gprace.learn.predict import plan_along
     from gprace.model import NominalModel

@@ -321,8 +321,7 @@ def _reference_task(task: dict) -> str:
 
 def _check_start(settings: IterateSettings) -> None:
     """Load track, plant and vehicle, and check the car can start on iteration 0's plan (InputError)."""
-    from gprace.config import load_plant, load_vehicle
-    from gprace.model import NominalModel
+    from gprace.model import NominalModel, load_plant, load_vehicle
     from gprace.plan import curvature_plan
     from gprace.timetrial.drive import start_state
     from gprace.tracks import load_track
