@@ -13,11 +13,12 @@ import json
 import math
 import tomllib
 from pathlib import Path
-from typing import Any, ClassVar, TypeVar
+from typing import Any, Callable, ClassVar, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_serializer, model_validator
 
-from gprace.errors import ConfigError, InputError
+from gprace.errors import ConfigError, InputError, UnknownBackendError
+from gprace.registry import plants  # plant modules load (and import this one) only when a kind is looked up
 
 G = 9.81
 """Gravitational acceleration [m/s^2]."""
@@ -155,21 +156,14 @@ class LimitsConfig(Frozen):
 class EffectConfig(Frozen):
     """One effect of the catalogue with its parameters (``[[effects]]`` tables in TOML).
 
-    ``params`` keys are the effect's parameter names; they are checked against the catalogue
-    when a model is built from the configuration.
+    ``params`` keys are the effect's parameter names. The configuration layer does not know the
+    catalogue: the names and parameters are checked by :func:`gprace.model.load_vehicle` /
+    :func:`gprace.model.load_plant` when a file is loaded for use, and by the model built from it.
     """
 
     name: str = Field(description="catalogue name, e.g. 'downforce'")
     params: dict[str, float | tuple[float, ...]] = Field(
         default_factory=dict, description="physical parameters (SI); lists for a profile's knots and values")
-
-    @model_validator(mode="after")
-    def _in_catalogue(self) -> "EffectConfig":
-        """Unknown effect names and parameters fail when the file is read, not at first use."""
-        from gprace.model.effects import make_effect  # lazy: gprace.model imports this module
-
-        make_effect(self)  # raises ConfigError (a ValueError) naming the effect and parameter
-        return self
 
 
 class VehicleConfig(Frozen):
@@ -335,9 +329,6 @@ class PlantConfig(Frozen):
         an unknown kind is left to the registry (its error lists the kinds)."""
         if not v or "kind" not in info.data:
             return v
-        from gprace.registry import plants  # lazy: the registry imports plant modules that import this one
-        from gprace.errors import UnknownBackendError
-
         try:
             plant_cls = plants.get(info.data["kind"])
         except UnknownBackendError:
@@ -498,19 +489,26 @@ def builtin_config(kind: str, name: str) -> Path:
     raise InputError(f"{name}: no such file, and no shipped {kind} config of that name (shipped: {avail})")
 
 
-def load_vehicle(name_or_path: str | Path) -> VehicleConfig:
+def load_vehicle(name_or_path: str | Path, check: Callable[[Any, str], None] | None = None) -> VehicleConfig:
+    """A vehicle file (a shipped name or a path) through :class:`VehicleConfig`; ``check(cfg, path)``
+    then checks what this layer cannot (:func:`gprace.model.load_vehicle` passes the effect catalogue's)."""
     p = builtin_config("vehicles", str(name_or_path))
     data = read_toml(p)
     if "vehicle" in data and isinstance(data["vehicle"], dict) and "mass" not in data:
         data = data["vehicle"]  # an augmented plant-style file
-    return validate(VehicleConfig, data, str(p))
+    cfg = validate(VehicleConfig, data, str(p))
+    if check is not None:
+        check(cfg, str(p))
+    return cfg
 
 
-def load_plant(name_or_path: str | Path) -> PlantConfig:
+def load_plant(name_or_path: str | Path, check: Callable[[Any, str], None] | None = None) -> PlantConfig:
+    """A plant file through :class:`PlantConfig`, ``check(cfg, path)`` as in :func:`load_vehicle`
+    (:func:`gprace.model.load_plant`), then its kind looked up in the plugin registry."""
     p = builtin_config("plants", str(name_or_path))
     cfg = load_toml(p, PlantConfig)
-    from gprace.registry import plants
-
+    if check is not None:
+        check(cfg, str(p))
     plants.get(cfg.kind)  # an unknown kind is refused when the config loads, before any work
     return cfg
 

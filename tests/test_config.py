@@ -80,6 +80,10 @@ def test_out_of_range_and_wrong_type(tmp_path):
 
 
 def test_bad_effect_in_a_plant_file_names_the_effect(tmp_path):
+    """The configuration layer reads the structure; the model layer's loaders check the effects
+    against the catalogue when the file is loaded for use (issue 40: no config <-> model cycle)."""
+    from gprace.model import load_plant
+
     f = tmp_path / "plant.toml"
     f.write_text('vehicle = "audi_tt_cup"\n[[effects]]\nname = "downforce"\nc_l = 1.0\n[[effects]]\nname = "aero_dreg"\n')
     with pytest.raises(ConfigError, match=r"plant.toml: effects.1: unknown effect 'aero_dreg'; catalogue: aero_drag"):

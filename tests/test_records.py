@@ -27,12 +27,12 @@ def test_an_old_record_is_migrated_once_with_a_warning(tmp_path, capsys):
     rec = read_record(p)
     assert "migrated" in capsys.readouterr().err
     # what the old file held is kept; null is NaN; the fields it lacked take their defaults
-    assert (rec["iteration"], rec["trial"], rec["border_hits"], rec["completed"]) == (2, 1, 3, False)
-    assert math.isnan(rec["driven"]) and math.isnan(rec["gap"]) and math.isnan(rec["cov_tracking"])
-    assert rec["limits"] == [] and rec["replan_failed"] is False and rec["version"] == RECORD_VERSION
+    assert (rec.iteration, rec.trial, rec.border_hits, rec.completed) == (2, 1, 3, False)
+    assert math.isnan(rec.driven) and math.isnan(rec.gap) and math.isnan(rec.cov_tracking)
+    assert rec.limits == [] and rec.replan_failed is False and rec.version == RECORD_VERSION
     on_disk = json.loads(p.read_text())
     assert on_disk["version"] == RECORD_VERSION and on_disk["driven"] is None
-    assert jsonable(read_record(p)) == jsonable(rec)  # NaN as null: equal where both are NaN
+    assert jsonable(read_record(p).model_dump()) == jsonable(rec.model_dump())  # NaN as null: equal where both are NaN
     assert capsys.readouterr().err == ""  # migrated once: no second warning
 
 
@@ -44,8 +44,28 @@ def test_a_record_round_trips_with_nan_as_null(tmp_path):
     write_record(p, rec)
     assert json.loads(p.read_text())["driven"] is None
     back = read_record(p)
-    assert jsonable(back) == jsonable(rec.model_dump())
+    assert jsonable(back.model_dump()) == jsonable(rec.model_dump())
     assert not list(tmp_path.glob(".*tmp"))  # written atomically
+
+
+def test_a_read_record_is_a_frozen_model_and_rewrites_to_the_same_bytes(tmp_path):
+    """The reader gives the model, not a dict: nothing can be set on it, a changed copy is
+    ``model_copy(update=)``, and writing back what was read gives the file byte for byte."""
+    from pydantic import ValidationError
+
+    p, q = tmp_path / "record.json", tmp_path / "again.json"
+    shutil.copy(OLD, p)
+    rec = read_record(p)  # migrated: now in the writer's layout
+    assert isinstance(rec, IterationRecord)
+    with pytest.raises(ValidationError):
+        rec.driven = 60.0
+    with pytest.raises(TypeError):
+        rec["driven"] = 60.0  # the read-only key access of the loop's guard functions sets nothing
+    assert rec["border_hits"] == rec.border_hits == 3 and rec.get("no such field", 7) == 7
+    done = rec.model_copy(update={"driven": 60.0, "completed": True})
+    assert (done.driven, done.completed, rec.completed) == (60.0, True, False) and math.isnan(rec.driven)
+    write_record(q, read_record(p))
+    assert q.read_bytes() == p.read_bytes()
 
 
 @pytest.mark.parametrize("change, words", [
@@ -82,7 +102,7 @@ def _folder_with_records(root: Path) -> Path:
 
 
 def test_a_summary_round_trips_through_its_schema(tmp_path):
-    from gprace.timetrial.iterate import build_summary
+    from gprace.timetrial.summary import build_summary, summarise
 
     out = _folder_with_records(tmp_path / "exp")
     summary = build_summary(out)
@@ -91,7 +111,11 @@ def test_a_summary_round_trips_through_its_schema(tmp_path):
     assert it2["completed"] == 0 and it2["failed"][0]["trial"] == 1 and math.isnan(it2["driven_mean"])
     assert it2["err_tracking"] == pytest.approx(0.41) and summary["per_trial"][0]["best_iteration"] is None
     write_json(out / "summary.json", summary)
-    assert json.dumps(jsonable(read_summary(out / "summary.json"))) == json.dumps(jsonable(summary))  # NaN as null
+    back = read_summary(out / "summary.json")
+    assert json.dumps(jsonable(back.model_dump())) == json.dumps(jsonable(summary))  # NaN as null
+    assert back.by_iteration[1].failed[0].trial == 1 and back.rows[1].iteration == 2
+    write_json(tmp_path / "again.json", summarise(out).model_dump())  # the model writes the same file
+    assert (tmp_path / "again.json").read_bytes() == (out / "summary.json").read_bytes()
 
 
 @pytest.mark.parametrize("version", [None, SUMMARY_VERSION + 1])
@@ -108,6 +132,6 @@ def test_a_summary_of_another_layout_is_refused_and_the_report_reads_the_records
     assert main(["show", str(out / "summary.json")]) == 2  # one line, exit code 2
     assert "summary of layout" in capsys.readouterr().err
     v = timetrial_variants(scan(tmp_path))[out]
-    assert v["rows_from"] == "record.json files" and [r["iteration"] for r in v["rows"]] == [0, 2]
+    assert v["rows_from"] == "record.json files" and [r.iteration for r in v["rows"]] == [0, 2]
     assert v["name"] == "exploration" and any("summary of layout" in n for n in v["notes"])
     assert (out / "summary.json").read_text() == json.dumps(old if version is None else {**old, "version": version})

@@ -22,7 +22,7 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0, "--seed", help="Seed of the noise twin."),
     ) -> None:
         """Compare recordings with the nominal model; name, fit and write the effects it leaves out."""
-        from gprace.config import load_vehicle
+        from gprace.model import load_vehicle
         from gprace.diagnose.diagnose import diagnose
         from gprace.diagnose.report import summary_lines, write_augmented
         from gprace.ingest.dispatch import read_any

@@ -27,7 +27,8 @@ def register(app: typer.Typer) -> None:
 
         import numpy as np
 
-        from gprace.config import SimulateConfig, from_options, load_plant
+        from gprace.config import SimulateConfig, from_options
+        from gprace.model import load_plant
         from gprace.console import console
         from gprace.io.artifacts import check_output
         from gprace.io.runs import write_run, write_run_csv

@@ -62,10 +62,9 @@ def plan_cmd(
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
 ) -> None:
     """Plan a minimum-lap-time lap (CasADi/IPOPT), optionally compensated by a planning GP."""
-    from gprace.config import load_vehicle
     from gprace.console import console
     from gprace.errors import ConfigError
-    from gprace.model import NominalModel
+    from gprace.model import NominalModel, load_vehicle
     from gprace.plan import PlanSettings, curvature_plan, plan_min_time
     from gprace.io.artifacts import check_output
     from gprace.tracks import load_track
@@ -123,11 +122,10 @@ def run_cmd(
 ) -> None:
     """Drive a plan on a plant with the (GP-compensated, exploring) tracking MPC; record a run."""
     from gprace.backends import solvers
-    from gprace.config import load_plant, load_vehicle
     from gprace.console import console
     from gprace.errors import ConfigError, RunFailedError
     from gprace.io.runs import write_run
-    from gprace.model import NominalModel
+    from gprace.model import NominalModel, load_plant, load_vehicle
     from gprace.mpc.tracking import MPCSettings
     from gprace.timetrial.drive import DriveSettings, drive
     from gprace.io.artifacts import check_output

@@ -22,7 +22,7 @@ QUICK_FIT_POINTS = 300
 def _load_vehicle(vehicle: str | None):
     if vehicle is None:
         return None
-    from gprace.config import load_vehicle
+    from gprace.model import load_vehicle
 
     return load_vehicle(vehicle)
 

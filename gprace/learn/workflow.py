@@ -808,7 +808,7 @@ def check_inputs(paths, settings: LearnSettings, out) -> Checked:
     exist, an ``out`` that is not this car's learn folder, a vehicle or open track that does not
     load, recordings of another track or driven the other way round than earlier iterations. The
     recordings are imported here, once (a raw log shows its track only when imported)."""
-    from gprace.config import load_vehicle
+    from gprace.model import load_vehicle
     from gprace.io.artifacts import check_folder
     from gprace.tracks import load_track
 
@@ -974,7 +974,7 @@ def learned_track(folder: Folder):
 
 def evaluate_learn(out, log, iteration: int | None = None, map_file=None) -> dict:
     """The next recorded log against an iteration's prediction (:func:`gprace.learn.predict.compare_laps`)."""
-    from gprace.config import load_vehicle
+    from gprace.model import load_vehicle
     from gprace.learn.predict import Prediction, compare_laps
     from gprace.tracks import load_track
 

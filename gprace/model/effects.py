@@ -24,14 +24,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from types import SimpleNamespace
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
+from gprace.config import EffectConfig
 from gprace.errors import ConfigError
-
-if TYPE_CHECKING:  # config.py builds effects to validate its [[effects]]; no import back at run time
-    from gprace.config import EffectConfig
 
 
 @dataclass(frozen=True)
@@ -91,9 +89,7 @@ class Effect:
     def __repr__(self) -> str:
         return f"{self.name}({', '.join(f'{k}={v!r}' for k, v in self.values.items())})"
 
-    def config(self) -> "EffectConfig":
-        from gprace.config import EffectConfig
-
+    def config(self) -> EffectConfig:
         return EffectConfig(name=self.name, params={
             k: tuple(float(x) for x in v) if isinstance(v, (list, tuple, np.ndarray)) else float(v)
             for k, v in self.values.items()})

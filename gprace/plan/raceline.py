@@ -132,7 +132,7 @@ def load_plan(path, track: str | None, vehicle, ds: float | None = None, gp=None
     is returned in the direction the plan drives it. ``vehicle``: a name, path or VehicleConfig;
     ``gp``, ``dt``: the tracking GP a raceline's references are compensated with (a plan file
     carries its own states)."""
-    from gprace.config import load_vehicle
+    from gprace.model import load_vehicle
     from gprace.model import NominalModel
     from gprace.plan import read_plan
     from gprace.tracks import load_track

@@ -437,12 +437,12 @@ def _describe_json(path: Path) -> dict[str, Any]:
                 res[f"{p}: e_y error 1-step [m]"] = e.mean[0]
                 res[f"{p}: e_y error {len(e.mean)}-step [m]"] = e.mean[-1]
     elif kind == "timetrial_summary" and isinstance(obj, dict) and "by_iteration" in obj:
-        from gprace.timetrial.iterate import failed_laps_text
         from gprace.timetrial.record import read_summary
+        from gprace.timetrial.summary import failed_laps_text
 
-        agg = read_summary(path)["by_iteration"]  # an old layout: one line saying how to rebuild it
-        res["laps completed per iteration"] = ", ".join(f"{a['iteration']}: {a['completed']}/{a['trials']}" for a in agg)
-        res["failed laps"] = failed_laps_text(agg) or "none"
+        summary = read_summary(path)  # an old layout: one line saying how to rebuild it
+        res["laps completed per iteration"] = ", ".join(f"{a.iteration}: {a.completed}/{a.trials}" for a in summary.by_iteration)
+        res["failed laps"] = failed_laps_text(summary.model_dump()["by_iteration"]) or "none"
     elif isinstance(obj, dict):
         res["keys"] = sorted(obj)[:30]
     elif isinstance(obj, list):

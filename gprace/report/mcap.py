@@ -22,7 +22,7 @@ def write_iterate(out, path) -> Path:
     run, the band of its tracking GP from iteration 1 on) and the oracle lap, with the track."""
     import json
 
-    from gprace.config import load_vehicle
+    from gprace.model import load_vehicle
     from gprace.io.runs import read_run
     from gprace.learn.predict import plan_along
     from gprace.model import NominalModel
@@ -44,10 +44,10 @@ def write_iterate(out, path) -> Path:
         name = f"{d.parent.name}/{d.name}"
         plan = read_plan(d / "plan.h5", track)
         gp = load_predictor(d / "gp_tracking.h5", "tracking") if (d / "gp_tracking.h5").exists() else None
-        along, band = plan_along(plan, track, model, gp, mpc.dt, mpc.N, rec.get("limits") or None)
+        along, band = plan_along(plan, track, model, gp, mpc.dt, mpc.N, rec.limits or None)
         plans[name], runs[name] = (plan, along, band), read_run(d / "run.h5")
-        notes.append(f"{name}: alpha {rec['alpha']:g}, planned {rec['planned']:.3f} s, driven {rec['driven']:.3f} s"
-                     + ("" if rec["completed"] else f" (lost: {rec.get('reason') or 'not completed'})"))
+        notes.append(f"{name}: alpha {rec.alpha:g}, planned {rec.planned:.3f} s, driven {rec.driven:.3f} s"
+                     + ("" if rec.completed else f" (lost: {rec.reason or 'not completed'})"))
     if (out / "oracle_plan.h5").exists() and (out / "oracle_run.h5").exists():
         oracle = read_plan(out / "oracle_plan.h5", track)
         plans["oracle"] = (oracle, plan_along(oracle, track)[0], None)

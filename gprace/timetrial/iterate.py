@@ -21,7 +21,8 @@ Per trial (an independent chain with its own seed; trials run in parallel throug
 
 The oracle lap (``oracle.json``, plants whose physics are known: ``frenet``): the same planner on
 the plant's true model (nominal vehicle plus its effects, actuator lags left out), no ellipse,
-driven by the tracking MPC of that model. It is what perfect model knowledge would give.
+driven by the tracking MPC of that model. It is what perfect model knowledge would give
+(:mod:`gprace.timetrial.oracle`); the summary is :mod:`gprace.timetrial.summary`.
 
 Folder layout (``--out DIR``)::
 
@@ -54,7 +55,9 @@ from pydantic import Field, model_validator
 from gprace.config import CommandSettings
 from gprace.console import console
 from gprace.errors import InputError, RunFailedError, SolverError
-from gprace.timetrial.record import IterateSummary, IterationRecord, read_record, write_json, write_record
+from gprace.timetrial.oracle import ORACLE_MARGINS, oracle_lap  # noqa: F401 (importable from here, as before)
+from gprace.timetrial.record import IterationRecord, read_record, write_json, write_record
+from gprace.timetrial.summary import SUMMARY_COLUMNS, build_summary, failed_laps_text  # noqa: F401 (as before)
 
 
 class IterateSettings(CommandSettings):
@@ -318,8 +321,7 @@ def _reference_task(task: dict) -> str:
 
 def _check_start(settings: IterateSettings) -> None:
     """Load track, plant and vehicle, and check the car can start on iteration 0's plan (InputError)."""
-    from gprace.config import load_plant, load_vehicle
-    from gprace.model import NominalModel
+    from gprace.model import NominalModel, load_plant, load_vehicle
     from gprace.plan import curvature_plan
     from gprace.timetrial.drive import start_state
     from gprace.tracks import load_track
@@ -372,82 +374,6 @@ def _reference_run(settings: IterateSettings, out: Path, name: str) -> None:
         if run.meta["completed"]:
             break
     write_run(best, out / f"{name}.h5")
-
-
-ORACLE_MARGINS = (1.0, 0.95)  # shares of the true grip the oracle plans with, tried in turn
-
-
-def oracle_lap(settings: IterateSettings, out: Path | None = None) -> dict:
-    """Plan and drive the oracle lap; ``{"known": False}`` for a plant whose physics are unknown.
-
-    The planner runs on the true model (nominal vehicle plus the plant's stateless effects; the
-    actuator lags are left out) with its tire friction scaled by a margin, and the tracking MPC of
-    the true model drives it. Measured on audi_hidden / gprace_ring: the lap planned at the true
-    limit (margin 1.0, 50.8 s) and at 0.95 (51.7 s) spin the car (unmodelled steering lag, sensor
-    noise), and IPOPT did not converge at 0.9 to 0.8 (1500 iterations, also warm-started from the
-    0.95 plan). The first margin of ``ORACLE_MARGINS`` whose lap completes is the oracle; when none
-    does, the planned lap at the true limit stands for it (``basis = "planned"``), said so in the table.
-    """
-    from gprace.config import EffectConfig, load_plant, load_vehicle
-    from gprace.errors import SolverError
-    from gprace.model import NominalModel
-    from gprace.model.effects import make_effect
-    from gprace.mpc.tracking import MPCSettings
-    from gprace.plan import PlanSettings, plan_min_time
-    from gprace.timetrial.drive import DriveSettings, drive
-    from gprace.tracks import load_track
-
-    from gprace.mpc.stability import EnvelopeSettings
-    from gprace.plants.base import approximate
-
-    plant = load_plant(settings.plant)
-    approx = approximate(plant)  # the plant's physics in the nominal model's terms (the plant kind says)
-    if not approx.known:
-        return {"known": False, "why": approx.why or f"the physics of plant kind {plant.kind!r} are not known to gprace"}
-    if not settings.oracle:
-        return {"known": False, "why": "not computed (oracle = false)"}
-    effects = [e for e in approx.effects if make_effect(e).n_states == 0]
-    # the MPC predicts over the steering lag and the measurement delay the plant's physics say
-    lag = sum(float(e.params.get("tau", 0.0)) for e in approx.effects if e.name == "steering_lag")
-    lag += float(getattr(approx, "delay_periods", 0.0)) * MPCSettings().dt
-    vehicle = approx.vehicle or load_vehicle(settings.vehicle)
-    truth = NominalModel(vehicle, effects)
-    track = load_track(settings.track)
-    # the oracle is the tracking MPC of the true model as issue 13 defined it (no stability
-    # envelope), predicting over the steering lag it knows
-    dset = DriveSettings(laps=settings.laps, mpc=MPCSettings(solver=settings.solver, beta=settings.beta, grip=settings.grip,
-                                                             delay=min(lag, 0.5)),
-                         envelope=EnvelopeSettings(enabled=False))
-    res: dict = {"known": True, "planned": float("nan"), "driven": float("nan"), "completed": False,
-                 "effects": [e.name for e in effects], "tried": [], "exact": bool(approx.exact),
-                 "missing": list(approx.missing)}
-    warm = None
-    for margin in ORACLE_MARGINS:
-        scaled = NominalModel(vehicle, effects + [EffectConfig(name="tire_friction", params={"front": margin, "rear": margin})])
-        try:  # continuation: each margin starts from the last one's plan (from scratch IPOPT stalled at 0.9)
-            plan = plan_min_time(track, scaled, PlanSettings(ds=settings.plan_ds), warm=warm)
-            warm = plan
-        except SolverError as exc:
-            res["tried"].append({"margin": margin, "reason": str(exc)})
-            continue
-        run = drive(plan, plant, track, truth, dset, seed=settings.seed * 1000 + 999)
-        m = run.meta
-        res["tried"].append({"margin": margin, "planned": float(plan.lap_time), "driven": float(m["lap_time"]), "reason": m["reason"]})
-        if m["completed"]:
-            res.update(planned=float(plan.lap_time), driven=float(m["lap_time"]), completed=True, margin=margin, reason="",
-                       basis="driven")
-            if out is not None:
-                from gprace.io.runs import write_run
-
-                plan.write(out / "oracle_plan.h5")
-                write_run(run, out / "oracle_run.h5")
-            return res
-    # no driveable oracle: the planned lap at the true limit stands for it (recorded as such)
-    first = next((t for t in res["tried"] if "planned" in t), None)
-    if first is not None:
-        res.update(planned=first["planned"], basis="planned")
-    res["reason"] = "no margin gave a completed lap; the planned lap at the true limit stands for the oracle"
-    return res
 
 
 def run_chain(task: dict) -> list[dict]:
@@ -503,7 +429,7 @@ class _Chain:
     def tag(self, i: int, name: str) -> str:
         return f"t{self.trial}_i{i}_{name}"
 
-    def record(self, i: int) -> dict:
+    def record(self, i: int) -> IterationRecord:
         return read_record(self.dir(i) / "record.json")
 
     @property
@@ -922,75 +848,3 @@ def _record(i, alpha, c: _Chain, plan, run, gps, sizes, extra) -> IterationRecor
     rec["band"] = [float(v) for v in m.get("band", [])]
     rec["status"] = lap_status({**rec, **extra}, [c.record(k) for k in range(i)], c.st.slower_tolerance)
     return IterationRecord(**rec, **extra)
-
-
-def build_summary(out: str | Path) -> dict:
-    """All finished records of a folder, by iteration and trial (what ``evaluate iterate`` prints),
-    as a dict of the :class:`~gprace.timetrial.record.IterateSummary` layout."""
-    out = Path(out)
-    if not (out / "settings.json").exists():
-        raise InputError(f"{out}: not a gprace iterate folder (no settings.json)")
-    rows = []
-    for p in sorted(out.glob("trial_*/iter_*/record.json")):
-        rows.append(read_record(p))
-    rows.sort(key=lambda r: (r["iteration"], r["trial"]))
-    oracle = json.loads((out / "oracle.json").read_text()) if (out / "oracle.json").exists() else None
-    base = {r["trial"]: r["driven"] for r in rows if r["iteration"] == 0}
-    o_lap = None
-    if oracle and oracle.get("known"):
-        o_lap = oracle.get("driven") if oracle.get("completed") else oracle.get("planned")
-        o_lap = o_lap if o_lap is not None and np.isfinite(o_lap) else None
-    by_iter = {}
-    for r in rows:
-        # share of the gap between the trial's iteration-0 lap and the oracle lap that this lap closed
-        b = base.get(r["trial"], float("nan"))
-        r["gap_closed"] = float((b - r["driven"]) / (b - o_lap)) if o_lap is not None and b - o_lap > 0 else float("nan")
-        by_iter.setdefault(r["iteration"], []).append(r)
-    agg = []
-    for i, rs in sorted(by_iter.items()):
-        d = np.array([r["driven"] for r in rs], float)
-        pl = np.array([r["planned"] for r in rs], float)
-        g = rs if i else []  # the laps driven with GPs (none at iteration 0)
-        agg.append({
-            "iteration": i, "alpha": rs[0]["alpha"], "trials": len(rs),
-            "planned_mean": _finite(np.mean, pl), "planned_std": _finite(np.std, pl),
-            "driven_mean": _finite(np.mean, d), "driven_std": _finite(np.std, d), "gap_mean": _finite(np.mean, d - pl),
-            **{f"err_{k}": _finite(np.mean, [r[f"err_{k}"] for r in g]) for k in ("tracking", "planning")},
-            **{f"cov_{k}": _finite(np.min, [r[f"cov_{k}"] for r in g]) for k in ("tracking", "planning")},
-            "gap_closed_min": _finite(np.min, [r["gap_closed"] for r in g]),
-            "completed": int(sum(r["completed"] for r in rs)),
-            "interventions": int(sum(r.get("interventions", 0) for r in rs)),
-            "failed": [{"trial": r["trial"], "reason": r.get("reason") or "lap not completed"}
-                       for r in rs if not r["completed"]],
-        })
-    # per trial: its iteration-0 lap, its best driven alpha-0 lap (the racing laps after the
-    # exploration) and the share of the gap to the oracle that lap closed
-    per_trial = []
-    for j, b in sorted(base.items()):
-        racing = [r for r in rows if r["trial"] == j and r["iteration"] > 0 and r["alpha"] == 0.0 and r["completed"]]
-        best = min(racing, key=lambda r: r["driven"]) if racing else None
-        per_trial.append({"trial": j, "iteration0": b, "best_alpha0": best["driven"] if best else float("nan"),
-                          "best_iteration": best["iteration"] if best else None,
-                          "gap_closed_best": best["gap_closed"] if best else float("nan")})
-    summary = {"settings": json.loads((out / "settings.json").read_text()), "oracle": oracle, "rows": rows,
-               "by_iteration": agg, "per_trial": per_trial}
-    return IterateSummary.model_validate(summary).model_dump()
-
-
-def _finite(stat, values) -> float:
-    """``stat`` over the finite values, NaN if there is none (an iteration of failed laps)."""
-    a = np.asarray(values, float)
-    a = a[np.isfinite(a)]
-    return float(stat(a)) if a.size else float("nan")
-
-
-def failed_laps_text(by_iteration: list[dict]) -> list[str]:
-    """One line per iteration with failed laps: how many of how many, and where each failed
-    (the tables of ``eval iterate``, ``eval timetrial`` and ``show summary.json`` use it)."""
-    return [f"iteration {a['iteration']}: {len(a['failed'])} of {a['trials']} laps failed: "
-            + "; ".join(f"trial {f['trial']}: {f['reason']}" for f in a["failed"])
-            for a in by_iteration if a.get("failed")]
-
-
-SUMMARY_COLUMNS = ["iteration", "trial", "alpha", "planned", "driven", "gap", "err_tracking", "err_planning",
-                   "dict_tracking", "dict_planning", "solve_median_ms", "solve_p99_ms", "border_hits", "fallbacks"]

@@ -3,13 +3,14 @@
 * the iteration record (``trial_J/iter_II/record.json``): :class:`IterationRecord`, through
   :func:`write_record` and :func:`read_record`;
 * the run summary (``summary.json``, what ``gprace iterate --json`` and ``eval iterate`` print):
-  :class:`IterateSummary`, built by :func:`gprace.timetrial.iterate.build_summary`, read by
+  :class:`IterateSummary`, built by :func:`gprace.timetrial.summary.build_summary`, read by
   :func:`read_summary`. It is derived from the records: a summary of another layout is not
   migrated; readers (the report, ``gprace eval iterate FOLDER``) summarise the records instead,
   and the next ``gprace iterate`` into the folder rewrites it.
 
 The file is JSON with ``null`` for a number that is not one (a lap not completed has no driven
-time); :func:`read_record` gives it back as NaN. ``version`` is :data:`RECORD_VERSION`. A record
+time); :func:`read_record` gives it back as NaN. Both readers return the frozen models, never dicts:
+read a field as an attribute (``rec.driven``) and make a changed copy with ``model_copy(update=...)``. ``version`` is :data:`RECORD_VERSION`. A record
 without it is the layout of before the schema (2026-11-24): the same fields, any of them but the
 lap's (iteration, trial, alpha, planned, driven, completed) missing in older folders; it is
 migrated once (rewritten with the defaults below and the version) with a warning, so an old
@@ -34,7 +35,21 @@ RECORD_VERSION = 1
 SUMMARY_VERSION = 1
 
 
-class IterationRecord(Frozen):
+class _ReadByKey:
+    """Read-only ``rec["field"]`` and ``rec.get("field", default)`` on a frozen record, for the loop's
+    guard functions written against the dicts the reader returned before (``gprace.timetrial.guard``,
+    ``iterate._replan``); new code reads attributes. Nothing can be set through it."""
+
+    def __getitem__(self, key: str) -> Any:
+        if key not in type(self).model_fields:
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return getattr(self, key) if key in type(self).model_fields else default
+
+
+class IterationRecord(_ReadByKey, Frozen):
     """One driven lap of one iteration of one trial, and the GPs it was driven with."""
 
     version: int = Field(RECORD_VERSION, description="layout version of the record")
@@ -151,8 +166,8 @@ def write_record(path: Path, record: IterationRecord) -> None:
     write_json(path, record.model_dump())
 
 
-def read_record(path: Path, migrate: bool = True) -> dict:
-    """The record at ``path`` as a dict (NaN for ``null``), validated by :class:`IterationRecord`.
+def read_record(path: Path, migrate: bool = True) -> IterationRecord:
+    """The record at ``path`` (NaN for ``null``), validated by :class:`IterationRecord`.
     A record of the layout before the schema is read with a warning and, with ``migrate``,
     rewritten in the current layout (a reader that only looks, like the report, passes False)."""
     path = Path(path)
@@ -161,11 +176,11 @@ def read_record(path: Path, migrate: bool = True) -> dict:
                             "missing fields set to their defaults" + ("; migrated" if migrate else ""))
     if old and migrate:
         write_record(path, rec)
-    return rec.model_dump()
+    return rec
 
 
-def read_summary(path: Path) -> dict:
-    """``summary.json`` as a dict validated by :class:`IterateSummary` (NaN for ``null``). A summary
+def read_summary(path: Path) -> IterateSummary:
+    """``summary.json`` validated by :class:`IterateSummary` (NaN for ``null``). A summary
     of another layout (written before its schema, or by a newer gprace) is an :class:`InputError`
     saying how to rebuild it from the records."""
     path = Path(path)
@@ -174,4 +189,4 @@ def read_summary(path: Path) -> dict:
     if version != SUMMARY_VERSION:
         raise InputError(f"{path}: summary of layout {version or 'before version 1'}, this gprace reads "
                          f"{SUMMARY_VERSION}; `gprace eval iterate {path.parent}` summarises the records instead")
-    return validated(IterateSummary, data, str(path)).model_dump()
+    return validated(IterateSummary, data, str(path))

@@ -5,13 +5,16 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gprace.report import figures as F
 from gprace.report.collect import ITER_RE, TRIAL_RE, Found, Item, Section, load_track, path_number, table
 from gprace.report.inspect import UNREADABLE, open_artifact
+
+if TYPE_CHECKING:
+    from gprace.timetrial.record import IterateSummary, IterationRecord
 
 
 def _iteration_of(path: Path) -> int | None:
@@ -43,7 +46,7 @@ def _variant_name(root: Path, settings: dict | None) -> str:
     return root.name or "time trial"
 
 
-def _settings(root: Path, summary: dict | None) -> tuple[dict | None, str]:
+def _settings(root: Path, summary: IterateSummary | None) -> tuple[dict | None, str]:
     """The experiment of an iterate folder (settings.json, else the summary's copy), read through
     :class:`IterateSettings`; (None, why) if there is none or it is of another layout."""
     from pydantic import ValidationError
@@ -52,13 +55,13 @@ def _settings(root: Path, summary: dict | None) -> tuple[dict | None, str]:
 
     p = root / "settings.json"
     try:
-        data = json.loads(p.read_text()) if p.exists() else summary["settings"] if summary else None
+        data = json.loads(p.read_text()) if p.exists() else summary.settings if summary else None
         return (None, "") if data is None else (IterateSettings.model_validate(data).model_dump(), "")
     except (OSError, ValueError, ValidationError) as exc:  # a ValidationError is a ValueError; named for the reader
         return None, f"{p}: not readable as the settings of this gprace ({str(exc).splitlines()[0]})"
 
 
-def _summary(root: Path) -> tuple[dict | None, str]:
+def _summary(root: Path) -> tuple[IterateSummary | None, str]:
     """summary.json through its schema; (None, why) if missing or of another layout."""
     from gprace.timetrial.record import read_summary
 
@@ -71,7 +74,7 @@ def _summary(root: Path) -> tuple[dict | None, str]:
         return None, str(exc)
 
 
-def _iteration_record(p: Path) -> dict | None:
+def _iteration_record(p: Path) -> IterationRecord | None:
     """A time-trial iteration record through its schema (None if it is not one; never rewritten)."""
     from gprace.timetrial.record import read_record
 
@@ -119,7 +122,7 @@ def timetrial_variants(found: Found) -> dict[Path, dict[str, Any]]:
         v["settings"], why_settings = _settings(root, v["summary"])
         v["notes"] = [w for w in (why_summary, why_settings) if w]
         v["name"] = _variant_name(root, v["settings"])
-        v["rows"] = v["summary"]["rows"] if v["summary"] is not None else []
+        v["rows"] = list(v["summary"].rows) if v["summary"] is not None else []
         v["rows_from"] = "summary.json" if v["rows"] else ""
         if not v["rows"]:
             recs = [_iteration_record(q) for q in sorted(root.glob("**/record.json"))]
@@ -180,20 +183,20 @@ def _iteration_rows(sec: Section, variants: dict) -> tuple[dict, dict, list]:
         name = v["name"]
         L = lap.setdefault(name, {"iteration": [], "planned": [], "driven": []})
         E = gperr.setdefault(name, {"iteration": []})
-        for r in v["rows"]:  # records (IterationRecord fields): a failed lap has a NaN driven time
-            it = r["iteration"]
+        for r in v["rows"]:  # IterationRecord (or SummaryRow) models: a failed lap has a NaN driven time
+            it = r.iteration
             L["iteration"].append(float(it))
-            L["planned"].append(r["planned"])
-            L["driven"].append(r["driven"])
-            table_rows.append([name, it, r["trial"], r["alpha"], r["planned"], r["driven"], r["gap"],
-                               r["border_hits"], _lap_status(r)])
-            if not r["completed"]:
-                sec.missing.append(f"{name}, iteration {it}, trial {r['trial']}: lap not completed"
-                                   + (f" ({r['reason']})" if r["reason"] else ""))
+            L["planned"].append(r.planned)
+            L["driven"].append(r.driven)
+            table_rows.append([name, it, r.trial, r.alpha, r.planned, r.driven, r.gap,
+                               r.border_hits, _lap_status(r.completed, r.reason)])
+            if not r.completed:
+                sec.missing.append(f"{name}, iteration {it}, trial {r.trial}: lap not completed"
+                                   + (f" ({r.reason})" if r.reason else ""))
             if it > 0:  # iteration 0 is driven without GPs
                 E["iteration"].append(float(it))
-                for g in ("tracking", "planning"):
-                    E.setdefault(g, []).append(r[f"err_{g}"])
+                E.setdefault("tracking", []).append(r.err_tracking)
+                E.setdefault("planning", []).append(r.err_planning)
         if not L["iteration"]:  # no records: lap times from the run artifacts
             for p, art, it, trial in v["runs"]:
                 pl, dr = art.attrs.get("planned_lap_time"), art.attrs.get("lap_time")
@@ -202,7 +205,8 @@ def _iteration_rows(sec: Section, variants: dict) -> tuple[dict, dict, list]:
                     L["planned"].append(float(pl))
                     L["driven"].append(float(dr))
                     table_rows.append([name, it, trial, art.attrs.get("alpha", "-"), float(pl), float(dr),
-                                       float(dr) - float(pl), art.attrs.get("border_hit_steps", "-"), _lap_status(art.attrs)])
+                                       float(dr) - float(pl), art.attrs.get("border_hit_steps", "-"),
+                                       _lap_status(art.attrs.get("completed", True), art.attrs.get("reason"))])
             if L["iteration"]:
                 v["rows_from"] = "run files"
         sec.missing += v["notes"]
@@ -285,11 +289,12 @@ def _driven_line_figure(sec: Section, all_runs: list, loose_runs: list, track_ov
             sec.missing.append(f"{p}: track {art.attrs.get('track')!r} cannot be loaded; pass --track for the map")
 
 
-def _lap_status(r: dict) -> str:
-    """'completed', or 'failed' and where (the reason names the place: 'the car spun at s = ...')."""
-    if r.get("completed", True) is not False:
+def _lap_status(completed, reason) -> str:
+    """'completed', or 'failed' and where (the reason names the place: 'the car spun at s = ...');
+    ``completed`` of a record or a run's attributes (only ``False`` is a failed lap)."""
+    if completed is not False:
         return "completed"
-    return f"failed: {r['reason']}" if r.get("reason") else "failed"
+    return f"failed: {reason}" if reason else "failed"
 
 
 def _expected_iterations(v: dict) -> int | None:
