@@ -74,3 +74,80 @@ def test_thread_count_from_the_environment(monkeypatch):
             fastpredict._threads()
     finally:
         fastpredict._threads.cache_clear()
+
+
+# ------------------------------------------------------------------------------------------
+# the search: ranking, the fast optimiser stop, sensor effects below the noise
+
+
+_RUNS: dict = {}
+
+
+def _run(audi, track, effects, seed, laps=1.6):
+    from gprace.config import EffectConfig
+
+    key = (repr(effects), seed, laps)
+    if key not in _RUNS:
+        _RUNS[key] = record(audi, track, [EffectConfig(name=n, params=p) for n, p in effects], laps=laps,
+                            seed=seed, substeps=5)
+    return _RUNS[key]
+
+
+def test_screen_ranks_the_hidden_effect_first(setup):
+    """One naming round on a recording with a concealed downforce: the screening (linearised
+    prescreen of every candidate, screening fits, cross-validation of the best) picks downforce."""
+    from gprace.diagnose import diagnose as dg
+
+    audi, track, _ = setup
+    p = dg.prepare([_run(audi, track, [("downforce", {"c_l": 2.5})], seed=6)], 15, audi.wheelbase)
+    s = dg.screen(p, audi, 0)
+    ctx = dg._context(p, audi, s)
+    prob = ctx.prob
+    cv, top = dg._best_effect(prob, dg.locate_windows(s), s, ctx, set(s.nominal.dynamic_structured), [], 0,
+                              lambda m: None)
+    l0 = np.mean(prob.residuals(prob.model(), ctx.eval_w) ** 2, axis=1)
+    best = dg._pick(ctx, l0, cv, top, 0, lambda m: None)
+    assert best is not None and best.name == "downforce", {f.name: cv[f.name].mean() for f in top}
+    assert abs(best.values()["c_l"] - 2.5) < 0.5
+
+
+@pytest.mark.parametrize("effects,seed", [([("downforce", {"c_l": 2.5})], 6),
+                                          pytest.param([("steering_lag", {"tau": 0.12})], 21, marks=pytest.mark.slow)],
+                         ids=["downforce", "steering_lag"])
+def test_fast_path_names_what_the_exhaustive_one_names(setup, monkeypatch, effects, seed):
+    """The optimisers stopped at a relative cost fall of core.FTOL and the threaded kernel name the
+    same effects as fits run to scipy's default tolerance on one thread, with each parameter inside
+    the other's 95 % interval."""
+    from gprace.diagnose import name as nm
+    from gprace.diagnose.diagnose import diagnose
+
+    audi, track, _ = setup
+    run = _run(audi, track, effects, seed)
+    fast = diagnose([run], audi).report
+    monkeypatch.setattr(core, "FTOL", 1e-8)
+    monkeypatch.setattr(nm, "FTOL", 1e-8)
+    monkeypatch.setattr(fastpredict, "_threads", lambda: 1)
+    slow = diagnose([run], audi).report
+    names = [e["name"] for e in fast["effects"]]
+    assert names == [e["name"] for e in slow["effects"]] and effects[0][0] in names
+    for a, b in zip(fast["effects"], slow["effects"]):
+        for k, pa in a["parameters"].items():
+            pb = b["parameters"][k]
+            assert pb["ci95"][0] <= pa["value"] <= pb["ci95"][1] and pa["ci95"][0] <= pb["value"] <= pa["ci95"][1]
+
+
+def test_sensor_offset_is_measured_against_the_noise_floor(setup):
+    """A gyro bias changes the yaw rate by itself; a turned velocity frame changes v_y by about
+    v_x sin(angle); an effect on the dynamics has no such size (None)."""
+    from gprace.diagnose import name as nm
+
+    audi, _, data = setup
+    scale = np.array([0.1, 0.05, 0.01])
+    prob = nm.Problem(audi, data, 15, scale)
+    gyro = nm.Fit("gyro_bias", ["bias"], np.array([0.004]), {})
+    assert nm.sensor_snr(prob, gyro) == pytest.approx(0.4, rel=1e-9)
+    a = 0.002
+    mis = nm.Fit("velocity_misalignment", ["angle"], np.array([a]), {})
+    expect = np.sqrt(np.mean((data.Y[:, 0] * np.sin(a) + data.Y[:, 1] * (np.cos(a) - 1)) ** 2)) / 0.05
+    assert nm.sensor_snr(prob, mis) == pytest.approx(expect, rel=1e-3)
+    assert nm.sensor_snr(prob, nm.Fit("downforce", ["c_l"], np.array([2.0]), {})) is None
