@@ -499,13 +499,6 @@ def estimate_noise(model: NominalModel, data: Dataset, starts: np.ndarray, H: in
 # fitting
 
 
-FTOL = 1e-4
-"""Relative fall of the least-squares cost below which a trust-region step ends a fit (scipy's
-``ftol``; its default 1e-8 kept the joint refits of the calibration with a candidate iterating to
-their evaluation limit for a cost change of 1e-5 to 1e-4 in their second half, far below what
-any held-out test resolves: the losses are normalised to the noise floor)."""
-
-
 def batched_least_squares(batch: Callable[[list[np.ndarray]], np.ndarray], x0: np.ndarray, lo: np.ndarray,
                           hi: np.ndarray, x_scale: np.ndarray, max_nfev: int, step: float | None = None):
     """Bounded least squares (scipy's trust-region reflective) of the residual vector
@@ -540,5 +533,4 @@ def batched_least_squares(batch: Callable[[list[np.ndarray]], np.ndarray], x0: n
         return ((R - R0) / h[:, None]).T
 
     x0 = np.clip(np.asarray(x0, dtype=float), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-    return least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=x_scale, method="trf", max_nfev=max_nfev,
-                         ftol=FTOL)
+    return least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=x_scale, method="trf", max_nfev=max_nfev)

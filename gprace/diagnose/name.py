@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from gprace.diagnose import profiles
-from gprace.diagnose.core import DYNAMIC, FTOL, Dataset, errors, lag_states, predict
+from gprace.diagnose.core import DYNAMIC, Dataset, errors, lag_states, predict
 from gprace.diagnose.locate import blocks
 from gprace.model import EFFECTS, Effect, NominalModel, State
 
@@ -317,8 +317,7 @@ def fit_effect(prob: Problem, name: str, starts: np.ndarray, inits: list[dict[st
         starts, lo, hi = where
         x0 = np.clip(np.array([init[k] for k in free], dtype=float), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         try:
-            sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=xs, method="trf", max_nfev=max_nfev,
-                                ftol=FTOL)
+            sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=xs, method="trf", max_nfev=max_nfev)
         except (ValueError, FloatingPointError):
             continue
         J, res, win = sol.jac, sol.fun, starts
