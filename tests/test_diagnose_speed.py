@@ -142,3 +142,24 @@ def test_sensor_offset_is_measured_against_the_noise_floor(setup):
     expect = np.sqrt(np.mean((data.Y[:, 0] * np.sin(a) + data.Y[:, 1] * (np.cos(a) - 1)) ** 2)) / 0.05
     assert nm.sensor_snr(prob, mis) == pytest.approx(expect, rel=1e-3)
     assert nm.sensor_snr(prob, nm.Fit("downforce", ["c_l"], np.array([2.0]), {})) is None
+
+
+def test_a_sensor_offset_below_half_the_noise_is_not_picked(setup):
+    """The same significant held-out gain names a velocity misalignment of 0.01 rad (several v_y
+    noise floors at race speed) and refuses one of 0.0001 rad (a fraction of a floor)."""
+    from gprace.diagnose import name as nm
+    from gprace.diagnose.diagnose import Ctx, _pick
+
+    audi, _, data = setup
+    m = 800
+    prob = nm.Problem(audi, data, 15, np.array([0.1, 0.05, 0.01]))
+    ctx = Ctx(prob=prob, fit_w=np.arange(m), screen_w=np.arange(m), eval_w=np.arange(m), fold=np.arange(m) % 4,
+              bid=np.arange(m) // 5, fit_stride=1, subsets=(), t_subset=4.0)
+    rng = np.random.default_rng(2)
+    l0 = np.column_stack([np.ones(m), 3.0 + 0.3 * rng.standard_normal(m), np.ones(m)])
+    l1 = l0.copy()
+    l1[:, 1] -= 1.5 + 0.3 * rng.standard_normal(m)  # consistent, significant gain on v_y
+    for angle, named in ((0.01, True), (0.0001, False)):
+        f = nm.Fit("velocity_misalignment", ["angle"], np.array([angle]), {})
+        best = _pick(ctx, l0, {f.name: l1}, [f], 0, lambda s: None)
+        assert (best is not None) == named, (angle, nm.sensor_snr(prob, f))
