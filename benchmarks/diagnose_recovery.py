@@ -497,6 +497,8 @@ def main() -> int:
         cases = [c for c in cases if {n for n, _ in c["effects"]} & keep or ("null" in keep and not c["effects"])]
     cases = [c for c in cases if c["kind"] in set(args.kinds.split(","))]
     cases = [{**c, "variant": v} for c in cases for v in args.variants.split(",")]
+    if args.workers > 1:  # the diagnoses run side by side: one kernel thread each (fastpredict)
+        os.environ.setdefault("GPRACE_DIAGNOSE_THREADS", "1")
     load0 = os.getloadavg()
     t0 = time.perf_counter()
     rows = []

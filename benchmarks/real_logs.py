@@ -12,8 +12,8 @@ Per recording:
   the envelope keeps (issue: at least 0.9);
 - the diagnosis of the whole recording: verdict, calibrated parameters (value, 95 % interval,
   inside their stated physical bounds?), named effects (inside the catalogue's bounds?), CPU
-  seconds and seconds per 10,000 samples (single-threaded: CPU time is about the time on an idle
-  core; the machine's load is recorded);
+  and wall seconds, each per 10,000 samples (the prediction kernel runs on ``kernel_threads``
+  threads, ``GPRACE_DIAGNOSE_THREADS``; CPU time sums them; the machine's load is recorded);
 - ``heldout``: multi-step RMSE per dynamic channel on held-out laps, cross-validated by lap: for
   every lap, the WHOLE diagnosis (calibration and naming) runs on the other laps, and the
   nominal and the augmented vehicle it writes predict the held-out lap; ``fall`` = 1 - augmented
@@ -167,6 +167,12 @@ def in_bounds(rep: dict, vehicle) -> tuple[bool, list[str], list[str]]:
     return not out, out, notes
 
 
+def _kernel_threads() -> int:
+    from gprace.diagnose.fastpredict import _threads
+
+    return _threads()
+
+
 def row(key: str, runs_dir: Path | None, H: int, log) -> dict:
     from gprace.config import load_vehicle
     from gprace.diagnose.diagnose import diagnose
@@ -208,6 +214,7 @@ def row(key: str, runs_dir: Path | None, H: int, log) -> dict:
         "partial": {e["name"]: ({k: round(p["value"], 6) for k, p in e["parameters"].items()} or "profile")
                     for e in rep.get("partial_effects", [])},
         "cpu_s": round(cpu, 2), "wall_s": round(wall, 2), "cpu_s_per_10k_samples": round(cpu / rep["samples"] * 1e4, 2),
+        "wall_s_per_10k_samples": round(wall / rep["samples"] * 1e4, 2), "kernel_threads": _kernel_threads(),
         "diagnosed_samples": rep["samples"], "load_1min": round(os.getloadavg()[0], 2), "import_s": round(t_import, 2),
     }
     out["in_bounds"], out["outside_bounds"], out["plausibility_notes"] = in_bounds(rep, vehicle)

@@ -552,6 +552,9 @@ def _pick(ctx: Ctx, l0_ch: np.ndarray, cv: dict, top: list, rnd: int,
         ch = _channels(f.name)
         l0, l1 = l0_ch[:, ch].mean(axis=1), cv[f.name][:, ch].mean(axis=1)
         ok, where, t = _significant(ctx, l0, l1)
+        snr = nm.sensor_snr(ctx.prob, f) if ok and ctx.prob is not None else None  # a sensor offset's size
+        if snr is not None and snr < nm.MIN_SENSOR_SNR:
+            ok, where = False, f"below {nm.MIN_SENSOR_SNR} of the noise floor: {snr:.2f}"
         log(f"diagnose: round {rnd + 1}: {f.name} held-out gain on {', '.join(CHANNELS[i] for i in ch)} "
             f"{100 * (l0.mean() - l1.mean()) / max(l0.mean(), 1e-12):.1f}% (t = {t:.1f}, {where or 'not significant'})")
         if ok:

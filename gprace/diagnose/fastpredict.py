@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -322,16 +324,66 @@ def predict_states(model: NominalModel, data, starts: np.ndarray, H: int, subste
     L = np.ascontiguousarray(data.L[rec], dtype=float)
     off = np.ascontiguousarray(rec * offset, dtype=float)
     out = np.empty((m, H, lay.nx))
-    dp = ctypes.POINTER(ctypes.c_double)
-
-    def ptr(a, t=dp):
-        return a.ctypes.data_as(t)
-
-    fn(m, H, int(substeps), float(data.dt), ptr(X0), ptr(k0, ctypes.POINTER(ctypes.c_long)), ptr(U),
-       len(U), ptr(P), 0 if len(P) == 1 else lay.np, ptr(data.ks), ptr(data.kv), len(data.ks), ptr(L), ptr(off),
-       *(ptr(a) if a.dtype == float else ptr(a, ctypes.POINTER(ctypes.c_long)) for a in prof_args), ptr(out))
+    _run_chunks(fn, lay, m, H, int(substeps), float(data.dt), X0, k0, U, P, data, L, off, prof_args, out)
     if perm is not None:
         back = np.empty_like(out)
         back[..., perm] = out
         return back
     return out
+
+
+THREADS_ENV = "GPRACE_DIAGNOSE_THREADS"
+"""Environment variable: threads of the kernel's calls (default: the cores this process may use,
+at most 2; 1 turns the threading off, as a benchmark running several diagnoses at once does)."""
+MIN_CHUNK_STEPS = 20_000
+"""Window-steps (windows x horizon x substeps) below which a call is not split: a thread's start
+and hand-over cost about what 20,000 steps of the kernel do (~20 us)."""
+
+
+@functools.cache
+def _threads() -> int:
+    raw = os.environ.get(THREADS_ENV, "")
+    if raw.strip():
+        try:
+            return max(1, int(raw))
+        except ValueError:
+            from gprace.errors import ConfigError
+
+            raise ConfigError(f"{THREADS_ENV}={raw!r}: expected a whole number of threads") from None
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(2, cores))
+
+
+@functools.cache
+def _pool(n: int) -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(max_workers=n, thread_name_prefix="gprace-kernel")
+
+
+def _run_chunks(fn, lay, m, H, sub, dt, X0, k0, U, P, data, L, off, prof_args, out) -> None:
+    """The kernel over the windows, split into contiguous chunks run on threads (ctypes releases
+    the GIL; the driver keeps its work arrays on the stack, and every window is integrated on its
+    own, so the result is bit for bit that of one call). Per-window arrays are cut by row; the
+    profiles' per-window table rows (``prow``, profile-major: ``q * m + i``) are cut per profile."""
+    dp, lp = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_long)
+    pstride = 0 if len(P) == 1 else lay.np
+    n = min(_threads(), max(1, (m * H * sub) // MIN_CHUNK_STEPS), m)
+    *shared, prow = prof_args
+    nprof = len(prow) // m if len(prow) >= m else 0
+
+    def ptr(a, t=dp):
+        return a.ctypes.data_as(t)
+
+    def call(a: int, b: int) -> None:
+        rows = np.ascontiguousarray(prow.reshape(nprof, m)[:, a:b]) if nprof else prow
+        fn(b - a, H, sub, dt, ptr(X0[a:b]), ptr(k0[a:b], lp), ptr(U), len(U), ptr(P[a:b] if pstride else P),
+           pstride, ptr(data.ks), ptr(data.kv), len(data.ks), ptr(L[a:b]), ptr(off[a:b]),
+           *(ptr(x) if x.dtype == float else ptr(x, lp) for x in shared), ptr(rows, lp), ptr(out[a:b]))
+
+    if n <= 1:
+        call(0, m)
+        return
+    edges = np.linspace(0, m, n + 1).astype(int)
+    list(_pool(n).map(lambda ab: call(*ab), zip(edges[:-1], edges[1:])))

@@ -28,7 +28,7 @@ import numpy as np
 from gprace.diagnose import profiles
 from gprace.diagnose.core import DYNAMIC, Dataset, errors, lag_states, predict
 from gprace.diagnose.locate import blocks
-from gprace.model import EFFECTS, NominalModel, State
+from gprace.model import EFFECTS, Effect, NominalModel, State
 
 T_GAIN = 3.0
 T_GAIN_STRONG = 2.0
@@ -400,6 +400,29 @@ def interval95(prob: Problem, fit: Fit, starts: np.ndarray) -> dict[str, tuple[f
     cov = Ai @ (G.T @ G) @ Ai
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     return {k: (float(x - 1.96 * s), float(x + 1.96 * s)) for k, x, s in zip(fit.free, fit.x, sd)}
+
+
+MIN_SENSOR_SNR = 0.5
+"""Smallest RMS change of the measurement, in units of the channel's noise floor, at which an
+effect acting on the measurement only (a gyro bias, a turned velocity frame) is named. Any
+structure the model misses projects a little onto a constant offset or onto a term in v_x, and
+over thousands of windows even a hundredth of a degree then gains significantly; a sensor error
+below half the sensor's noise is no finding about the sensor (issue 36: 0.0004 rad, a quarter of
+the v_y noise, named on a plant that has no misalignment)."""
+
+
+def sensor_snr(prob: Problem, fit: Fit) -> float | None:
+    """RMS over the recordings of what ``fit``'s effect changes in the measured dynamic channels,
+    divided by each channel's noise floor (the largest over its channels); None for an effect
+    that acts on the dynamics (the held-out test alone judges those)."""
+    cls = EFFECTS[fit.name]
+    if fit.profile is not None or cls.measure is Effect.measure:
+        return None
+    Y = prob.data.Y
+    y = {c: Y[:, i].copy() for i, c in enumerate(("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s"))}
+    fit.effect().measure(y)
+    d = np.stack([y[c] - Y[:, i] for i, c in enumerate(("v_x", "v_y", "yaw_rate"))], axis=1)
+    return float(np.max(np.sqrt(np.mean(d**2, axis=0)) / prob.scale))
 
 
 # --------------------------------------------------------------------------------------------
