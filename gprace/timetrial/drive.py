@@ -89,6 +89,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     wall = time.perf_counter()
     while True:
         mpc.speed_factor = env.rho
+        mpc.use_gp = not (settings.envelope.nominal_when_active and env.active)
         lateral = float(y[State.V_X] * y[State.YAW_RATE])
         mpc.bounds = env.input_bounds(mpc.u_lo, mpc.u_hi, plan_brake, lateral, grip)
         u, info = mpc.step(y)

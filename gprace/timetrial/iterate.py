@@ -415,8 +415,10 @@ def oracle_lap(settings: IterateSettings, out: Path | None = None) -> dict:
     track = load_track(settings.track)
     # the oracle is the tracking MPC of the true model as issue 13 defined it (no stability
     # envelope), predicting over the steering lag it knows
+    # (and without the input bounds of issue 37 stop 44, which stand in for grip it knows here)
     dset = DriveSettings(laps=settings.laps, mpc=MPCSettings(solver=settings.solver, beta=settings.beta, grip=settings.grip,
-                                                             delay=min(lag, 0.5)),
+                                                             delay=min(lag, 0.5), front_share=None, ellipse=None,
+                                                             slip_by_speed=True),
                          envelope=EnvelopeSettings(enabled=False))
     res: dict = {"known": True, "planned": float("nan"), "driven": float("nan"), "completed": False,
                  "effects": [e.name for e in effects], "tried": [], "exact": bool(approx.exact),
@@ -732,6 +734,8 @@ def _replan(c: _Chain, i: int) -> None:
         shown = _grip_shown(c, i)
         if shown is not None:  # never plan corners faster than the grip the car has shown
             limits[0] = min(limits[0], max(shown * G.nominal_cap(model, 1.0)[0], np.asarray(last.meta.get("limits", limits))[0]))
+        if st.never_worse:
+            limits = guard.after_refusal(limits, last.meta.get("limits", limits), rec.get("safety") or {})
     if st.never_worse:  # the plan started from, and driven again if the new one is unsafe: clear of the lost laps
         ref = guard.last_good(records, clear=lambda lim: G.clear_of(lim, failed, st.widen))
     good = [k for k in range(i - 1, -1, -1) if records[k]["completed"]]
@@ -753,6 +757,7 @@ def _replan(c: _Chain, i: int) -> None:
                 step = f"new plan driven at {q:.2f} of its speed ({safety['why']})"
                 source = f"{source}; {step}" if back else step
             elif not safety["safe"] and warm is not None:
+                safety = {**safety, **guard.refused(limits)}
                 plan, limits = warm, warm.meta.get("limits", limits)
                 plan.meta = {**plan.meta, "unsafe": safety["why"]}
                 unsafe = f"last good plan (iteration {start}) driven: the new plan was not predicted safe ({safety['why']})"
