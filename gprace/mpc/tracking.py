@@ -66,7 +66,7 @@ from scipy.special import erfinv
 from gprace.config import CommandSettings
 from gprace.errors import ConfigError
 from gprace.gp.features import DYN_INPUTS, dyn_inputs
-from gprace.model.dynamics import Input, State
+from gprace.model.dynamics import Input, State, peak_slip  # noqa: F401 (peak_slip: read from here by the time trial)
 from gprace.mpc.qp import EY, LtvProblem, Weights
 
 FEATURES = DYN_INPUTS
@@ -175,11 +175,6 @@ def _at_s(X: np.ndarray, s0: float) -> np.ndarray:
     X = X.copy()
     X[:, State.S] += s0
     return X
-
-
-def peak_slip(b: float, c: float) -> float:
-    """Slip angle [rad] of the peak of ``sin(C atan(B alpha))``: ``tan(pi / (2 C)) / B``."""
-    return float(np.tan(np.pi / (2.0 * c)) / b) if c > 1.0 else float(np.pi / 2)
 
 
 class Linearisation:

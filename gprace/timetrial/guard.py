@@ -85,12 +85,7 @@ def plan_safety(plan, model, gp_plan=None, grip_share: float = 0.9, novel_std: f
     slip_front = float(np.quantile(np.abs(a_f), 0.99) / peak_slip(p.bf, p.cf))
     novel = 0.0
     if gp_plan is not None:
-        from gprace.gp.features import dyn_inputs
-
-        _, var = gp_plan.predictive(dyn_inputs(X, U, gp_plan.inputs))
-        noise = np.asarray(gp_plan.gp.noise_, float) * np.asarray(gp_plan.var_scale, float)
-        z = np.sqrt(var / np.maximum(noise, 1e-12))
-        novel = float(np.mean(np.any(z > novel_std, axis=1)))
+        novel = float(np.mean(gp_plan.novelty(X, U) > novel_std))
     why = []
     if slip_rear > 1.0:
         why.append(f"rear slip {slip_rear:.2f} of the MPC's bound")

@@ -744,7 +744,11 @@ def _replan(c: _Chain, i: int) -> None:
     gp_plan = L.load_predictor(c.dir(i) / "gp_planning.h5", "planning")
     safety: dict = {}
     try:
-        plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, limits=tuple(limits)),
+        # with the guard on, the plan keeps the slip angles the guard holds it to (front at the
+        # nominal peak, rear at the tracking MPC's grip bound): the GP compensation, read on the
+        # warm start and held fixed, otherwise buys corner speed with steering far past the peak
+        slip = (1.0, c.mpc.grip_share) if st.never_worse else None
+        plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, limits=tuple(limits), slip_max=slip),
                              warm=warm or read_plan(c.dir(i - 1) / "plan.h5", track),
                              mu_plan=lambda X, U: gp_plan.at(X, U)[0])
         if st.never_worse:

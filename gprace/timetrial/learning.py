@@ -165,6 +165,16 @@ class GPPredictor:
         mean, var = self.gp.predict(Z)
         return mean, (var + self.gp.noise_) * self.var_scale
 
+    def novelty(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """``(m,)`` the largest over the outputs of a new measurement's predictive std over the
+        noise std at states ``X`` and inputs ``U``: about 1 where the GP has data, large where it
+        extrapolates."""
+        from gprace.gp.features import dyn_inputs
+
+        _, var = self.predictive(dyn_inputs(X, U, self.inputs))
+        noise = np.asarray(self.gp.noise_, float) * self.var_scale
+        return np.sqrt(var / np.maximum(noise, 1e-12)).max(axis=1)
+
 
 def load_predictor(path, kind: str) -> GPPredictor:
     """A saved GP model for ``kind``; InputError if it was trained on another map or unknown inputs."""
