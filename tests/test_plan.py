@@ -116,3 +116,29 @@ def test_a_built_planner_serves_new_ellipse_limits_as_a_fresh_one(setup, circle_
     lon = np.where(reused.a_x >= 0, reused.a_x / 4.0, -reused.a_x / 8.0)
     assert 0.99 < np.max(lat**2 + lon**2) < 1 + 1e-6
     assert reused.lap_time > circle_plan.lap_time * 1.05
+
+
+def _peak_shares(plan, m):
+    """The plan's largest front and rear slip angles as shares of the nominal tire's peak slip angle."""
+    from gprace.model.dynamics import State, peak_slip
+
+    p, X, U = m.params, plan.states(), plan.inputs()
+    vx = X[:, State.V_X]
+    front = U[:, 0] - np.arctan((X[:, State.V_Y] + p.lf * X[:, State.YAW_RATE]) / vx)
+    rear = -np.arctan((X[:, State.V_Y] - p.lr * X[:, State.YAW_RATE]) / vx)
+    return np.abs(front).max() / peak_slip(p.bf, p.cf), np.abs(rear).max() / peak_slip(p.br, p.cr)
+
+
+def test_slip_bounds_hold_the_plan_below_the_tire_peak(setup, circle_plan):
+    """The free plan of the circle works the rear tire past 0.9 of its peak slip angle; bounded, every
+    node stays inside the bounds, the binding one is reached, and a tighter bound costs lap time."""
+    tr, m = setup
+    assert _peak_shares(circle_plan, m)[1] > 0.95
+    laps = []
+    for bound in ((1.0, 0.9), (0.6, 0.9)):
+        plan = plan_min_time(tr, m, PlanSettings(ds=6.0, slip_max=bound), warm=circle_plan)
+        shares = np.array(_peak_shares(plan, m))
+        assert np.all(shares <= np.array(bound) + 1e-6)
+        assert np.isclose(shares, bound, atol=1e-3).any()
+        laps.append(plan.lap_time)
+    assert circle_plan.lap_time < laps[0] < laps[1]

@@ -332,3 +332,33 @@ def test_trial_modules_are_preloaded_only_for_forked_workers(monkeypatch):
     assert L.preload_trial_modules() is False and imported == []
     monkeypatch.setattr(multiprocessing, "get_start_method", lambda allow_none=False: "fork")
     assert L.preload_trial_modules() is True and imported == list(L.TRIAL_MODULES)
+
+
+def test_novelty_is_small_on_the_data_and_large_off_it():
+    """The tracking GP's novelty (predictive std over noise std) is near 1 where it was trained and
+    beyond the guard's threshold far from it; under the stability envelope only there does the
+    nominal model replace it."""
+    from gprace.gp import make_gp
+    from gprace.model.dynamics import State
+    from gprace.timetrial.drive import _novel
+    from gprace.timetrial.guard import NOVEL_STD
+    from gprace.timetrial.learning import GPPredictor
+
+    rng = np.random.default_rng(3)
+    Z = rng.uniform(-2, 2, (400, 2))
+    Y = np.column_stack([np.sin(Z[:, 0]), np.cos(Z[:, 1])]) + rng.normal(0, 0.1, (400, 2))
+    gp = GPPredictor(make_gp("exact", optimize=True, max_fit_points=300, seed=0).fit(Z, Y), "tracking",
+                     inputs=("v_y", "yaw_rate"))
+    X = np.zeros((2, 6))
+    X[:, State.V_X] = 20.0
+    X[0, [State.V_Y, State.YAW_RATE]] = [0.5, -0.3]  # inside the data
+    X[1, [State.V_Y, State.YAW_RATE]] = [9.0, 9.0]   # far outside
+    z, e = gp.novelty(X, np.zeros((2, 2))), gp.extrapolation(X, np.zeros((2, 2)))
+    assert z[0] < 1.5 and z[1] > NOVEL_STD and e[0] < 0.3 and e[1] > 0.99, (z, e)
+    assert not _novel(gp, X[0], np.zeros(2)) and _novel(gp, X[1], np.zeros(2)) and _novel(None, X[0], np.zeros(2))
+    # a GP whose signal is hardly above its noise: its novelty stays below the threshold even far
+    # from the data, its extrapolation still reaches 1 there (the randomized_09 spin, issue 37)
+    weak = GPPredictor(make_gp("exact", optimize=False, length_scale=1.0, noise=0.5, signal_variance=0.7).fit(Z, Y),
+                       "tracking", inputs=("v_y", "yaw_rate"))
+    assert weak.novelty(X, np.zeros((2, 2)))[1] < NOVEL_STD and weak.extrapolation(X, np.zeros((2, 2)))[1] > 0.99
+    assert _novel(weak, X[1], np.zeros(2)) and not _novel(weak, X[0], np.zeros(2))

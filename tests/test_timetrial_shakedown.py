@@ -405,3 +405,32 @@ def test_a_vehicle_delay_longer_than_the_horizon_is_bad_input(capsys, tmp_path):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--vehicle" in err[0] and "actuator_delay" in err[0], err
     assert not out.exists()
+
+
+def test_a_repeated_slip_refusal_halves_the_widening_until_a_plan_is_safe():
+    """A plan refused for its slip angles records the refused limits; the next widening goes at
+    most half-way from the limits driven again to them, so the same data (the same proposal) do
+    not give the same refusal for ever. On circle_100 the nominal Audi's curvature plan is refused
+    from the lateral limit at 1.0 of nominal (rear slip 1.05 of the MPC's bound): from 0.9 with a
+    proposal of 1.1, the step halves to 1.0 (refused) and 0.95, which is driven."""
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import curvature_plan
+    from gprace.timetrial import grip as G
+    from gprace.timetrial.guard import after_refusal, decision, plan_safety, refused
+    from gprace.tracks import load_track
+
+    m = NominalModel(load_vehicle("audi_tt_cup"))
+    track = load_track("circle_100")
+    nominal = G.nominal_cap(m, 1.0)
+    base, proposal = nominal * [0.9, 1.0, 1.0], nominal * [1.1, 1.0, 1.0]
+    assert np.array_equal(after_refusal(proposal, base, {"slip_rear": 0.5}), proposal)  # no refusal: unchanged
+    safety, tried = {}, []
+    for _ in range(5):
+        limits = after_refusal(proposal, base, safety)
+        verdict = plan_safety(curvature_plan(track, m, ds=8.0, limits=tuple(limits)), m)
+        tried.append(limits[0] / nominal[0])
+        if decision(verdict) != "back":
+            break
+        safety = {**verdict, **refused(limits)}
+    assert tried == pytest.approx([1.1, 1.0, 0.95])

@@ -335,6 +335,13 @@ class GPBackend(ABC):
         return np.exp(h.log_sn2) * h.y_scale**2
 
     @property
+    def signal_(self) -> np.ndarray:
+        """Prior variance of the latent function per output ``(p,)`` in the units of ``Y`` squared
+        (what the latent variance of :meth:`predict` tends to far from the data)."""
+        h = self._fitted()
+        return np.exp(h.log_sf2) * h.y_scale**2
+
+    @property
     def train_inputs_(self) -> np.ndarray:
         """Training inputs ``(n, d)`` in data units (read-only; see the module docstring)."""
         self._fitted()

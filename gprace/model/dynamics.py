@@ -33,6 +33,7 @@ numpy evaluation and the CasADi graph (``ops``), which is the "one symbolic defi
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import IntEnum
 from types import SimpleNamespace
@@ -108,6 +109,11 @@ class Params:
     @property
     def fz_rear(self) -> float:
         return self.m * self.g * self.lf / (self.lf + self.lr)
+
+
+def peak_slip(b: float, c: float) -> float:
+    """Slip angle [rad] of the peak of ``sin(C atan(B alpha))``: ``tan(pi / (2 C)) / B``."""
+    return math.tan(math.pi / (2.0 * c)) / b if c > 1.0 else math.pi / 2
 
 
 def dynamics(x: Sequence[Any], u: Sequence[Any], kappa: Any, p: Params, effects: Sequence[Any], ops) -> list[Any]:

@@ -28,7 +28,12 @@ cornering, and in the braking instability of a car with load transfer it is the 
 it away), with at least ``plan_brake_share`` of the braking the plan itself asks for there (an
 eased car must still make the corner). Once the signals have been back inside the band for
 ``hold`` seconds, ``rho`` recovers by ``recover`` per period. The envelope never changes the model:
-it catches what the model has not learned yet.
+it catches what the model has not learned yet. While it is active the tracking MPC predicts with
+the nominal model alone (``nominal_when_active``; the GPs still learn from the lap): measured on
+randomized BMWs with a light rear in the 18 m hairpin of gprace_ring, the tracking GP, trained on
+slower laps, kept steering the sliding car in at the apex and spun it in 3 laps; re-driven with
+the nominal model while the envelope was active, all 3 completed (docs/decisions.md, issue 37,
+stop 44).
 
 Counted per lap: ``interventions`` (onsets, at least ``hold`` apart) and the periods eased.
 """
@@ -62,6 +67,8 @@ class EnvelopeSettings(Frozen):
     gentle_brake: float = Field(0.4, gt=0, le=1, description="share of the braking limit allowed while outside the band")
     plan_brake_share: float = Field(0.8, ge=0, le=1, description="share of the plan's own braking always allowed")
     gentle_drive: float = Field(0.3, gt=0, le=1, description="share of the drive limit allowed while outside the band")
+    nominal_when_active: bool = Field(True, description="the tracking MPC predicts with the nominal model alone "
+                                      "while the envelope is active (the car is where the learned model was wrong)")
     warmup: int = Field(60, ge=0, description="samples before a band learned inside the lap replaces the caps")
 
 

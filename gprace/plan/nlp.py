@@ -37,6 +37,7 @@ from pydantic import Field
 
 from gprace.config import CommandSettings
 from gprace.errors import ConfigError, SolverError
+from gprace.model.dynamics import peak_slip
 from gprace.plan.plan import Plan, track_hash
 from gprace.solvers import ipopt_status
 
@@ -55,6 +56,9 @@ class PlanSettings(CommandSettings):
     limits: tuple[float, float, float] | None = Field(None, description="friction ellipse in m/s^2: (lateral, drive, "
                                                       "brake > 0); overrides grip/grip_brake (the time trial widens it "
                                                       "from measured laps)")
+    slip_max: tuple[float, float] | None = Field(None, description="if set: (front, rear) largest slip angles as "
+                                                 "shares of the nominal tire's peak slip angle (the time trial's GP "
+                                                 "plans: the bounds its safety check holds them to)")
     max_iter: int = Field(1500, ge=1, description="IPOPT iteration limit")
     tol: float = Field(1e-6, gt=0, description="IPOPT tolerance")
     print_level: int = Field(0, ge=0, le=12, description="IPOPT print level")
@@ -153,6 +157,19 @@ def _nlp(model, settings: PlanSettings, n: int, h: float, ellipse: bool) -> tupl
     g_all.append(ca.vec(X[VX, :] ** 2 + X[VY, :] ** 2))
     lbg.append(np.zeros(n))
     ubg.append(np.full(n, lim.speed_max**2))
+    if settings.slip_max is not None:
+        # slip angles of the nominal kinematics (v_x >= v_low > 0 at every node): a compensation
+        # evaluated on the warm start and held fixed is no licence to steer past the tire's peak
+        # (measured, README job trial 2: a yaw compensation of -2.7 rad/s^2 read on the warm
+        # plan answered with 20 times its steering, front slip 1.4 to 1.7 of the peak, and every
+        # such plan refused by the safety check)
+        p = model.params
+        front = U[0, :] - ca.atan((X[VY, :] + p.lf * X[R, :]) / X[VX, :])
+        rear = -ca.atan((X[VY, :] - p.lr * X[R, :]) / X[VX, :])
+        for share, b, c, alpha in zip(settings.slip_max, (p.bf, p.br), (p.cf, p.cr), (front, rear)):
+            g_all.append(ca.vec(alpha))
+            lbg.append(np.full(n, -share * peak_slip(b, c)))
+            ubg.append(np.full(n, share * peak_slip(b, c)))
     if ellipse:
         a_lat, a_drive, a_brake = pv[3 * n], pv[3 * n + 1], pv[3 * n + 2]
         a_lon = ca.if_else(U[1, :] >= 0, U[1, :] / a_drive, -U[1, :] / a_brake)
@@ -224,7 +241,8 @@ def _solver(model, settings: PlanSettings, n: int, h: float, ellipse: bool, opts
     # the model's numbers are in the key too: a model changed in place gets a new solver
     physics = (repr(getattr(model, "params", None)), repr(model.vehicle.limits),
                tuple(repr(vars(e)) for e in getattr(model, "effects", ())))
-    key = (n, float(h), ellipse, float(settings.w_steer), float(settings.w_accel), repr(sorted(opts.items())), physics)
+    key = (n, float(h), ellipse, float(settings.w_steer), float(settings.w_accel), settings.slip_max,
+           repr(sorted(opts.items())), physics)
     ref, kept = _SOLVERS.get(id(model), (None, None))
     if ref is None or ref() is not model:
         kept = {}

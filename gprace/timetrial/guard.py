@@ -21,7 +21,9 @@
     GP's noise std (a plan that leans on an extrapolated compensation is a guess).
 
   What is driven instead depends on why (:func:`decision`). A plan the slip angles refuse sends
-  the loop back: the last good plan is driven again (its limits too), and the record says why. A
+  the loop back: the last good plan is driven again (its limits too), and the record says why and
+  which limits were refused; the next widening goes at most half-way to them (:func:`after_refusal`),
+  so a refusal that repeats halves the step instead of repeating with the same data. A
   plan refused **for novelty alone** is driven slower (:func:`novelty_step`): the same plan in
   time scaled by the largest factor ``q`` at which it stays where the GP has data, never slower
   than the last good lap. Driving the last good plan again never brings data where the wider plan
@@ -83,12 +85,7 @@ def plan_safety(plan, model, gp_plan=None, grip_share: float = 0.9, novel_std: f
     slip_front = float(np.quantile(np.abs(a_f), 0.99) / peak_slip(p.bf, p.cf))
     novel = 0.0
     if gp_plan is not None:
-        from gprace.gp.features import dyn_inputs
-
-        _, var = gp_plan.predictive(dyn_inputs(X, U, gp_plan.inputs))
-        noise = np.asarray(gp_plan.gp.noise_, float) * np.asarray(gp_plan.var_scale, float)
-        z = np.sqrt(var / np.maximum(noise, 1e-12))
-        novel = float(np.mean(np.any(z > novel_std, axis=1)))
+        novel = float(np.mean(gp_plan.novelty(X, U) > novel_std))
     why = []
     if slip_rear > 1.0:
         why.append(f"rear slip {slip_rear:.2f} of the MPC's bound")
@@ -108,6 +105,34 @@ def decision(safety: dict) -> str:
     if safety.get("slip_rear", 0.0) <= 1.0 and safety.get("slip_front", 0.0) <= 1.0:
         return "step"
     return "back"
+
+
+REFUSED = ("refused_lateral", "refused_drive", "refused_brake")  # a refused plan's limits in its record's safety
+
+
+def refused(limits) -> dict[str, float]:
+    """The limits ``(lateral, drive, brake)`` of a plan refused for its slip angles, as record fields."""
+    return {k: float(v) for k, v in zip(REFUSED, limits)}
+
+
+def after_refusal(proposed, base, safety: dict) -> np.ndarray:
+    """The next widening after a refusal for slip: at most half-way from the limits driven again
+    (``base``) to the refused ones (``safety`` of the last record, :func:`refused`); unchanged when
+    the last plan was not refused.
+
+    The same data give the same proposal and the same refusal: the README job's trial 2 was
+    refused for front slip (1.42 to 1.54 of the nominal peak) from iteration 5 to the end and drove
+    its last good plan three times (docs/decisions.md, issue 37, tt3). Halving the step at each
+    refusal makes a repeated refusal progress: either a narrower widening is predicted safe and
+    driven (data arrive on a wider line), or the step keeps halving towards the limits that were
+    safe.
+    """
+    proposed = np.asarray(proposed, float)
+    if not all(k in safety for k in REFUSED):
+        return proposed
+    base = np.asarray(base, float)
+    high = np.array([safety[k] for k in REFUSED], float)
+    return np.minimum(proposed, base + 0.5 * np.maximum(high - base, 0.0))
 
 
 def time_scaled(plan, q: float):

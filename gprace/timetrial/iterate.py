@@ -658,6 +658,8 @@ def _replan(c: _Chain, i: int) -> None:
         shown = _grip_shown(c, i)
         if shown is not None:  # never plan corners faster than the grip the car has shown
             limits[0] = min(limits[0], max(shown * G.nominal_cap(model, 1.0)[0], np.asarray(last.meta.get("limits", limits))[0]))
+        if st.never_worse:
+            limits = guard.after_refusal(limits, last.meta.get("limits", limits), rec.get("safety") or {})
     if st.never_worse:  # the plan started from, and driven again if the new one is unsafe: clear of the lost laps
         ref = guard.last_good(records, clear=lambda lim: G.clear_of(lim, failed, st.widen))
     good = [k for k in range(i - 1, -1, -1) if records[k]["completed"]]
@@ -666,7 +668,11 @@ def _replan(c: _Chain, i: int) -> None:
     gp_plan = L.load_predictor(c.dir(i) / "gp_planning.h5", "planning")
     safety: dict = {}
     try:
-        plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, limits=tuple(limits)),
+        # with the guard on, the plan keeps the slip angles the guard holds it to (front at the
+        # nominal peak, rear at the tracking MPC's grip bound): the GP compensation, read on the
+        # warm start and held fixed, otherwise buys corner speed with steering far past the peak
+        slip = (1.0, c.mpc.grip_share) if st.never_worse else None
+        plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, limits=tuple(limits), slip_max=slip),
                              warm=warm or read_plan(c.dir(i - 1) / "plan.h5", track),
                              mu_plan=lambda X, U: gp_plan.at(X, U)[0])
         if st.never_worse:
@@ -679,6 +685,7 @@ def _replan(c: _Chain, i: int) -> None:
                 step = f"new plan driven at {q:.2f} of its speed ({safety['why']})"
                 source = f"{source}; {step}" if back else step
             elif not safety["safe"] and warm is not None:
+                safety = {**safety, **guard.refused(limits)}
                 plan, limits = warm, warm.meta.get("limits", limits)
                 plan.meta = {**plan.meta, "unsafe": safety["why"]}
                 unsafe = f"last good plan (iteration {start}) driven: the new plan was not predicted safe ({safety['why']})"

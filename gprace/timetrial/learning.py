@@ -165,6 +165,30 @@ class GPPredictor:
         mean, var = self.gp.predict(Z)
         return mean, (var + self.gp.noise_) * self.var_scale
 
+    def extrapolation(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """``(m,)`` the largest over the outputs of the latent std over its prior std at states ``X``
+        and inputs ``U``: 0 on dense data, 1 where the GP knows nothing (its prior). Unlike
+        :meth:`novelty` it reaches 1 whatever the GP's signal-to-noise ratio (a GP whose signal std
+        is 1.3 times its noise std never reads a novelty above 1.65); NaN for a backend that does
+        not expose its prior variance (``signal_``)."""
+        from gprace.gp.features import dyn_inputs
+
+        prior = getattr(self.gp, "signal_", None)
+        if prior is None:
+            return np.full(len(X), np.nan)
+        _, var = self.gp.predict(dyn_inputs(X, U, self.inputs))
+        return np.sqrt(var / np.maximum(np.asarray(prior, float), 1e-300)).max(axis=1)
+
+    def novelty(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """``(m,)`` the largest over the outputs of a new measurement's predictive std over the
+        noise std at states ``X`` and inputs ``U``: about 1 where the GP has data, large where it
+        extrapolates."""
+        from gprace.gp.features import dyn_inputs
+
+        _, var = self.predictive(dyn_inputs(X, U, self.inputs))
+        noise = np.asarray(self.gp.noise_, float) * self.var_scale
+        return np.sqrt(var / np.maximum(noise, 1e-12)).max(axis=1)
+
 
 def load_predictor(path, kind: str) -> GPPredictor:
     """A saved GP model for ``kind``; InputError if it was trained on another map or unknown inputs."""

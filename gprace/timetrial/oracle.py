@@ -55,8 +55,10 @@ def oracle_lap(settings: IterateSettings, out: Path | None = None) -> dict:
     track = load_track(settings.track)
     # the oracle is the tracking MPC of the true model as issue 13 defined it (no stability
     # envelope), predicting over the steering lag it knows
+    # (and without the input bounds of issue 37 stop 44, which stand in for grip it knows here)
     dset = DriveSettings(laps=settings.laps, mpc=MPCSettings(solver=settings.solver, beta=settings.beta, grip=settings.grip,
-                                                             delay=min(lag, 0.5)),
+                                                             delay=min(lag, 0.5), front_share=None, ellipse=None,
+                                                             slip_by_speed=True),
                          envelope=EnvelopeSettings(enabled=False))
     res: dict = {"known": True, "planned": float("nan"), "driven": float("nan"), "completed": False,
                  "effects": [e.name for e in effects], "tried": [], "exact": bool(approx.exact),

@@ -1,0 +1,105 @@
+"""The tracking MPC's input bounds from the tires (issue 37, stop 44): the steering near the front
+tire's peak, drive and braking inside the plan's friction ellipse.
+
+The nominal bicycle has neither a tire past its peak (where more steering gives no more force) nor
+combined slip (where drive and braking take lateral grip). These tests show what the nominal QP
+asks for in the states where the randomized cars were lost, and that the bounds stop it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gprace.config import load_vehicle
+from gprace.model import NominalModel
+from gprace.model.dynamics import Input, State
+from gprace.mpc.tracking import MPCSettings, TrackingMPC, peak_slip
+from gprace.plan import curvature_plan
+from gprace.tracks import load_track
+
+
+@pytest.fixture(scope="module")
+def circle():
+    track = load_track("circle_100")
+    model = NominalModel(load_vehicle("bmw_320i"))
+    plan = curvature_plan(track, model, speed_scale=0.95)  # 9.85 m/s^2 of a 9.88 m/s^2 lateral limit
+    X, U = plan.at_time(plan.time_at(np.array([50.0])))
+    return track, model, plan, X[0], U[0]
+
+
+def _commands(circle, state, settings, periods=1, delta_prev=None, a_prev=None):
+    """The commands of ``periods`` MPC steps from the same measured ``state``."""
+    track, model, plan, _, u_ref = circle
+    mpc = TrackingMPC(model, track, plan, settings)
+    mpc.reset(u_ref[Input.DELTA] if delta_prev is None else delta_prev, u_ref[Input.A_X] if a_prev is None else a_prev)
+    return np.array([mpc.step(state)[0] for _ in range(periods)]), mpc
+
+
+def _front_slip(model, state, delta):
+    p = model.params
+    return delta - np.arctan((state[State.V_Y] + p.lf * state[State.YAW_RATE]) / state[State.V_X])
+
+
+def test_steering_stays_near_the_front_tires_peak(circle):
+    """A car heading for the outer border: the nominal QP steers past the front tire's peak (1.6 of
+    it), the bounded one stays within ``front_share`` of it. From full lock the wheel unwinds at
+    the actuator's rate (the QP stays feasible)."""
+    _, model, plan, x_ref, _ = circle
+    p = model.params
+    peak = peak_slip(p.bf, p.cf)
+    x = x_ref.copy()
+    x[[State.V_X, State.V_Y, State.YAW_RATE, State.E_PSI, State.E_Y]] = [20.0, 0.0, 0.0, -0.3, -4.0]
+    free, _ = _commands(circle, x, MPCSettings(front_share=None, ellipse=None), periods=30)
+    bounded, mpc = _commands(circle, x, MPCSettings(front_share=1.25, ellipse=None), periods=30)
+    assert abs(_front_slip(model, x, free[-1, Input.DELTA])) > 1.4 * peak
+    assert np.all(np.abs(_front_slip(model, x, bounded[:, Input.DELTA])) <= 1.25 * peak + 1e-6)
+    # from full lock: back towards the peak at the rate limit, never further out
+    lock = model.vehicle.limits.steering_max
+    back, _ = _commands(circle, x, MPCSettings(), periods=5, delta_prev=lock)
+    assert np.allclose(np.diff(np.r_[lock, back[:, Input.DELTA]]), -mpc.steer_step, atol=1e-6)
+
+
+def test_drive_stays_inside_the_plans_friction_ellipse(circle):
+    """At the lateral limit and 2 m/s behind the reference, the nominal QP asks for most of the
+    drive limit to catch up (it knows no combined slip); inside the ellipse of the plan's limits
+    it gets what the lateral acceleration leaves (``sqrt(1 - (a_y / a_lat)^2)`` of the limit)."""
+    _, model, plan, x_ref, _ = circle
+    lat, drive, brake = plan.meta["limits"]
+    x = x_ref.copy()
+    x[State.V_X] -= 2.0
+    free, _ = _commands(circle, x, MPCSettings(ellipse=None))
+    bounded, mpc = _commands(circle, x, MPCSettings(ellipse=1.0))
+    room = np.sqrt(1.0 - (x[State.V_X] * x[State.YAW_RATE] / lat) ** 2)
+    assert free[0, Input.A_X] > 0.75 * drive
+    assert 0.0 < bounded[0, Input.A_X] <= room * drive + 1e-6 and room < 0.5
+    # the range itself: the full limits when running straight, the floor (or what the reference
+    # asks) at the lateral limit, the reference's own braking always
+    lo, hi = np.array([-1.0, -brake]), np.array([1.0, drive])
+    straight = x.copy()
+    straight[State.YAW_RATE] = 0.0
+    uref = np.zeros((mpc.N, 2))
+    assert np.allclose(mpc.ellipse_bounds(straight, uref, lo, hi), (lo, hi))
+    at_limit = x.copy()
+    at_limit[State.YAW_RATE] = lat / x[State.V_X]
+    uref[0, Input.A_X] = -0.5 * brake
+    b_lo, b_hi = mpc.ellipse_bounds(at_limit, uref, lo, hi)
+    assert np.isclose(b_hi[Input.A_X], 0.2 * drive) and np.isclose(b_lo[Input.A_X], -0.5 * brake)
+
+
+def test_the_nominal_model_alone_while_the_envelope_is_active(circle):
+    """``use_gp = False`` (the drive loop sets it while the stability envelope is active): the QP
+    of the period is the nominal MPC's, whatever the GP says; with it the GP's mean enters."""
+    track, model, plan, x, _ = circle
+
+    def gp(Z):  # a GP that says the car turns much less than the model
+        return np.tile([0.0, -0.05], (len(Z), 1)), np.full((len(Z), 2), 1e-6)
+
+    nominal = TrackingMPC(model, track, plan, MPCSettings()).build(x)[0]
+    mpc = TrackingMPC(model, track, plan, MPCSettings(), gp=gp)
+    assert not np.allclose(mpc.build(x)[0].c, nominal.c)
+    mpc.use_gp = False
+    assert np.allclose(mpc.build(x)[0].c, nominal.c)
+    from gprace.mpc.stability import EnvelopeSettings
+
+    assert EnvelopeSettings().nominal_when_active
