@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gprace.config import EffectConfig, load_vehicle
+from gprace.config import EffectConfig
+from gprace.model import load_vehicle  # the loader that checks effects against the catalogue
 from gprace.errors import ConfigError
 from gprace.model import EFFECTS, NominalModel
 
