@@ -14,7 +14,8 @@ import pytest
 from gprace.config import load_vehicle
 from gprace.model import NominalModel
 from gprace.model.dynamics import Input, State
-from gprace.mpc.tracking import MPCSettings, TrackingMPC, peak_slip
+from gprace.model.dynamics import peak_slip
+from gprace.mpc.tracking import MPCSettings, TrackingMPC
 from gprace.plan import curvature_plan
 from gprace.tracks import load_track
 

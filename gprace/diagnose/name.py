@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from gprace.diagnose import profiles
-from gprace.diagnose.core import DYNAMIC, Dataset, errors, lag_states, predict
+from gprace.diagnose.core import CHANNELS, DYNAMIC, Dataset, errors, lag_states, predict
 from gprace.diagnose.locate import blocks
 from gprace.model import EFFECTS, Effect, NominalModel, State
 
@@ -419,9 +419,9 @@ def sensor_snr(prob: Problem, fit: Fit) -> float | None:
     if fit.profile is not None or cls.measure is Effect.measure:
         return None
     Y = prob.data.Y
-    y = {c: Y[:, i].copy() for i, c in enumerate(("v_x", "v_y", "yaw_rate", "e_psi", "e_y", "s"))}
+    y = {c: Y[:, i].copy() for i, c in enumerate(CHANNELS)}
     fit.effect().measure(y)
-    d = np.stack([y[c] - Y[:, i] for i, c in enumerate(("v_x", "v_y", "yaw_rate"))], axis=1)
+    d = np.stack([y[CHANNELS[i]] - Y[:, i] for i in DYNAMIC], axis=1)
     return float(np.max(np.sqrt(np.mean(d**2, axis=0)) / prob.scale))
 
 

@@ -29,11 +29,11 @@ it away), with at least ``plan_brake_share`` of the braking the plan itself asks
 eased car must still make the corner). Once the signals have been back inside the band for
 ``hold`` seconds, ``rho`` recovers by ``recover`` per period. The envelope never changes the model:
 it catches what the model has not learned yet. While it is active the tracking MPC predicts with
-the nominal model alone (``nominal_when_active``; the GPs still learn from the lap): measured on
-randomized BMWs with a light rear in the 18 m hairpin of gprace_ring, the tracking GP, trained on
-slower laps, kept steering the sliding car in at the apex and spun it in 3 laps; re-driven with
-the nominal model while the envelope was active, all 3 completed (docs/decisions.md, issue 37,
-stop 44).
+the nominal model alone where the tracking GP extrapolates (``nominal_when_active``; the test is
+``gprace.timetrial.drive._novel``; the GPs still learn from the lap): on randomized BMWs with a
+light rear, a GP trained on slower laps kept steering the sliding car into the 18 m hairpin of
+gprace_ring and spun it, while on audi_hidden, whose nominal model lacks its downforce, switching
+a well-fed GP off left the track (docs/decisions.md, issue 37, stops 44 and 45).
 
 Counted per lap: ``interventions`` (onsets, at least ``hold`` apart) and the periods eased.
 """
@@ -67,8 +67,8 @@ class EnvelopeSettings(Frozen):
     gentle_brake: float = Field(0.4, gt=0, le=1, description="share of the braking limit allowed while outside the band")
     plan_brake_share: float = Field(0.8, ge=0, le=1, description="share of the plan's own braking always allowed")
     gentle_drive: float = Field(0.3, gt=0, le=1, description="share of the drive limit allowed while outside the band")
-    nominal_when_active: bool = Field(True, description="the tracking MPC predicts with the nominal model alone "
-                                      "while the envelope is active (the car is where the learned model was wrong)")
+    nominal_when_active: bool = Field(True, description="while the envelope is active, the tracking MPC predicts "
+                                      "with the nominal model alone where the tracking GP extrapolates")
     warmup: int = Field(60, ge=0, description="samples before a band learned inside the lap replaces the caps")
 
 

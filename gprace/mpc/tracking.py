@@ -66,7 +66,7 @@ from scipy.special import erfinv
 from gprace.config import CommandSettings
 from gprace.errors import ConfigError
 from gprace.gp.features import DYN_INPUTS, dyn_inputs
-from gprace.model.dynamics import Input, State, peak_slip  # noqa: F401 (peak_slip: read from here by the time trial)
+from gprace.model.dynamics import Input, State, peak_slip
 from gprace.mpc.qp import EY, LtvProblem, Weights
 
 FEATURES = DYN_INPUTS

@@ -157,13 +157,8 @@ def _novel(gp, y: np.ndarray, u: np.ndarray) -> bool:
     """
     from gprace.timetrial.guard import NOVEL_STD
 
-    if gp is None:
+    if gp is None or not hasattr(gp, "extrapolation"):
         return True
     y, u = y[None, :], np.asarray(u, float)[None, :]
-    if hasattr(gp, "extrapolation"):
-        share = float(gp.extrapolation(y, u)[0])
-        if np.isfinite(share):
-            return share > EXTRAPOLATING
-    if hasattr(gp, "novelty"):
-        return bool(gp.novelty(y, u)[0] > NOVEL_STD)
-    return True
+    share = float(gp.extrapolation(y, u)[0])
+    return share > EXTRAPOLATING if np.isfinite(share) else bool(gp.novelty(y, u)[0] > NOVEL_STD)

@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gprace.mpc.tracking import peak_slip, rear_slip_rows
+from gprace.model.dynamics import peak_slip
+from gprace.mpc.tracking import rear_slip_rows
 
 QUANTILE = 0.99  # robust peak of a measured acceleration (one lap has about 1,100 samples)
 

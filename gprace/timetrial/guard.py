@@ -20,10 +20,15 @@
     calibrated predictive std of the lateral-acceleration compensation above ``novel_std`` times the
     GP's noise std (a plan that leans on an extrapolated compensation is a guess).
 
+  The loop's planner is held to the same slip angles (:func:`slip_bounds`, as NLP constraints),
+  so its plans meet them by construction, up to the solver's tolerance (``SLIP_TOLERANCE``): a
+  compensation read on the warm start and held fixed otherwise bought corner speed with steering
+  far past the peak, and the same refusal repeated for ever (README job, docs/decisions.md issue
+  37 stop 45; halving the widening after each refusal, tried at stop 44, could not help, since the
+  limits were not the cause).
+
   What is driven instead depends on why (:func:`decision`). A plan the slip angles refuse sends
-  the loop back: the last good plan is driven again (its limits too), and the record says why and
-  which limits were refused; the next widening goes at most half-way to them (:func:`after_refusal`),
-  so a refusal that repeats halves the step instead of repeating with the same data. A
+  the loop back: the last good plan is driven again (its limits too), and the record says why. A
   plan refused **for novelty alone** is driven slower (:func:`novelty_step`): the same plan in
   time scaled by the largest factor ``q`` at which it stays where the GP has data, never slower
   than the last good lap. Driving the last good plan again never brings data where the wider plan
@@ -39,29 +44,37 @@ from __future__ import annotations
 import numpy as np
 
 from gprace.model.dynamics import State
+from gprace.timetrial.record import IterationRecord
 
 NOVEL_STD = 3.0     # predictive std over the GP's noise std above which a plan node counts as novel
 NOVEL_SHARE = 0.1   # largest share of novel nodes in a plan that is driven
+SLIP_TOLERANCE = 1e-3  # a slip angle within this share above its bound counts as at the bound (solver tolerance)
 
 
-def lap_status(record: dict, earlier: list[dict], tolerance: float) -> str:
+def slip_bounds(grip_share: float) -> tuple[float, float]:
+    """``(front, rear)`` slip bounds of a plan as shares of the nominal tires' peak slip angles: the
+    front at its peak, the rear at the tracking MPC's grip bound (what :func:`plan_safety` checks)."""
+    return 1.0, grip_share
+
+
+def lap_status(record: IterationRecord, earlier: list[IterationRecord], tolerance: float) -> str:
     """``good``, ``lost`` or ``slower`` for ``record`` given the ``earlier`` records of its trial."""
-    if not record["completed"]:
+    if not record.completed:
         return "lost"
-    if record["alpha"] != 0.0 or (record.get("safety") or {}).get("step", 1.0) < 1.0:
+    if record.alpha != 0.0 or record.safety.get("step", 1.0) < 1.0:
         return "good"  # exploring, or a novelty step (a slower lap on purpose): judged by completion
-    best = [r["driven"] for r in earlier if r["completed"] and r["alpha"] == 0.0 and np.isfinite(r["driven"])]
-    if best and record["driven"] > min(best) * (1.0 + tolerance):
+    best = [r.driven for r in earlier if r.completed and r.alpha == 0.0 and np.isfinite(r.driven)]
+    if best and record.driven > min(best) * (1.0 + tolerance):
         return "slower"
     return "good"
 
 
-def last_good(records: list[dict], clear=None) -> int | None:
+def last_good(records: list[IterationRecord], clear=None) -> int | None:
     """Index of the last record whose lap was good (None if none was); with ``clear`` (a predicate
     on a record's ``limits``) the last good one whose limits it accepts, else the last good one."""
-    good = [k for k, r in enumerate(records) if r.get("status", "good" if r["completed"] else "lost") == "good"]
+    good = [k for k, r in enumerate(records) if r.status == "good"]
     if clear is not None:
-        safe = [k for k in good if clear(records[k].get("limits"))]
+        safe = [k for k in good if clear(records[k].limits)]
         if safe:
             return safe[-1]
     return good[-1] if good else None
@@ -74,22 +87,24 @@ def plan_safety(plan, model, gp_plan=None, grip_share: float = 0.9, novel_std: f
     ``slip_*`` are the plan's robust peak slip angles over their bounds (1 = at the bound),
     ``novel`` the share of nodes where the planning GP extrapolates.
     """
-    from gprace.mpc.tracking import peak_slip, rear_slip_rows
+    from gprace.model.dynamics import peak_slip
+    from gprace.mpc.tracking import rear_slip_rows
 
     p = model.params
     X, U = plan.states(), plan.inputs()
     a_r, _ = rear_slip_rows(X, p.lr, p.vmin)
     vx = np.maximum(X[:, State.V_X], p.vmin)
     a_f = U[:, 0] - np.arctan((X[:, State.V_Y] + p.lf * X[:, State.YAW_RATE]) / vx)
-    slip_rear = float(np.quantile(np.abs(a_r), 0.99) / (grip_share * peak_slip(p.br, p.cr)))
-    slip_front = float(np.quantile(np.abs(a_f), 0.99) / peak_slip(p.bf, p.cf))
+    front, rear = slip_bounds(grip_share)
+    slip_rear = float(np.quantile(np.abs(a_r), 0.99) / (rear * peak_slip(p.br, p.cr)))
+    slip_front = float(np.quantile(np.abs(a_f), 0.99) / (front * peak_slip(p.bf, p.cf)))
     novel = 0.0
     if gp_plan is not None:
         novel = float(np.mean(gp_plan.novelty(X, U) > novel_std))
     why = []
-    if slip_rear > 1.0:
+    if slip_rear > 1.0 + SLIP_TOLERANCE:
         why.append(f"rear slip {slip_rear:.2f} of the MPC's bound")
-    if slip_front > 1.0:
+    if slip_front > 1.0 + SLIP_TOLERANCE:
         why.append(f"front slip {slip_front:.2f} of the nominal peak")
     if novel > novel_share:
         why.append(f"{100 * novel:.0f} % of the plan where the planning GP has no data")
@@ -102,37 +117,9 @@ def decision(safety: dict) -> str:
     or ``back`` (its slip angles are beyond what the tracking MPC can follow: the last good plan)."""
     if safety.get("safe", True):
         return "drive"
-    if safety.get("slip_rear", 0.0) <= 1.0 and safety.get("slip_front", 0.0) <= 1.0:
+    if max(safety.get("slip_rear", 0.0), safety.get("slip_front", 0.0)) <= 1.0 + SLIP_TOLERANCE:
         return "step"
     return "back"
-
-
-REFUSED = ("refused_lateral", "refused_drive", "refused_brake")  # a refused plan's limits in its record's safety
-
-
-def refused(limits) -> dict[str, float]:
-    """The limits ``(lateral, drive, brake)`` of a plan refused for its slip angles, as record fields."""
-    return {k: float(v) for k, v in zip(REFUSED, limits)}
-
-
-def after_refusal(proposed, base, safety: dict) -> np.ndarray:
-    """The next widening after a refusal for slip: at most half-way from the limits driven again
-    (``base``) to the refused ones (``safety`` of the last record, :func:`refused`); unchanged when
-    the last plan was not refused.
-
-    The same data give the same proposal and the same refusal: the README job's trial 2 was
-    refused for front slip (1.42 to 1.54 of the nominal peak) from iteration 5 to the end and drove
-    its last good plan three times (docs/decisions.md, issue 37, tt3). Halving the step at each
-    refusal makes a repeated refusal progress: either a narrower widening is predicted safe and
-    driven (data arrive on a wider line), or the step keeps halving towards the limits that were
-    safe.
-    """
-    proposed = np.asarray(proposed, float)
-    if not all(k in safety for k in REFUSED):
-        return proposed
-    base = np.asarray(base, float)
-    high = np.array([safety[k] for k in REFUSED], float)
-    return np.minimum(proposed, base + 0.5 * np.maximum(high - base, 0.0))
 
 
 def time_scaled(plan, q: float):

@@ -440,7 +440,7 @@ class _Chain:
         if d is not None:
             return d
         if (self.dir(0) / "record.json").exists():
-            est = self.record(0).get("delay", float("nan"))
+            est = self.record(0).delay
             return float(est) if np.isfinite(est) else 0.0
         return 0.0
 
@@ -639,30 +639,28 @@ def _replan(c: _Chain, i: int) -> None:
     st, track, model = c.st, c.track, c.model
     records = [c.record(k) for k in range(i)]
     rec = records[-1]
-    back = st.never_worse and rec.get("status", "good") != "good"
-    failed = [r["limits"] for r in records if not r["completed"] and r.get("limits")]
+    back = st.never_worse and rec.status != "good"
+    failed = [r.limits for r in records if not r.completed and r.limits]
     ref = guard.last_good(records) if st.never_worse else None
     if back and ref is not None:
         # a lost or slower lap: the last good plan's limits again (no widening), but never a level
         # that lost the car (measured: a randomized BMW lost at [9.1, 3.5, 4.8] m/s^2 and sent back
         # to the same limits was lost again three iterations later); the data stay
-        limits = G.below_failed(records[ref]["limits"] or c.cap, failed, st.widen)
-        source = f"back to iteration {ref}" + ("" if G.clear_of(records[ref]["limits"], failed, st.widen)
+        limits = G.below_failed(records[ref].limits or c.cap, failed, st.widen)
+        source = f"back to iteration {ref}" + ("" if G.clear_of(records[ref].limits, failed, st.widen)
                                                else ", below the limits of the lost laps")
     else:
         last = read_plan(c.dir(i - 1) / "plan.h5", track)
-        limits = G.next_limits(last.meta.get("limits", c.cap), rec["envelope"], rec["completed"], rec["utilisation"],
-                               c.cap, st.widen, failed=failed, border_hits=rec["border_hits"],
-                               interventions=rec.get("interventions", 0) if i > 1 else 0, widen_max=st.widen_max)
+        limits = G.next_limits(last.meta.get("limits", c.cap), rec.envelope, rec.completed, rec.utilisation,
+                               c.cap, st.widen, failed=failed, border_hits=rec.border_hits,
+                               interventions=rec.interventions if i > 1 else 0, widen_max=st.widen_max)
         source = "replan"
         shown = _grip_shown(c, i)
         if shown is not None:  # never plan corners faster than the grip the car has shown
             limits[0] = min(limits[0], max(shown * G.nominal_cap(model, 1.0)[0], np.asarray(last.meta.get("limits", limits))[0]))
-        if st.never_worse:
-            limits = guard.after_refusal(limits, last.meta.get("limits", limits), rec.get("safety") or {})
     if st.never_worse:  # the plan started from, and driven again if the new one is unsafe: clear of the lost laps
         ref = guard.last_good(records, clear=lambda lim: G.clear_of(lim, failed, st.widen))
-    good = [k for k in range(i - 1, -1, -1) if records[k]["completed"]]
+    good = [k for k in range(i - 1, -1, -1) if records[k].completed]
     start = ref if ref is not None else (good[0] if good else None)
     warm = read_plan(c.dir(start) / "plan.h5", track) if start is not None else None
     gp_plan = L.load_predictor(c.dir(i) / "gp_planning.h5", "planning")
@@ -671,7 +669,7 @@ def _replan(c: _Chain, i: int) -> None:
         # with the guard on, the plan keeps the slip angles the guard holds it to (front at the
         # nominal peak, rear at the tracking MPC's grip bound): the GP compensation, read on the
         # warm start and held fixed, otherwise buys corner speed with steering far past the peak
-        slip = (1.0, c.mpc.grip_share) if st.never_worse else None
+        slip = guard.slip_bounds(c.mpc.grip_share) if st.never_worse else None
         plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, limits=tuple(limits), slip_max=slip),
                              warm=warm or read_plan(c.dir(i - 1) / "plan.h5", track),
                              mu_plan=lambda X, U: gp_plan.at(X, U)[0])
@@ -685,7 +683,6 @@ def _replan(c: _Chain, i: int) -> None:
                 step = f"new plan driven at {q:.2f} of its speed ({safety['why']})"
                 source = f"{source}; {step}" if back else step
             elif not safety["safe"] and warm is not None:
-                safety = {**safety, **guard.refused(limits)}
                 plan, limits = warm, warm.meta.get("limits", limits)
                 plan.meta = {**plan.meta, "unsafe": safety["why"]}
                 unsafe = f"last good plan (iteration {start}) driven: the new plan was not predicted safe ({safety['why']})"
@@ -721,7 +718,7 @@ def _grip_shown(c: _Chain, i: int) -> float | None:
 
     ratios = []
     for k in range(i):
-        if c.record(k)["completed"]:
+        if c.record(k).completed:
             run = read_run(c.dir(k) / "run.h5")
             X = run.states()
             g = axle_grip(X, blended(run.inputs(), c.delay, run.dt), run.dt, c.model, in_control(X))
@@ -736,7 +733,7 @@ def _band(c: _Chain, i: int):
     from gprace.timetrial.learning import in_control
 
     for k in range(i - 1, -1, -1):
-        if c.record(k)["completed"]:
+        if c.record(k).completed:
             run = read_run(c.dir(k) / "run.h5")
             if any(name not in run.data for name in SIGNALS):
                 return None
@@ -853,5 +850,5 @@ def _record(i, alpha, c: _Chain, plan, run, gps, sizes, extra) -> IterationRecor
     rec["interventions"] = int(m.get("interventions", 0))
     rec["eased_steps"] = int(m.get("eased_steps", 0))
     rec["band"] = [float(v) for v in m.get("band", [])]
-    rec["status"] = lap_status({**rec, **extra}, [c.record(k) for k in range(i)], c.st.slower_tolerance)
-    return IterationRecord(**rec, **extra)
+    draft = IterationRecord(**rec, **extra)
+    return draft.model_copy(update={"status": lap_status(draft, [c.record(k) for k in range(i)], c.st.slower_tolerance)})

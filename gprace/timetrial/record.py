@@ -35,21 +35,7 @@ RECORD_VERSION = 1
 SUMMARY_VERSION = 1
 
 
-class _ReadByKey:
-    """Read-only ``rec["field"]`` and ``rec.get("field", default)`` on a frozen record, for the loop's
-    guard functions written against the dicts the reader returned before (``gprace.timetrial.guard``,
-    ``iterate._replan``); new code reads attributes. Nothing can be set through it."""
-
-    def __getitem__(self, key: str) -> Any:
-        if key not in type(self).model_fields:
-            raise KeyError(key)
-        return getattr(self, key)
-
-    def get(self, key: str, default: Any = None) -> Any:
-        return getattr(self, key) if key in type(self).model_fields else default
-
-
-class IterationRecord(_ReadByKey, Frozen):
+class IterationRecord(Frozen):
     """One driven lap of one iteration of one trial, and the GPs it was driven with."""
 
     version: int = Field(RECORD_VERSION, description="layout version of the record")

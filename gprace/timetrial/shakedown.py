@@ -81,7 +81,7 @@ def axle_grip(X: np.ndarray, U: np.ndarray, dt: float, model, ok: np.ndarray) ->
     Keys ``front_brake``, ``rear_coast`` ... (phases by the acceleration command: below -1 m/s^2,
     within +-1, above 1); a phase with fewer than ``MIN_SLIP_SAMPLES`` samples is left out.
     """
-    from gprace.mpc.tracking import peak_slip
+    from gprace.model.dynamics import peak_slip
 
     p = model.params
     vx, vy, r = X[:, State.V_X], X[:, State.V_Y], X[:, State.YAW_RATE]
@@ -110,7 +110,7 @@ def axle_grip(X: np.ndarray, U: np.ndarray, dt: float, model, ok: np.ndarray) ->
 
 def slip_use(X: np.ndarray, U: np.ndarray, model, ok: np.ndarray, quantile: float = 0.99) -> float:
     """Robust peak slip angle of the more used axle over the nominal tire's peak slip angle."""
-    from gprace.mpc.tracking import peak_slip
+    from gprace.model.dynamics import peak_slip
 
     if ok.sum() < 10:
         return float("nan")
