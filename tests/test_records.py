@@ -59,7 +59,9 @@ def test_a_read_record_is_a_frozen_model_and_rewrites_to_the_same_bytes(tmp_path
     assert isinstance(rec, IterationRecord)
     with pytest.raises(ValidationError):
         rec.driven = 60.0
-    assert rec.border_hits == 3
+    with pytest.raises(TypeError):
+        rec["driven"] = 60.0  # the read-only key access of the loop's guard functions sets nothing
+    assert rec["border_hits"] == rec.border_hits == 3 and rec.get("no such field", 7) == 7
     done = rec.model_copy(update={"driven": 60.0, "completed": True})
     assert (done.driven, done.completed, rec.completed) == (60.0, True, False) and math.isnan(rec.driven)
     write_record(q, read_record(p))

@@ -44,7 +44,6 @@ from __future__ import annotations
 import numpy as np
 
 from gprace.model.dynamics import State
-from gprace.timetrial.record import IterationRecord
 
 NOVEL_STD = 3.0     # predictive std over the GP's noise std above which a plan node counts as novel
 NOVEL_SHARE = 0.1   # largest share of novel nodes in a plan that is driven
@@ -57,24 +56,27 @@ def slip_bounds(grip_share: float) -> tuple[float, float]:
     return 1.0, grip_share
 
 
-def lap_status(record: IterationRecord, earlier: list[IterationRecord], tolerance: float) -> str:
-    """``good``, ``lost`` or ``slower`` for ``record`` given the ``earlier`` records of its trial."""
-    if not record.completed:
+def lap_status(record, earlier: list, tolerance: float) -> str:
+    """``good``, ``lost`` or ``slower`` for ``record`` given the ``earlier`` records of its trial.
+
+    Records are read by key: the time trial's :class:`~gprace.timetrial.record.IterationRecord`
+    (read-only keys) and ``gprace learn``'s lap dicts both are."""
+    if not record["completed"]:
         return "lost"
-    if record.alpha != 0.0 or record.safety.get("step", 1.0) < 1.0:
+    if record["alpha"] != 0.0 or (record.get("safety") or {}).get("step", 1.0) < 1.0:
         return "good"  # exploring, or a novelty step (a slower lap on purpose): judged by completion
-    best = [r.driven for r in earlier if r.completed and r.alpha == 0.0 and np.isfinite(r.driven)]
-    if best and record.driven > min(best) * (1.0 + tolerance):
+    best = [r["driven"] for r in earlier if r["completed"] and r["alpha"] == 0.0 and np.isfinite(r["driven"])]
+    if best and record["driven"] > min(best) * (1.0 + tolerance):
         return "slower"
     return "good"
 
 
-def last_good(records: list[IterationRecord], clear=None) -> int | None:
+def last_good(records: list, clear=None) -> int | None:
     """Index of the last record whose lap was good (None if none was); with ``clear`` (a predicate
     on a record's ``limits``) the last good one whose limits it accepts, else the last good one."""
-    good = [k for k, r in enumerate(records) if r.status == "good"]
+    good = [k for k, r in enumerate(records) if r.get("status", "good" if r["completed"] else "lost") == "good"]
     if clear is not None:
-        safe = [k for k in good if clear(records[k].limits)]
+        safe = [k for k in good if clear(records[k].get("limits"))]
         if safe:
             return safe[-1]
     return good[-1] if good else None

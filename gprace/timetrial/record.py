@@ -35,7 +35,21 @@ RECORD_VERSION = 1
 SUMMARY_VERSION = 1
 
 
-class IterationRecord(Frozen):
+class _ReadByKey:
+    """Read-only ``rec["field"]`` and ``rec.get("field", default)`` on a frozen record: the guard's
+    functions (``gprace.timetrial.guard``) read laps by key, as ``gprace learn`` keeps them in dicts;
+    code of the time trial reads attributes. Nothing can be set through it."""
+
+    def __getitem__(self, key: str) -> Any:
+        if key not in type(self).model_fields:
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return getattr(self, key) if key in type(self).model_fields else default
+
+
+class IterationRecord(_ReadByKey, Frozen):
     """One driven lap of one iteration of one trial, and the GPs it was driven with."""
 
     version: int = Field(RECORD_VERSION, description="layout version of the record")
