@@ -163,3 +163,23 @@ def test_a_sensor_offset_below_half_the_noise_is_not_picked(setup):
         f = nm.Fit("velocity_misalignment", ["angle"], np.array([angle]), {})
         best = _pick(ctx, l0, {f.name: l1}, [f], 0, lambda s: None)
         assert (best is not None) == named, (angle, nm.sensor_snr(prob, f))
+
+
+@pytest.mark.parametrize("effects,seed", [([("downforce", {"c_l": 2.5})], 6), ([("steering_lag", {"tau": 0.08})], 7)])
+def test_looser_naming_stop_names_what_the_default_stop_names(setup, monkeypatch, effects, seed):
+    """The naming fits stop at a relative cost change of ``NAMING_FTOL`` (1e-4) instead of scipy's
+    1e-8: the whole diagnosis names the same effects, and each named parameter lands inside the
+    95 % interval of the default stop's fit."""
+    from gprace.diagnose import name as nm
+    from gprace.diagnose.diagnose import diagnose
+
+    audi, track, _ = setup
+    run = _run(audi, track, effects, seed=seed)
+    fast = diagnose([run], audi).report
+    monkeypatch.setattr(nm, "NAMING_FTOL", 1e-8)
+    slow = diagnose([run], audi).report
+    assert [e["name"] for e in fast["effects"]] == [e["name"] for e in slow["effects"]] == [effects[0][0]]
+    for ef, es in zip(fast["effects"], slow["effects"]):
+        for k, p in es["parameters"].items():
+            lo, hi = p["ci95"]
+            assert lo <= ef["parameters"][k]["value"] <= hi, (k, ef["parameters"][k], p)
