@@ -183,3 +183,26 @@ def test_looser_naming_stop_names_what_the_default_stop_names(setup, monkeypatch
         for k, p in es["parameters"].items():
             lo, hi = p["ci95"]
             assert lo <= ef["parameters"][k]["value"] <= hi, (k, ef["parameters"][k], p)
+
+
+def test_fold_refits_of_a_profile_share_one_jacobian_exactly(setup):
+    """A profile candidate refitted on each cross-validation fold's training windows: the
+    Jacobian evaluated once on their union and cut per fold gives each fold's own refit (one
+    penalised Gauss-Newton iteration, smoothing kept) to rounding."""
+    from gprace.diagnose import name as nm, profiles as pf
+
+    audi, track, _ = setup
+    data = core.build_dataset([_run(audi, track, [("downforce", {"c_l": 2.5})], seed=6)])  # 1.6 laps
+    prob = nm.Problem(audi, data, 15, np.array([0.1, 0.05, 0.01]))
+    starts = data.windows(15)[::4]
+    fit = pf.fit_profile(prob, "road_bank_profile", starts, iterations=1)
+    assert fit is not None
+    fit.x = fit.x + 0.01 * np.sin(np.arange(len(fit.x)))  # away from its optimum: the refits move
+    fold = np.arange(len(starts)) * 3 // len(starts)
+    trains = [starts[fold != k][::2] for k in range(3)]
+    shared = pf.fold_refits(prob, fit, trains)
+    for tr, g in zip(trains, shared):
+        own = pf.refit(prob, fit, tr, iterations=1, keep_smoothing=True)
+        assert np.abs(own.x - fit.x).max() > 1e-4
+        np.testing.assert_allclose(g.x, own.x, rtol=1e-9, atol=1e-12)
+        assert g.cost == pytest.approx(own.cost, rel=1e-9)

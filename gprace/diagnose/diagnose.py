@@ -35,7 +35,7 @@ import numpy as np
 from scipy.stats import norm
 
 from gprace.config import EffectConfig, VehicleConfig
-from gprace.diagnose import calibrate as cal, core, crossval as cv_, locate, name as nm, screen as scr
+from gprace.diagnose import calibrate as cal, core, crossval as cv_, locate, name as nm, profiles as pf_, screen as scr
 from gprace.diagnose.core import CHANNELS, DYNAMIC, TESTED
 from gprace.diagnose.laps import wrap_runs
 from gprace.diagnose.profiles import leading, window_or_profile
@@ -1006,8 +1006,13 @@ def _cv_channels(ctx: Ctx, fits: list[nm.Fit], ftol: float = 1e-8) -> np.ndarray
     if not any(f.profile is not None for f in fits):
         return cv_.cv_losses(prob, [cv_.effect_block(f, prob.data, prob.vehicle) for f in fits], eval_w, fold)
     out = np.empty((len(eval_w), 3))
-    for fo in np.unique(fold):
-        tr = eval_w[fold != fo][:: max(1, len(eval_w) // 400)]
+    folds = np.unique(fold)
+    trains = [eval_w[fold != fo][:: max(1, len(eval_w) // 400)] for fo in folds]
+    if len(fits) == 1:  # one profile (a candidate): one Jacobian for every fold's refit
+        for fo, g in zip(folds, pf_.fold_refits(_with_base(prob, fits, 0), fits[0], trains)):
+            out[fold == fo] = np.mean(prob.residuals(prob.model([g.effect()]), eval_w[fold == fo]) ** 2, axis=1)
+        return out
+    for fo, tr in zip(folds, trains):
         te = fold == fo
         fs = list(fits)
         for i, f in enumerate(fs):
