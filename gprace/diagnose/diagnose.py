@@ -597,7 +597,7 @@ def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_stru
     cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV, ftol=nm.NAMING_FTOL) for f in _slots(cands, PRESCREEN_KEEP)),
                    key=lambda f: f.cost)
     top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20, ftol=nm.NAMING_FTOL) for f in _slots(cands, nm.SCREEN_TOP)]
-    cv = {f.name: _cv_channels(replace(ctx, prob=prob), [f], ftol=nm.NAMING_FTOL) for f in top}
+    cv = {f.name: _cv_channels(replace(ctx, prob=prob), [f]) for f in top}
     top = window_or_profile(top, cv, ctx.bid)  # parsimony: the window unless the profile is better
     return cv, top
 
@@ -998,10 +998,10 @@ def _heldout_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
     return ctx.heldout_memo[key]
 
 
-def _cv_channels(ctx: Ctx, fits: list[nm.Fit], ftol: float = 1e-8) -> np.ndarray:
+def _cv_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
     """Every effect refitted jointly without each fold (one linearised step, :mod:`crossval`);
     with a profile among them, each refitted in turn by its own fit (a profile's smoothing is
-    chosen inside its fit, not a block of the linearised step; ``ftol``: the fold refits' stop)."""
+    chosen inside its fit, not a block of the linearised step)."""
     prob, eval_w, fold = ctx.prob, ctx.eval_w, ctx.fold
     if not any(f.profile is not None for f in fits):
         return cv_.cv_losses(prob, [cv_.effect_block(f, prob.data, prob.vehicle) for f in fits], eval_w, fold)
@@ -1016,7 +1016,7 @@ def _cv_channels(ctx: Ctx, fits: list[nm.Fit], ftol: float = 1e-8) -> np.ndarray
         te = fold == fo
         fs = list(fits)
         for i, f in enumerate(fs):
-            fs[i] = nm.refit(_with_base(prob, fs, i), f, tr, max_nfev=10, ftol=ftol)
+            fs[i] = nm.refit(_with_base(prob, fs, i), f, tr, max_nfev=10)
         out[te] = np.mean(prob.residuals(prob.model([f.effect() for f in fs]), eval_w[te]) ** 2, axis=1)
     return out
 
