@@ -163,3 +163,46 @@ def test_a_sensor_offset_below_half_the_noise_is_not_picked(setup):
         f = nm.Fit("velocity_misalignment", ["angle"], np.array([angle]), {})
         best = _pick(ctx, l0, {f.name: l1}, [f], 0, lambda s: None)
         assert (best is not None) == named, (angle, nm.sensor_snr(prob, f))
+
+
+@pytest.mark.parametrize("effects,seed", [([("downforce", {"c_l": 2.5})], 6), ([("steering_lag", {"tau": 0.08})], 7)])
+def test_looser_naming_stop_names_what_the_default_stop_names(setup, monkeypatch, effects, seed):
+    """The naming fits stop at a relative cost change of ``NAMING_FTOL`` (1e-4) instead of scipy's
+    1e-8: the whole diagnosis names the same effects, and each named parameter lands inside the
+    95 % interval of the default stop's fit."""
+    from gprace.diagnose import name as nm
+    from gprace.diagnose.diagnose import diagnose
+
+    audi, track, _ = setup
+    run = _run(audi, track, effects, seed=seed)
+    fast = diagnose([run], audi).report
+    monkeypatch.setattr(nm, "NAMING_FTOL", 1e-8)
+    slow = diagnose([run], audi).report
+    assert [e["name"] for e in fast["effects"]] == [e["name"] for e in slow["effects"]] == [effects[0][0]]
+    for ef, es in zip(fast["effects"], slow["effects"]):
+        for k, p in es["parameters"].items():
+            lo, hi = p["ci95"]
+            assert lo <= ef["parameters"][k]["value"] <= hi, (k, ef["parameters"][k], p)
+
+
+def test_fold_refits_of_a_profile_share_one_jacobian_exactly(setup):
+    """A profile candidate refitted on each cross-validation fold's training windows: the
+    Jacobian evaluated once on their union and cut per fold gives each fold's own refit (one
+    penalised Gauss-Newton iteration, smoothing kept) to rounding."""
+    from gprace.diagnose import name as nm, profiles as pf
+
+    audi, track, _ = setup
+    data = core.build_dataset([_run(audi, track, [("downforce", {"c_l": 2.5})], seed=6)])  # 1.6 laps
+    prob = nm.Problem(audi, data, 15, np.array([0.1, 0.05, 0.01]))
+    starts = data.windows(15)[::4]
+    fit = pf.fit_profile(prob, "road_bank_profile", starts, iterations=1)
+    assert fit is not None
+    fit.x = fit.x + 0.01 * np.sin(np.arange(len(fit.x)))  # away from its optimum: the refits move
+    fold = np.arange(len(starts)) * 3 // len(starts)
+    trains = [starts[fold != k][::2] for k in range(3)]
+    shared = pf.fold_refits(prob, fit, trains)
+    for tr, g in zip(trains, shared):
+        own = pf.refit(prob, fit, tr, iterations=1, keep_smoothing=True)
+        assert np.abs(own.x - fit.x).max() > 1e-4
+        np.testing.assert_allclose(g.x, own.x, rtol=1e-9, atol=1e-12)
+        assert g.cost == pytest.approx(own.cost, rel=1e-9)

@@ -500,14 +500,15 @@ def estimate_noise(model: NominalModel, data: Dataset, starts: np.ndarray, H: in
 
 
 def batched_least_squares(batch: Callable[[list[np.ndarray]], np.ndarray], x0: np.ndarray, lo: np.ndarray,
-                          hi: np.ndarray, x_scale: np.ndarray, max_nfev: int, step: float | None = None):
+                          hi: np.ndarray, x_scale: np.ndarray, max_nfev: int, step: float | None = None,
+                          ftol: float = 1e-8):
     """Bounded least squares (scipy's trust-region reflective) of the residual vector
     ``batch([x])[0]``, where ``batch(X)`` evaluates ``k`` parameter vectors in ONE call (``(k, n)``).
 
     The Jacobian is scipy's forward difference ('2-point' steps, one-sided inside the bounds) with
     every parameter's step in the same batch, and it reuses the residuals ``fun`` has just
     evaluated at that point: a Jacobian costs one model evaluation, not one per parameter.
-    Returns scipy's ``OptimizeResult``.
+    ``ftol``: scipy's relative stop on the cost. Returns scipy's ``OptimizeResult``.
     """
     from scipy.optimize import least_squares
 
@@ -533,4 +534,5 @@ def batched_least_squares(batch: Callable[[list[np.ndarray]], np.ndarray], x0: n
         return ((R - R0) / h[:, None]).T
 
     x0 = np.clip(np.asarray(x0, dtype=float), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-    return least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=x_scale, method="trf", max_nfev=max_nfev)
+    return least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=x_scale, method="trf", max_nfev=max_nfev,
+                         ftol=ftol)

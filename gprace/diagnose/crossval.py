@@ -222,7 +222,7 @@ def prescreen(prob, name: str, starts: np.ndarray, inits: list[dict]):
     return best
 
 
-def joint_fit(prob, blocks: list[Block], starts: np.ndarray, max_nfev: int = 15) -> list[Block]:
+def joint_fit(prob, blocks: list[Block], starts: np.ndarray, max_nfev: int = 15, ftol: float = 1e-8) -> list[Block]:
     """Bounded least squares of all blocks' parameters together (the Jacobian batched), from
     their current values; the blocks at the solution."""
     from gprace.diagnose.core import batched_least_squares
@@ -238,7 +238,7 @@ def joint_fit(prob, blocks: list[Block], starts: np.ndarray, max_nfev: int = 15)
         R = R.reshape(len(Xs), -1)
         return np.where(np.isfinite(R), R, 1e3)
 
-    sol = batched_least_squares(batch, x0, lo, hi, np.maximum((hi - lo) / np.sqrt(12.0), 1e-6), max_nfev)
+    sol = batched_least_squares(batch, x0, lo, hi, np.maximum((hi - lo) / np.sqrt(12.0), 1e-6), max_nfev, ftol=ftol)
     out, j = [], 0
     for b in blocks:
         out.append(replace(b, x=sol.x[j:j + len(b.x)]))

@@ -35,7 +35,7 @@ import numpy as np
 from scipy.stats import norm
 
 from gprace.config import EffectConfig, VehicleConfig
-from gprace.diagnose import calibrate as cal, core, crossval as cv_, locate, name as nm, screen as scr
+from gprace.diagnose import calibrate as cal, core, crossval as cv_, locate, name as nm, profiles as pf_, screen as scr
 from gprace.diagnose.core import CHANNELS, DYNAMIC, TESTED
 from gprace.diagnose.laps import wrap_runs
 from gprace.diagnose.profiles import leading, window_or_profile
@@ -402,7 +402,8 @@ def name(p: Prepared, s: Screened, loc: Located, ctx: Ctx, c: Calibrated, seed: 
         ctx_r = replace(ctx, prob=replace(ctx.prob, vehicle=c.vehicle if c.applied else nominal))
         fits = [e.fit for e in chosen]
         if len(fits) >= 2:  # the earlier effects were fitted without the latest one: refit
-            fits = [nm.refit(_with_base(ctx_r.prob, fits, i), f, ctx.fit_w) for i, f in enumerate(fits)]
+            fits = [nm.refit(_with_base(ctx_r.prob, fits, i), f, ctx.fit_w, ftol=nm.NAMING_FTOL)
+                    for i, f in enumerate(fits)]
             chosen = [replace(e, fit=f) for e, f in zip(chosen, fits)]
         prob = replace(ctx_r.prob, base=[f.effect() for f in fits])
         cur = prob.model()
@@ -526,7 +527,7 @@ def _joint_with_calibration(prob: nm.Problem, c: Calibrated, top: list, cv: dict
     scalar = [f for f in sorted(top, key=lambda g: cv[g.name].mean()) if f.profile is None]
     for f in scalar[:JOINT_TOP]:
         blocks = [cv_.calibration_block(c.fit.params, c.fit.x, lo, hi), cv_.effect_block(f, prob.data, prob.vehicle)]
-        blocks = cv_.joint_fit(prob, blocks, ctx.fit_w, max_nfev=JOINT_ROUND_NFEV)
+        blocks = cv_.joint_fit(prob, blocks, ctx.fit_w, max_nfev=JOINT_ROUND_NFEV, ftol=nm.NAMING_FTOL)
         lj = cv_.cv_losses(prob, blocks, ctx.eval_w, ctx.fold)
         if lj.mean() < cv[f.name].mean():
             log(f"diagnose: {f.name} with the calibration refitted beside it: held-out loss "
@@ -593,9 +594,9 @@ def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_stru
     cands.sort(key=lambda f: f.cost)
     # only the most promising continue to the full screening fit, warm-started
     # (a window and its profile share one slot: profiles.leading)
-    cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV) for f in _slots(cands, PRESCREEN_KEEP)),
+    cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV, ftol=nm.NAMING_FTOL) for f in _slots(cands, PRESCREEN_KEEP)),
                    key=lambda f: f.cost)
-    top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20) for f in _slots(cands, nm.SCREEN_TOP)]
+    top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20, ftol=nm.NAMING_FTOL) for f in _slots(cands, nm.SCREEN_TOP)]
     cv = {f.name: _cv_channels(replace(ctx, prob=prob), [f]) for f in top}
     top = window_or_profile(top, cv, ctx.bid)  # parsimony: the window unless the profile is better
     return cv, top
@@ -1005,8 +1006,13 @@ def _cv_channels(ctx: Ctx, fits: list[nm.Fit]) -> np.ndarray:
     if not any(f.profile is not None for f in fits):
         return cv_.cv_losses(prob, [cv_.effect_block(f, prob.data, prob.vehicle) for f in fits], eval_w, fold)
     out = np.empty((len(eval_w), 3))
-    for fo in np.unique(fold):
-        tr = eval_w[fold != fo][:: max(1, len(eval_w) // 400)]
+    folds = np.unique(fold)
+    trains = [eval_w[fold != fo][:: max(1, len(eval_w) // 400)] for fo in folds]
+    if len(fits) == 1:  # one profile (a candidate): one Jacobian for every fold's refit
+        for fo, g in zip(folds, pf_.fold_refits(_with_base(prob, fits, 0), fits[0], trains)):
+            out[fold == fo] = np.mean(prob.residuals(prob.model([g.effect()]), eval_w[fold == fo]) ** 2, axis=1)
+        return out
+    for fo, tr in zip(folds, trains):
         te = fold == fo
         fs = list(fits)
         for i, f in enumerate(fs):

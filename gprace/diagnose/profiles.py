@@ -317,13 +317,14 @@ def _cv_lambda(J, r, fold: np.ndarray, n: int, Z, P: np.ndarray, c0: np.ndarray,
 
 def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None = None,
                 iterations: int = 2, lam: float | None = None, basis: Basis | None = None,
-                free: np.ndarray | None = None):
+                free: np.ndarray | None = None, first: tuple[np.ndarray, Any] | None = None):
     """Penalised Gauss-Newton fit of a profile effect; returns a :class:`~gprace.diagnose.name.Fit`
     (or None when the recordings have no laps to fit a profile over). ``lam`` None: the smoothing
     is chosen by cross-validation (:func:`_cv_lambda`) at the first iteration. ``free`` None: the
     knots fitted are those the recordings' windows pass in :data:`MIN_LAPS_SEEN` laps (:func:`laps_seen`); a
     refit on a training fold keeps the knots of the fit on all the recordings (cross-validation
-    asks whether what one lap shows at a place predicts another lap there)."""
+    asks whether what one lap shows at a place predicts another lap there). ``first``: the residuals
+    and Jacobian at ``v_init`` on ``starts``, when the caller has them (:func:`fold_refits`)."""
     from gprace.diagnose import name as nm
 
     basis = basis or make_basis(prob.data, prob.H)
@@ -351,8 +352,8 @@ def fit_profile(prob, name: str, starts: np.ndarray, v_init: np.ndarray | None =
     lo, hi = lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo)  # base + c stays inside despite rounding
     n = prob.H * 3
     best = None  # (penalised objective, c) of the best point evaluated
-    for _ in range(max(1, iterations)):
-        r, J = jacobian(prob, name, basis, base + c, starts)
+    for it in range(max(1, iterations)):
+        r, J = first if (it == 0 and first is not None) else jacobian(prob, name, basis, base + c, starts)
         if lam is None:
             JtJ0 = _dense(J.T @ J)
             scale = max(float(np.mean(np.diag(JtJ0))), 1e-12) / max(float(np.mean(np.diag(P))), 1e-12)
@@ -381,6 +382,23 @@ def refit(prob, fit, starts: np.ndarray, iterations: int = 1, keep_smoothing: bo
     pf = fit.profile
     return fit_profile(prob, fit.name, starts, pf.neutral + fit.x, iterations=iterations,
                        lam=pf.lam if keep_smoothing else None, basis=pf.basis, free=pf.free) or fit
+
+
+def fold_refits(prob, fit, trains: list[np.ndarray]) -> list:
+    """:func:`refit` (one iteration, smoothing and knots kept) on each training set of windows,
+    the Jacobian at the fit evaluated once on their union and cut per set: a window's rows do not
+    depend on the other windows of the batch, so each refit is the one on its own windows, for
+    one Jacobian instead of one per fold."""
+    pf = fit.profile
+    union = np.unique(np.concatenate(trains))
+    r, J = jacobian(prob, fit.name, pf.basis, pf.neutral + fit.x, union)
+    n = prob.H * 3
+    out = []
+    for tr in trains:
+        rows = (np.searchsorted(union, tr)[:, None] * n + np.arange(n)[None, :]).ravel()
+        out.append(fit_profile(prob, fit.name, tr, pf.neutral + fit.x, iterations=1, lam=pf.lam, basis=pf.basis,
+                               free=pf.free, first=(r[rows], J[rows])) or fit)
+    return out
 
 
 def interval(prob, fit, starts: np.ndarray) -> None:
