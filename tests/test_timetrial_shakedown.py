@@ -364,6 +364,34 @@ def test_a_refusal_for_novelty_alone_drives_the_new_line_slower():
     assert lap_status(_record(driven=64.0, safety={"step": 1.0}), recs, 0.005) == "slower"
 
 
+def test_a_plan_is_built_up_from_the_best_lap_driven():
+    """The build-up: a plan faster than the best lap driven over sqrt(1 + widen_max) is driven
+    time-scaled to exactly that lap time on its own line, and its lateral acceleration is then at
+    most (1 + widen_max) times what the same line asked at the driven pace; a slower plan, or one
+    before any lap was driven, is driven as it is."""
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import curvature_plan
+    from gprace.timetrial.guard import build_up
+    from gprace.tracks import load_track
+
+    m = NominalModel(load_vehicle("audi_tt_cup"))
+    plan = curvature_plan(load_track("circle_100"), m, ds=8.0, speed_scale=0.8)
+    for widen_max, gain in ((0.15, 1.25), (0.05, 1.10), (0.3, 1.02)):
+        driven = gain * plan.lap_time
+        built, q = build_up(plan, driven, widen_max)
+        floor = driven / np.sqrt(1 + widen_max)
+        if plan.lap_time >= floor:
+            assert q == 1.0 and built is plan
+            continue
+        assert built.lap_time == pytest.approx(floor) and q == pytest.approx(plan.lap_time / floor)
+        at_driven = plan.lap_time / driven  # the same line at the driven lap's pace
+        lat = lambda p: np.abs(p.v_x * p.yaw_rate)  # noqa: E731
+        assert lat(built).max() == pytest.approx((1 + widen_max) * at_driven**2 * lat(plan).max())
+        assert built.s == pytest.approx(plan.s) and built.e_y == pytest.approx(plan.e_y)
+    assert build_up(plan, np.inf, 0.15) == (plan, 1.0)
+
+
 def test_envelope_braking_follows_the_friction_circle():
     """While the envelope is active the braking allowed is what cornering leaves of the grip: all
     of it running straight (a car too fast for the eased reference can slow down), gentle at the

@@ -27,7 +27,7 @@ from gprace.io.runs import OWN_RUN, Run
 from gprace.model.dynamics import Input, State
 from gprace.mpc.stability import SIGNALS, Envelope, EnvelopeSettings, signals
 from gprace.mpc.tracking import MPCSettings, TrackingMPC
-from gprace.sim.stop import run_end
+from gprace.sim.stop import run_end, step_plant
 
 
 class DriveSettings(CommandSettings):
@@ -114,7 +114,9 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
             break
         if supervisor is not None:
             supervisor(k, Y[:k], U[:k], mpc, env)
-        y = plant.step(u)
+        y, reason = step_plant(plant, u)
+        if reason:
+            break
     data = {
         **run_columns(track, dt, Y[:k], U[:k]),
         **{c: v[:k] for c, v in cols.items()},

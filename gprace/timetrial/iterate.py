@@ -687,6 +687,11 @@ def _replan(c: _Chain, i: int) -> None:
                 plan.meta = {**plan.meta, "unsafe": safety["why"]}
                 unsafe = f"last good plan (iteration {start}) driven: the new plan was not predicted safe ({safety['why']})"
                 source = f"{source}; {unsafe}" if back else unsafe
+        if st.never_worse and plan is not warm:
+            plan, q = guard.build_up(plan, _best_driven(records), st.widen_max)
+            if q < 1.0:
+                safety = {**safety, "step": safety.get("step", 1.0) * q}
+                source = f"{source}; built up: driven at {q:.2f} of its speed"
     except SolverError as exc:
         # a failed re-plan must not end the experiment: drive the last plan that completed a
         # lap again (never a plan that failed), or a slower curvature plan if none did
@@ -702,6 +707,12 @@ def _replan(c: _Chain, i: int) -> None:
     plan.meta["source"] = source
     plan.meta["safety"] = {k: v for k, v in safety.items() if k != "safe"}
     plan.write(c.dir(i) / "plan.h5")
+
+
+def _best_driven(records) -> float:
+    """The best lap driven so far in a trial (any alpha, iteration 0 included; inf before any)."""
+    return min((r.driven for r in records if r.completed and r.driven is not None and np.isfinite(r.driven)),
+               default=np.inf)
 
 
 def _grip_shown(c: _Chain, i: int) -> float | None:
