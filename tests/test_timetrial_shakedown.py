@@ -320,6 +320,22 @@ def test_the_way_back_never_returns_to_a_level_that_lost_the_car():
     assert last_good(recs[1:], clear=lambda lim: clear_of(lim, [lost])) == 0  # none clear: the last good
 
 
+def test_a_level_that_came_near_the_rear_peak_is_not_passed_later():
+    """The hold is remembered: after a lap near the rear tire's peak at 8.45 m/s^2 and a slower
+    lap far from it, the widening from the slower lap stops at 8.45 (randomized_09's sequence);
+    laps below the hold, or not completed, set no level."""
+    from gprace.timetrial.grip import held_level, next_limits
+
+    laps = [([8.45, 3.5, 4.0], 0.896), ([7.74, 3.37, 3.33], 0.35)]
+    assert held_level(laps) == pytest.approx(8.45)
+    widened = next_limits([7.75, 3.5, 3.42], laps[1][0], True, laps[1][1], np.full(3, 99.0), 0.05, widen_max=0.15)
+    assert widened[0] > 8.45  # what the last lap alone allows
+    assert min(widened[0], held_level(laps)) == pytest.approx(8.45)
+    assert held_level([([9.3, 3.4, 4.3], 0.79)]) == np.inf and held_level([]) == np.inf
+    assert held_level([([9.3, 3.4, 4.3], float("nan")), ([], 0.9), (None, 0.95)]) == np.inf
+    assert held_level(laps + [([8.2, 3.5, 4.0], 0.81)]) == pytest.approx(8.2)  # the lowest such level
+
+
 def test_a_refusal_for_novelty_alone_drives_the_new_line_slower():
     """The guard's decision: a plan refused only because the planning GP has no data along part of
     it is driven slower on its own line (the largest speed factor at which it stays in the data,
