@@ -17,7 +17,7 @@ import functools
 import json
 import time
 
-STEPS = ("_iteration_zero", "_select", "_retrain", "_replan", "_drive_iteration", "make_grid", "_oracle_task",
+STEPS = ("_iteration_zero", "_select", "_retrain", "_replan", "_drive_iteration", "_oracle_task",
          "_reference_task")
 PIECES = ("fit_hyper", "update_dictionary", "refit_fixed", "calibrate")
 
@@ -41,6 +41,7 @@ def main() -> None:
     import casadi
 
     import gprace.timetrial.iterate as I
+    import gprace.timetrial.iterate.training as T
     from gprace.timetrial import learning as L
 
     ap = argparse.ArgumentParser()
@@ -52,6 +53,7 @@ def main() -> None:
     calls: collections.Counter = collections.Counter()
     for name in STEPS:
         _timed(I, name, acc, calls)
+    _timed(T, "make_grid", acc, calls)  # called by the retrain step, so patched where that looks it up
     for name in PIECES:
         _timed(L, name, acc, calls)
     _timed(casadi, "nlpsol", acc, calls, "nlpsol (solver builds)")

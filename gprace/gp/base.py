@@ -489,7 +489,7 @@ def train_inputs(gp: Any) -> np.ndarray:
 
 def make_gp(backend: str, **settings: Any) -> GPBackend:
     """Instantiate a registered backend by name (``exact``, ``sparse`` or a plugin)."""
-    from gprace.backends import gps
+    from gprace.registry import gps
 
     cls = gps.get(backend)
     _check_types(backend, cls, settings)
@@ -550,7 +550,7 @@ def load_model(path: str | Path) -> SavedGP:
     The learned arrays are stored under nested names (``hyper/<name>``, ``state/<name>``), which
     :func:`~gprace.io.artifacts.read_artifact` returns under their full names.
     """
-    from gprace.backends import gps
+    from gprace.registry import gps
     from gprace.io.artifacts import read_artifact
 
     art = read_artifact(path, ARTIFACT_KIND)

@@ -4,7 +4,7 @@
 ``a (M, d)``, both already divided by the length scales, without forming the ``(m, M)`` kernel
 block: per query one pass over the points (distance, kernel value, products with the ``q``
 weight columns) in a small C function, built once per machine and cached like the NLP solvers
-(:mod:`gprace.backends.compiled`). Without a C compiler, or if the build fails, the same product
+(:mod:`gprace.compiled`). Without a C compiler, or if the build fails, the same product
 runs in numpy (:func:`gprace.gp.kernels.scaled_block`), with a warning: slower, the same values to
 rounding (the sums run in another order; checked to 1e-12 relative in the tests).
 
@@ -143,7 +143,7 @@ def _cpu_flags() -> tuple[str, ...]:
 @functools.cache
 def _library():
     """The compiled ``kernel_dot`` (loaded once per process), or None: numpy then."""
-    from gprace.backends.compiled import compiled_source
+    from gprace.compiled import compiled_source
 
     lib = compiled_source("gp_kernel_dot", KERNEL_C, fast_flags(),
                           "GP kernel product")

@@ -207,7 +207,7 @@ class TrackingMPC:
     """Tracking MPC on one plan. ``gp`` predicts ``Z (m, 3) -> (mean (m, 2), var (m, 2))``."""
 
     def __init__(self, model, track, plan, settings: MPCSettings = MPCSettings(), gp=None, grid=None, alpha: float = 0.0) -> None:
-        from gprace.backends import solvers
+        from gprace.registry import solvers
 
         if not 0.0 <= alpha <= 1.0:
             raise ConfigError(f"alpha must be in [0, 1], got {alpha}")
@@ -244,7 +244,7 @@ class TrackingMPC:
     def _build_linearisation(self):
         import casadi as ca
 
-        from gprace.backends.compiled import compiled_function
+        from gprace.compiled import compiled_function
 
         if self.model.nx != 6:
             raise ConfigError("tracking MPC: the controller's vehicle has effect states; use the stateless nominal vehicle")
@@ -270,7 +270,7 @@ class TrackingMPC:
         the prediction over the delay, compiled (numpy's RK4 took 6 ms of a 30 ms period under load)."""
         import casadi as ca
 
-        from gprace.backends.compiled import compiled_function
+        from gprace.compiled import compiled_function
 
         x, u, k, h = ca.SX.sym("x", 6), ca.SX.sym("u", 2), ca.SX.sym("k", 3), ca.SX.sym("h")
         xn = self.model.rk4_expression(x, u, lambda ss: k[0] + k[1] * (ss - k[2]), h)

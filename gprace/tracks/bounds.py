@@ -22,7 +22,7 @@ outer loop). Steps, all vectorised:
    inside a hairpin) are dropped. Widths are the distances from the centre line to each
    boundary; the travel direction is the first file's, left and right follow from it.
 5. The :class:`~gprace.tracks.Track` is built with the loaders' automatic smoothing
-   (:func:`gprace.tracks.loaders.smoothed_track`).
+   (:func:`gprace.tracks.smoothing.smoothed_track`).
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from gprace.errors import InputError
+from gprace.tracks.smoothing import smoothed_track
 
 
 def read_polyline(path: str | Path) -> np.ndarray:
@@ -242,8 +243,6 @@ def _centre_line(A, B, near_a, near_b, closed: bool, h: float) -> np.ndarray:
 
 def track_from_bounds(path_a: str | Path, path_b: str | Path, *, smoothing: float | None = None, name: str | None = None):
     """A :class:`~gprace.tracks.Track` from two boundary files (module docstring)."""
-    from gprace.tracks.loaders import smoothed_track
-
     path_a, path_b = Path(path_a), Path(path_b)
     where = f"{path_a},{path_b}"
     a, b = read_polyline(path_a), read_polyline(path_b)

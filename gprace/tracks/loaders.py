@@ -21,7 +21,8 @@ vertices, about one point spacing apart; a Whittaker length equal to the median 
 at most :data:`TUM_SMOOTHING` metres, removes them (5 m on the TUM circuits as before, 0.1 m on a
 25 m F1TENTH track whose points are 0.1 m apart). When smoothing would move the centre line past
 a border (a narrow track), it is halved until it does not (three times at most); when it still
-does, the error names the option (``--track-smoothing`` / ``track_smoothing``).
+does, the error names the option (``--track-smoothing`` / ``track_smoothing``). The rule lives in
+:mod:`gprace.tracks.smoothing`, which the boundary-file loader (:mod:`gprace.tracks.bounds`) shares.
 
 Bad files raise :class:`~gprace.errors.InputError` naming the file, line and column (or
 :class:`~gprace.errors.ConfigError` naming the TOML key for a schema error).
@@ -36,19 +37,20 @@ import numpy as np
 
 from gprace.config import configs_dir, read_toml, validate
 from gprace.errors import InputError, at_row
+from gprace.tracks.bounds import track_from_bounds
 from gprace.tracks.segments import SegmentTrack, build_track
+from gprace.tracks.smoothing import (  # noqa: F401 (importable from here, as before)
+    SMOOTHING_OPTION,
+    TUM_SMOOTHING,
+    auto_smoothing,
+    smoothed_track,
+)
 from gprace.tracks.track import Track
 
 DEFAULT_TRACK = "gprace_ring"
 """The shipped full-scale circuit used when no track is given."""
 
 TUM_COLUMNS = ("x_m", "y_m", "w_tr_right_m", "w_tr_left_m")
-TUM_SMOOTHING = 5.0
-"""Largest Whittaker smoothing length [m] given to a CSV centre line (the TUM circuits' point
-spacing); smaller tracks get their own median point spacing."""
-
-SMOOTHING_OPTION = "--track-smoothing"
-"""How the messages name the smoothing override (``track show`` calls it ``--smoothing``)."""
 
 
 def tracks_dir() -> Path:
@@ -131,42 +133,7 @@ def _load_cached(path: str, mtime_ns: int, size: int, smoothing: float | None) -
 
 @functools.lru_cache(maxsize=16)
 def _bounds_cached(keys: tuple, smoothing: float | None) -> Track:
-    from gprace.tracks.bounds import track_from_bounds
-
     return track_from_bounds(Path(keys[0]), Path(keys[3]), smoothing=smoothing)
-
-
-def auto_smoothing(x: np.ndarray, y: np.ndarray, closed: bool = True) -> float:
-    """Default Whittaker length of a centre line: its median point spacing, at most
-    :data:`TUM_SMOOTHING` (module docstring)."""
-    p = np.column_stack([x, y])
-    d = np.hypot(*np.diff(np.vstack([p, p[:1]]) if closed else p, axis=0).T)
-    return float(min(TUM_SMOOTHING, np.median(d)))
-
-
-def smoothed_track(x, y, wl, wr, *, closed: bool, name: str, source: str, smoothing: float | None) -> Track:
-    """A :class:`Track` with the given or automatic smoothing; automatic smoothing that pushes the
-    line past a border is halved (three times at most) before the error names the option."""
-    if smoothing is not None:
-        try:
-            return Track(x, y, wl, wr, closed=closed, name=name, smoothing=smoothing, source=source)
-        except InputError as exc:
-            raise _with_option(exc) from None
-    l = auto_smoothing(x, y, closed)
-    for k in range(4):
-        try:
-            return Track(x, y, wl, wr, closed=closed, name=name, smoothing=l / 2**k, source=source)
-        except InputError as exc:
-            if "smoothing of" not in str(exc) or k == 3:
-                raise _with_option(exc) from None
-    raise AssertionError  # pragma: no cover
-
-
-def _with_option(exc: InputError) -> InputError:
-    msg = str(exc)
-    if "use less smoothing" in msg:
-        msg = msg.replace("use less smoothing", f"use less smoothing ({SMOOTHING_OPTION} L, in metres; 0 keeps the points)")
-    return InputError(msg)
 
 
 # ----------------------------------------------------------------------------------------------
