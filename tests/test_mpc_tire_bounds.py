@@ -88,34 +88,6 @@ def test_drive_stays_inside_the_plans_friction_ellipse(circle):
     assert np.isclose(b_hi[Input.A_X], 0.2 * drive) and np.isclose(b_lo[Input.A_X], -0.5 * brake)
 
 
-def test_a_car_faster_than_its_plan_at_the_limit_may_brake_off_the_excess(circle):
-    """At the lateral limit the ellipse leaves braking to the floor or to what the reference asks;
-    a car that arrives above the plan's speed also gets the braking that sheds the excess within
-    ``catch_up`` seconds (inside the limits). Without it a car that came out of its braking zone
-    fast ran wide through the hairpin braking at the floor (commonroad_mb, issue 37 stop 46). The
-    QP uses that room: from 3 m/s above the plan it brakes harder than with ``catch_up`` off."""
-    _, model, plan, x_ref, _ = circle
-    lat, drive, brake = plan.meta["limits"]
-    x = x_ref.copy()
-    x[State.V_X] += 3.0
-    x[State.YAW_RATE] = lat / x[State.V_X]
-    lo, hi = np.array([-1.0, -1.5 * brake]), np.array([1.0, drive])
-    uref = np.zeros((20, 2))
-    uref[0, Input.A_X] = -1.5  # beyond the floor (0.2 of the braking limit)
-    v_plan = x_ref[State.V_X]
-    on = TrackingMPC(model, circle[0], plan, MPCSettings(ellipse=1.0, catch_up=1.5))
-    off = TrackingMPC(model, circle[0], plan, MPCSettings(ellipse=1.0, catch_up=None))
-    assert np.isclose(off.ellipse_bounds(x, uref, lo, hi, v_plan)[0][Input.A_X], -1.5)
-    assert np.isclose(on.ellipse_bounds(x, uref, lo, hi, v_plan)[0][Input.A_X], -1.5 - 3.0 / 1.5)
-    assert np.isclose(on.ellipse_bounds(x, uref, lo, hi, x[State.V_X])[0][Input.A_X], -1.5)  # at the plan's speed
-    far = x.copy()
-    far[State.V_X] = v_plan + 30.0
-    assert np.isclose(on.ellipse_bounds(far, uref, lo, hi, v_plan)[0][Input.A_X], lo[Input.A_X])  # never past the limit
-    fast, _ = _commands(circle, x, MPCSettings(ellipse=1.0, catch_up=1.5))
-    slow, _ = _commands(circle, x, MPCSettings(ellipse=1.0, catch_up=None))
-    assert fast[0, Input.A_X] < slow[0, Input.A_X] - 0.5
-
-
 def test_the_nominal_model_alone_while_the_envelope_is_active(circle):
     """``use_gp = False`` (the drive loop sets it while the stability envelope is active): the QP
     of the period is the nominal MPC's, whatever the GP says; with it the GP's mean enters."""

@@ -73,7 +73,6 @@ FEATURES = DYN_INPUTS
 EXPLORED = ("v_y", "yaw_rate", "delta")  # features Algorithm 1 may move the reference to
 FRONT_SHARE = 1.25  # default front slip bound: share of the nominal front tire's peak slip angle
 ELLIPSE = 1.0  # default friction ellipse of the longitudinal command: share of the plan's limits
-CATCH_UP = 1.5  # default time [s] in which a car faster than the plan may brake off the excess (ellipse_bounds)
 RECOVER_STEPS = 10  # periods over which a rear slip beyond its bound is brought back
 KAPPA_DS = 1.0  # half-width [m] of the central difference giving the curvature's slope
 _REF = {"v_x": ("x", State.V_X), "v_y": ("x", State.V_Y), "yaw_rate": ("x", State.YAW_RATE),
@@ -107,8 +106,6 @@ class MPCSettings(CommandSettings):
                                 "model's view; False: only by v_y and yaw rate)")
     ellipse_floor: float = Field(0.2, ge=0, le=1, description="share of the drive and braking limits the ellipse "
                                  "always leaves")
-    catch_up: float | None = Field(CATCH_UP, gt=0, description="time [s] in which the ellipse lets a car faster than "
-                                   "the plan brake off the excess (None: only the braking the reference asks)")
     weights: Weights = Field(default_factory=Weights, description="weights of the tracking cost")
     delay: float = Field(0.0, ge=0, description="total actuator and measurement delay [s] the MPC predicts over "
                          "(gprace.mpc.delay); at most the horizon N dt")
@@ -417,7 +414,7 @@ class TrackingMPC:
             room = np.maximum(room, a_now * (1.0 - np.arange(1, N + 1) / RECOVER_STEPS))
             grip = {"grip_G": G, "grip_lo": -room - off, "grip_hi": room - off}
         u_lo, u_hi = self.front_bounds(x_meas, *self.bounds)
-        u_lo, u_hi = self.ellipse_bounds(x_meas, uref, u_lo, u_hi, xr0[0, State.V_X] / self.speed_factor)
+        u_lo, u_hi = self.ellipse_bounds(x_meas, uref, u_lo, u_hi)
         pb = LtvProblem(A, B, c, x0, xref, uref, lo, hi, u_lo, u_hi, self.delta_prev, self.settings.weights, **grip,
                         a_prev=self.a_prev, steer_step=self.steer_step)
         return pb, {"gamma": gamma, "s0": s0, "xref": xref, "uref": uref, "explored": xref is not xr0}
@@ -448,8 +445,7 @@ class TrackingMPC:
         lo[Input.DELTA], hi[Input.DELTA] = b_lo, b_hi
         return lo, hi
 
-    def ellipse_bounds(self, x: np.ndarray, uref: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                       v_plan: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    def ellipse_bounds(self, x: np.ndarray, uref: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The longitudinal range left by the friction ellipse of the plan's limits (``settings.ellipse``).
 
         The plan's limits ``(lateral, drive, brake)`` [m/s^2] (``plan.meta["limits"]``, what the car
@@ -461,13 +457,6 @@ class TrackingMPC:
         cornering at its limit (measured: full drive, 3.5 m/s^2, at 9.1 m/s^2 lateral on a
         randomized BMW whose plan asked 0.3 there; the rear stepped out and the lap was lost;
         docs/decisions.md, issue 37, stop 44).
-
-        A car faster than the plan (``v_plan``: the plan's own speed now, before the envelope's
-        easing) may also brake off the excess within ``settings.catch_up`` seconds. Held to the
-        reference's braking, a car that left its braking zone 3 to 5 m/s fast kept that excess into
-        the hairpin, braking at the floor at the lateral limit, and ran wide off the track; with the
-        excess braked off both such laps complete (commonroad_mb, issue 37 stop 46). The eased
-        speed is not the target: braking fully for it spun a sliding car (stop 44).
         """
         share = self.settings.ellipse
         if share is None:
@@ -482,8 +471,6 @@ class TrackingMPC:
         use = min(1.0, abs(float(x[State.V_X] * x[State.YAW_RATE])) / max(lat, 1e-9))
         room = max(float(np.sqrt(1.0 - use * use)), self.settings.ellipse_floor)
         a_ref = uref[:1, Input.A_X]  # what the reference asks now (later steps are bounded again when they come)
-        if self.settings.catch_up is not None:
-            a_ref = a_ref - max(float(x[State.V_X]) - v_plan, 0.0) / self.settings.catch_up
         lo, hi = lo.copy(), hi.copy()
         hi[Input.A_X] = max(min(hi[Input.A_X], room * drive), min(float(a_ref.max()), hi[Input.A_X]), lo[Input.A_X])
         lo[Input.A_X] = min(max(lo[Input.A_X], -room * brake), max(float(a_ref.min()), lo[Input.A_X]), hi[Input.A_X])
