@@ -11,7 +11,7 @@ import pytest
 
 from conftest import make_circle
 from gprace.config import EffectConfig, PlantConfig, SimulateConfig, load_plant
-from gprace.errors import ConfigError
+from gprace.errors import ConfigError, SolverError
 from gprace.plants import make_plant
 from gprace.plants.commonroad import mb_substep, rk4_step, wheels_held
 
@@ -129,3 +129,25 @@ def test_multi_body_plant_places_the_car_and_rejects_effects(bmw, circle_track):
     bad = PlantConfig(kind="commonroad-mb", vehicle=bmw, effects=(EffectConfig(name="downforce", params={"c_l": 1.0}),))
     with pytest.raises(ConfigError, match=r"'commonroad-mb' has its own physics"):
         make_plant(bad, circle_track, 0.05)
+
+
+def test_a_car_spinning_on_the_multi_body_plant_is_a_lost_lap_not_a_traceback(bmw, circle_track):
+    """The package divides by a wheel's longitudinal speed, clipped at zero: a car yawing fast at
+    walking pace (a spin) runs its inner front wheel backwards, and the step fails (a division by
+    zero, or a state that is no longer finite). The drive loops' step
+    (:func:`gprace.sim.stop.step_plant`) turns that into the car lost there."""
+    from gprace.sim.stop import step_plant
+
+    plant = make_plant(PlantConfig(kind="commonroad-mb", vehicle=bmw), circle_track, 0.05)
+    plant.reset(np.array([15.0, 0.0, 0.0, 0.0, 0.0, 30.0]))
+    spin = plant.global_state.copy()
+    spin[3], spin[5] = 1.0, 5.0  # v_x 1 m/s, yaw rate 5 rad/s: the inner front wheel runs backwards
+    plant._z = list(spin)
+    with pytest.raises((ZeroDivisionError, SolverError)):
+        plant.step(np.zeros(2))
+    plant._z = list(spin)
+    y, why = step_plant(plant, np.zeros(2))
+    assert y is None and why.startswith("the plant's model broke down at s = 30.0 m")
+    plant.reset(np.array([15.0, 0.0, 0.0, 0.0, 0.0, 30.0]))
+    y, why = step_plant(plant, np.zeros(2))
+    assert why == "" and np.all(np.isfinite(y)) and y[0] > 14.0

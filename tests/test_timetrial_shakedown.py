@@ -320,6 +320,22 @@ def test_the_way_back_never_returns_to_a_level_that_lost_the_car():
     assert last_good(recs[1:], clear=lambda lim: clear_of(lim, [lost])) == 0  # none clear: the last good
 
 
+def test_a_level_that_came_near_the_rear_peak_is_not_passed_later():
+    """The hold is remembered: after a lap near the rear tire's peak at 8.45 m/s^2 and a slower
+    lap far from it, the widening from the slower lap stops at 8.45 (randomized_09's sequence);
+    laps below the hold, or not completed, set no level."""
+    from gprace.timetrial.grip import held_level, next_limits
+
+    laps = [([8.45, 3.5, 4.0], 0.896), ([7.74, 3.37, 3.33], 0.35)]
+    assert held_level(laps) == pytest.approx(8.45)
+    widened = next_limits([7.75, 3.5, 3.42], laps[1][0], True, laps[1][1], np.full(3, 99.0), 0.05, widen_max=0.15)
+    assert widened[0] > 8.45  # what the last lap alone allows
+    assert min(widened[0], held_level(laps)) == pytest.approx(8.45)
+    assert held_level([([9.3, 3.4, 4.3], 0.79)]) == np.inf and held_level([]) == np.inf
+    assert held_level([([9.3, 3.4, 4.3], float("nan")), ([], 0.9), (None, 0.95)]) == np.inf
+    assert held_level(laps + [([8.2, 3.5, 4.0], 0.81)]) == pytest.approx(8.2)  # the lowest such level
+
+
 def test_a_refusal_for_novelty_alone_drives_the_new_line_slower():
     """The guard's decision: a plan refused only because the planning GP has no data along part of
     it is driven slower on its own line (the largest speed factor at which it stays in the data,
@@ -362,6 +378,34 @@ def test_a_refusal_for_novelty_alone_drives_the_new_line_slower():
     recs = [_record(driven=60.0)]
     assert lap_status(_record(driven=64.0, safety={"step": 0.9}), recs, 0.005) == "good"
     assert lap_status(_record(driven=64.0, safety={"step": 1.0}), recs, 0.005) == "slower"
+
+
+def test_a_plan_is_built_up_from_the_best_lap_driven():
+    """The build-up: a plan faster than the best lap driven over sqrt(1 + widen_max) is driven
+    time-scaled to exactly that lap time on its own line, and its lateral acceleration is then at
+    most (1 + widen_max) times what the same line asked at the driven pace; a slower plan, or one
+    before any lap was driven, is driven as it is."""
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import curvature_plan
+    from gprace.timetrial.guard import build_up
+    from gprace.tracks import load_track
+
+    m = NominalModel(load_vehicle("audi_tt_cup"))
+    plan = curvature_plan(load_track("circle_100"), m, ds=8.0, speed_scale=0.8)
+    for widen_max, gain in ((0.15, 1.25), (0.05, 1.10), (0.3, 1.02)):
+        driven = gain * plan.lap_time
+        built, q = build_up(plan, driven, widen_max)
+        floor = driven / np.sqrt(1 + widen_max)
+        if plan.lap_time >= floor:
+            assert q == 1.0 and built is plan
+            continue
+        assert built.lap_time == pytest.approx(floor) and q == pytest.approx(plan.lap_time / floor)
+        at_driven = plan.lap_time / driven  # the same line at the driven lap's pace
+        lat = lambda p: np.abs(p.v_x * p.yaw_rate)  # noqa: E731
+        assert lat(built).max() == pytest.approx((1 + widen_max) * at_driven**2 * lat(plan).max())
+        assert built.s == pytest.approx(plan.s) and built.e_y == pytest.approx(plan.e_y)
+    assert build_up(plan, np.inf, 0.15) == (plan, 1.0)
 
 
 def test_envelope_braking_follows_the_friction_circle():

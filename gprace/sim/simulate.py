@@ -24,7 +24,7 @@ from gprace.plants import make_plant
 from gprace.resources import check_size
 from gprace.sim.controller import ReferenceController
 from gprace.sim.record import border_hits, lap_times_of, run_columns
-from gprace.sim.stop import run_end
+from gprace.sim.stop import run_end, step_plant
 
 
 STEP_NUMBERS = 48
@@ -78,7 +78,9 @@ def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Ru
         k += 1
         if (reason := run_end(track, plant, vehicle.width, v_stall, goal, k, n_max, "no progress to the goal")) is not None:
             break
-        y = plant.step(u)
+        y, reason = step_plant(plant, u)
+        if reason:
+            break
 
     if reason:
         if k < 2:

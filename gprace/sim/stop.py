@@ -6,6 +6,8 @@ spun (``|e_psi| > SPIN_EPSI`` or ``|v_y| > SPIN_SLIP |v_x| + SPIN_SLIP_OFFSET``)
 falls below the caller's stall speed (which depends on what is driven: a speed profile or a plan).
 The spin limits are the time-trial drive's: the MPC may catch a slide that is still inside them.
 :func:`run_end` adds the goal and the step budget: the end-of-step check of a driving loop.
+:func:`step_plant` steps the plant: a plant whose model breaks down (an arithmetic error, or a
+state that is not finite) has lost the car, and the run ends like any other lost lap.
 """
 
 from __future__ import annotations
@@ -58,3 +60,27 @@ def run_end(track, plant, car_width: float, v_stall: float, goal: float, steps: 
     if not reason and steps > max_steps:
         reason = f"{too_long} after {max_steps} steps"
     return reason or None
+
+
+def step_plant(plant, u: np.ndarray) -> tuple[np.ndarray | None, str]:
+    """``(measurement, "")`` after one plant step, or ``(None, why)`` when the plant's model broke down.
+
+    Third-party models are not written for a car in a spin: commonroad's multi-body model divides by
+    a wheel's longitudinal speed, which is zero when the car slides sideways (measured on
+    commonroad_mb, a lost lap of the unseen-plants benchmark, issue 37). Such a step is the car
+    lost at that point, counted with the other lost laps, never a traceback that ends the experiment.
+    What counts: an arithmetic error, a plant's own :class:`~gprace.errors.SolverError` (its
+    integration failed: the built-in plants raise it on a state that is not finite) and a
+    measurement or state that is not finite. Any other exception is a defect and is raised.
+    """
+    from gprace.errors import SolverError
+
+    s = float(plant.state[State.S])
+    try:
+        y = plant.step(u)
+    except (ArithmeticError, SolverError) as exc:
+        return None, f"the plant's model broke down at s = {s:.1f} m ({type(exc).__name__}: {exc})"
+    y = np.asarray(y, dtype=float)
+    if not np.all(np.isfinite(y)) or not np.all(np.isfinite(plant.state)):
+        return None, f"the plant's model broke down at s = {s:.1f} m (a state that is not finite)"
+    return y, ""

@@ -27,7 +27,7 @@ from gprace.io.runs import OWN_RUN, Run
 from gprace.model.dynamics import Input, State
 from gprace.mpc.stability import SIGNALS, Envelope, EnvelopeSettings, signals
 from gprace.mpc.tracking import MPCSettings, TrackingMPC
-from gprace.sim.stop import run_end
+from gprace.sim.stop import run_end, step_plant
 
 
 class DriveSettings(CommandSettings):
@@ -76,11 +76,8 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     v_stall = min(1.0, 0.5 * float(plan.v_x.min()))  # 1 m/s, or half the plan's slowest corner (1:10 cars)
     n_max = int(math.ceil(settings.laps * plan.lap_time * 2.0 / dt)) + 40
     vehicle = model.vehicle
-    Y = np.empty((n_max + 1, 6))
-    X = np.empty((n_max + 1, 6))  # true states, for the footprint check
-    U = np.empty((n_max + 1, 2))
-    cols = {k: np.zeros(n_max + 1) for k in ("lap", "solve_time", "fallback", "explore", "gamma", *SIGNALS,
-                                              "envelope", "speed_factor")}
+    Y, X, U = np.empty((n_max + 1, 6)), np.empty((n_max + 1, 6)), np.empty((n_max + 1, 2))  # X: true states
+    cols = {k: np.zeros(n_max + 1) for k in COLUMNS}
     env = Envelope(settings.envelope, dt, band)
     before = None  # the state the last solution predicted for this period
     plan_brake = 0.0  # the hardest braking the plan asks for over the horizon (before easing)
@@ -100,21 +97,16 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         Y[k], X[k], U[k] = y, x, u
         sig = signals(mpc.predicted, before, info["xref"][0])
         before = mpc.prev_x[0]
-        cols["lap"][k] = plant.lap
-        cols["solve_time"][k] = info["solve_time"]
-        cols["fallback"][k] = float(info["fallback"])
-        cols["explore"][k] = float(mpc.last_target is not None and info.get("explored", False))
-        cols["gamma"][k] = float(info["gamma"][0]) if len(info["gamma"]) else 0.0
-        for name, v in zip(SIGNALS, sig):
-            cols[name][k] = v
-        cols["speed_factor"][k] = env.rho
+        _log(cols, k, plant.lap, info, mpc, sig, env.rho)
         cols["envelope"][k] = env.update(sig, bool(in_control(y[None, :])[0]))
         k += 1
         if (reason := run_end(track, plant, vehicle.width, v_stall, goal, k, n_max, "no lap")) is not None:
             break
         if supervisor is not None:
             supervisor(k, Y[:k], U[:k], mpc, env)
-        y = plant.step(u)
+        y, reason = step_plant(plant, u)
+        if reason:
+            break
     data = {
         **run_columns(track, dt, Y[:k], U[:k]),
         **{c: v[:k] for c, v in cols.items()},
@@ -136,6 +128,22 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         "delay": float(mpc.delay),
     }
     return Run(data, meta, source=f"drive({plant_config.kind}, {track.name})")
+
+
+COLUMNS = ("lap", "solve_time", "fallback", "explore", "gamma", *SIGNALS, "envelope", "speed_factor")
+"""The columns a drive logs per period besides the state and input (module docstring)."""
+
+
+def _log(cols: dict, k: int, lap: int, info: dict, mpc, sig, rho: float) -> None:
+    """Period ``k``'s MPC and envelope columns (all of :data:`COLUMNS` but ``envelope``)."""
+    cols["lap"][k] = lap
+    cols["solve_time"][k] = info["solve_time"]
+    cols["fallback"][k] = float(info["fallback"])
+    cols["explore"][k] = float(mpc.last_target is not None and info.get("explored", False))
+    cols["gamma"][k] = float(info["gamma"][0]) if len(info["gamma"]) else 0.0
+    for name, v in zip(SIGNALS, sig):
+        cols[name][k] = v
+    cols["speed_factor"][k] = rho
 
 
 EXTRAPOLATING = 0.5  # latent std over prior std above which the tracking GP counts as extrapolating

@@ -12,7 +12,12 @@ scheme of Wischnewski et al. 2019 (start conservative, widen from measured accel
 - a failed lap (spin, off track): the next limits are the failed plan's times ``1 - 2 widen``, so
   a plan that was not driveable is never driven again unchanged;
 - never above ``cap`` (the nominal model's own limits times the planner's grip share), and never
-  again at a level whose lap failed (``widen`` below it).
+  again at a level whose lap failed (``widen`` below it);
+- never cornering harder than the lowest lateral acceleration at which a completed lap came near
+  the rear tire's peak (:func:`held_level`): the hold after such a lap is remembered, not only
+  applied to the next plan. Measured on randomized_09 (issue 37 stop 46): its shakedown came to
+  0.90 of the peak at 8.45 m/s^2; after a slower built-up lap (0.35 of the peak) the widening
+  went on to 8.82 m/s^2, and the alpha-0 lap at that level spun the car in the hairpin.
 
 All functions are pure and vectorised over the run's samples.
 """
@@ -120,3 +125,11 @@ def clear_of(limits, failed=(), widen: float = 0.05) -> bool:
     if limits is None or len(limits) == 0:
         return not failed
     return bool(np.allclose(below_failed(limits, failed, widen), np.asarray(limits, dtype=float)))
+
+
+def held_level(laps, hold: float = 0.8) -> float:
+    """Lowest measured lateral acceleration [m/s^2] of the completed ``laps`` (``(envelope,
+    utilisation)`` pairs) whose rear tire came to ``hold`` of its peak slip angle (inf if none)."""
+    levels = [float(env[0]) for env, util in laps
+              if env is not None and len(env) == 3 and np.isfinite(util) and util >= hold and np.isfinite(env[0])]
+    return min(levels, default=np.inf)

@@ -36,6 +36,16 @@
   iterations at iteration 0's plan); the slower lap on the new line does bring them. Such a lap
   is judged like an exploration lap, by whether it was completed (:func:`lap_status`).
 
+* **Build-up** (:func:`build_up`): a new plan is never driven faster than the best lap driven so
+  far allows: its lap time at least that lap's over ``sqrt(1 + widen_max)``, the pace that the
+  widest widening of the friction ellipse gives (accelerations scale with the speed squared).
+  Faster plans are driven time-scaled on their own line, like a novelty step. The widening works on
+  the 99th percentile of what the car showed, but a shakedown lap eased most of its corners: on
+  the unseen plants, the first GP plan after one asked for 16 to 19 % less lap time than the lap
+  driven (80.3 -> 67.8 s, 81.3 -> 68.8 s), slid at the first braking zone it met faster than before
+  and lost the car (randomized_21, commonroad_mb); re-driven at 0.905 of their speed (the
+  build-up's factor), both laps complete (docs/decisions.md issue 37 stop 46).
+
 Pure functions over arrays; the iterate loop calls them.
 """
 
@@ -147,3 +157,14 @@ def novelty_step(plan, check, floor_lap_time: float, novel_share: float = NOVEL_
         if safety["novel"] <= novel_share or q == q_floor:
             return scaled, float(q), safety
     raise AssertionError("unreachable")
+
+
+def build_up(plan, best_driven: float, widen_max: float):
+    """``(plan, q)``: ``plan`` time-scaled by the largest ``q <= 1`` at which its lap time is at
+    least ``best_driven / sqrt(1 + widen_max)`` (module docstring); ``q = 1`` when it already is,
+    or when no lap has been driven (``best_driven`` not finite)."""
+    floor = best_driven / np.sqrt(1.0 + widen_max)
+    if not np.isfinite(floor) or plan.lap_time >= floor:
+        return plan, 1.0
+    q = float(plan.lap_time / floor)
+    return time_scaled(plan, q), q

@@ -37,6 +37,7 @@ def _replan(c: _Chain, i: int) -> None:
                                c.cap, st.widen, failed=failed, border_hits=rec.border_hits,
                                interventions=rec.interventions if i > 1 else 0, widen_max=st.widen_max)
         source = "replan"
+        limits[0] = min(limits[0], G.held_level([(r.envelope, r.utilisation) for r in records if r.completed]))
         shown = _grip_shown(c, i)
         if shown is not None:  # never plan corners faster than the grip the car has shown
             limits[0] = min(limits[0], max(shown * G.nominal_cap(model, 1.0)[0], np.asarray(last.meta.get("limits", limits))[0]))
@@ -69,6 +70,8 @@ def _replan(c: _Chain, i: int) -> None:
                 plan.meta = {**plan.meta, "unsafe": safety["why"]}
                 unsafe = f"last good plan (iteration {start}) driven: the new plan was not predicted safe ({safety['why']})"
                 source = f"{source}; {unsafe}" if back else unsafe
+        if st.never_worse and plan is not warm:
+            plan, safety, source = _built_up(plan, safety, source, records, st.widen_max)
     except SolverError as exc:
         # a failed re-plan must not end the experiment: drive the last plan that completed a
         # lap again (never a plan that failed), or a slower curvature plan if none did
@@ -84,6 +87,21 @@ def _replan(c: _Chain, i: int) -> None:
     plan.meta["source"] = source
     plan.meta["safety"] = {k: v for k, v in safety.items() if k != "safe"}
     plan.write(c.dir(i) / "plan.h5")
+
+
+def _built_up(plan, safety: dict, source: str, records, widen_max: float):
+    """``(plan, safety, source)`` with the plan held to the build-up from the best lap driven so far
+    in the trial (any alpha, iteration 0 included; :func:`gprace.timetrial.guard.build_up`); a
+    time-scaled plan is a slower lap on purpose (``safety["step"]``, judged by completion)."""
+    from gprace.timetrial import guard
+
+    best = min((r.driven for r in records if r.completed and r.driven is not None and np.isfinite(r.driven)),
+               default=np.inf)
+    plan, q = guard.build_up(plan, best, widen_max)
+    if q < 1.0:
+        safety = {**safety, "step": safety.get("step", 1.0) * q}
+        source = f"{source}; built up: driven at {q:.2f} of its speed"
+    return plan, safety, source
 
 
 def _grip_shown(c: _Chain, i: int) -> float | None:
