@@ -6,8 +6,9 @@ spun (``|e_psi| > SPIN_EPSI`` or ``|v_y| > SPIN_SLIP |v_x| + SPIN_SLIP_OFFSET``)
 falls below the caller's stall speed (which depends on what is driven: a speed profile or a plan).
 The spin limits are the time-trial drive's: the MPC may catch a slide that is still inside them.
 :func:`run_end` adds the goal and the step budget: the end-of-step check of a driving loop.
-:func:`step_plant` steps the plant: a plant whose model breaks down (an arithmetic error, or a
-state that is not finite) has lost the car, and the run ends like any other lost lap.
+:func:`step_plant` steps the plant: a plant whose model breaks down (an arithmetic error, its own
+``SolverError``, or a state that is not finite) has lost the car, and the run ends like any other
+lost lap.
 """
 
 from __future__ import annotations
