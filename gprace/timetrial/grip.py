@@ -13,11 +13,14 @@ scheme of Wischnewski et al. 2019 (start conservative, widen from measured accel
   a plan that was not driveable is never driven again unchanged;
 - never above ``cap`` (the nominal model's own limits times the planner's grip share), and never
   again at a level whose lap failed (``widen`` below it);
-- never cornering harder than the lowest lateral acceleration at which a completed lap came near
-  the rear tire's peak (:func:`held_level`): the hold after such a lap is remembered, not only
-  applied to the next plan. Measured on randomized_09 (issue 37 stop 46): its shakedown came to
-  0.90 of the peak at 8.45 m/s^2; after a slower built-up lap (0.35 of the peak) the widening
-  went on to 8.82 m/s^2, and the alpha-0 lap at that level spun the car in the hairpin.
+- never cornering harder than the lowest lateral level at which a completed lap came near the
+  rear tire's peak (:func:`held_level`: the smaller of the measured and the planned lateral
+  acceleration): the hold after such a lap is remembered, not only applied to the next plan.
+  Measured on randomized_09 (issue 37 stop 46): its shakedown, planned at 7.75 m/s^2, came to 0.90
+  of the peak (measuring 8.45); after a slower built-up lap (0.35 of the peak) the widening went
+  on to 8.82 m/s^2, and the alpha-0 lap at that level spun the car in the hairpin. On
+  randomized_06 a shakedown planned at 9.87 m/s^2 slid past the peak (1.59 of it, 80 border
+  hits) and measured 11.2; the widening to 10.76 then lost the car.
 
 All functions are pure and vectorised over the run's samples.
 """
@@ -128,8 +131,15 @@ def clear_of(limits, failed=(), widen: float = 0.05) -> bool:
 
 
 def held_level(laps, hold: float = 0.8) -> float:
-    """Lowest measured lateral acceleration [m/s^2] of the completed ``laps`` (``(envelope,
-    utilisation)`` pairs) whose rear tire came to ``hold`` of its peak slip angle (inf if none)."""
-    levels = [float(env[0]) for env, util in laps
-              if env is not None and len(env) == 3 and np.isfinite(util) and util >= hold and np.isfinite(env[0])]
-    return min(levels, default=np.inf)
+    """Lowest lateral level [m/s^2] of the completed ``laps`` (``(envelope, utilisation, limits,
+    step)``: measured envelope, rear-slip utilisation, the plan's limits and the speed factor it
+    was driven at) whose rear tire came to ``hold`` of its peak slip angle: the smaller of what
+    was measured and what the plan asked (``limits[0] step^2``; a lap sliding past the peak
+    measures more than the plan asked), inf if no lap did."""
+    levels = []
+    for env, util, limits, step in laps:
+        if env is None or len(env) != 3 or not np.isfinite(util) or util < hold:
+            continue
+        asked = float(limits[0]) * step**2 if limits is not None and len(limits) == 3 else np.inf
+        levels.append(min(float(env[0]), asked))
+    return min((v for v in levels if np.isfinite(v)), default=np.inf)

@@ -37,7 +37,8 @@ def _replan(c: _Chain, i: int) -> None:
                                c.cap, st.widen, failed=failed, border_hits=rec.border_hits,
                                interventions=rec.interventions if i > 1 else 0, widen_max=st.widen_max)
         source = "replan"
-        limits[0] = min(limits[0], G.held_level([(r.envelope, r.utilisation) for r in records if r.completed]))
+        limits[0] = min(limits[0], G.held_level([(r.envelope, r.utilisation, r.limits, (r.safety or {}).get("step", 1.0))
+                                                 for r in records if r.completed]))
         shown = _grip_shown(c, i)
         if shown is not None:  # never plan corners faster than the grip the car has shown
             limits[0] = min(limits[0], max(shown * G.nominal_cap(model, 1.0)[0], np.asarray(last.meta.get("limits", limits))[0]))
