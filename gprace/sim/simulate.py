@@ -70,7 +70,6 @@ def simulate(plant_config: PlantConfig, track, sim_config: SimulateConfig) -> Ru
     U = np.empty((n_max + 1, 2))
     lap = np.empty(n_max + 1)
     k = 0
-    reason = ""
     while True:
         u = ctrl(y)
         x = plant.state

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from gprace.errors import SolverError
 from gprace.model.dynamics import State
 
 SPIN_EPSI = 1.2  # rad
@@ -74,8 +75,6 @@ def step_plant(plant, u: np.ndarray) -> tuple[np.ndarray | None, str]:
     integration failed: the built-in plants raise it on a state that is not finite) and a
     measurement or state that is not finite. Any other exception is a defect and is raised.
     """
-    from gprace.errors import SolverError
-
     s = float(plant.state[State.S])
     try:
         y = plant.step(u)

@@ -83,7 +83,6 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     plan_brake = 0.0  # the hardest braking the plan asks for over the horizon (before easing)
     grip = vehicle.mu * G  # the friction circle's radius for the envelope's braking
     k = 0
-    reason = ""
     wall = time.perf_counter()
     while True:
         mpc.speed_factor = env.rho
