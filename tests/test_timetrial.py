@@ -48,8 +48,10 @@ def test_iterate_resumes_after_kill(tmp_path, monkeypatch):
     from gprace.tracks import load_track
 
     m, tr = NominalModel(load_vehicle("audi_tt_cup")), load_track("circle_100")
-    n0 = len(features(read_run(out / "trial_0/iter_00/run.h5"), m, tr, "tracking")[0])
-    n1 = len(features(read_run(out / "trial_0/iter_01/run.h5"), m, tr, "tracking")[0])
+    # the loop's features skip the samples whose acting inputs precede the run (its delay)
+    delay = json.loads((out / "trial_0/iter_00/record.json").read_text())["delay"]
+    n0 = len(features(read_run(out / "trial_0/iter_00/run.h5"), m, tr, "tracking", delay=delay)[0])
+    n1 = len(features(read_run(out / "trial_0/iter_01/run.h5"), m, tr, "tracking", delay=delay)[0])
     d1 = read_artifact(out / "trial_0/iter_01/data_tracking.h5", "dataset")
     d2 = read_artifact(out / "trial_0/iter_02/data_tracking.h5", "dataset")
     assert d1.attrs["n_seen"] == n0 and d2.attrs["n_seen"] == n0 + n1

@@ -45,6 +45,7 @@ from pydantic import Field
 
 from gprace.config import G, Frozen
 from gprace.model.dynamics import Input, State
+from gprace.mpc.delay import PRIOR
 
 
 class ShakedownSettings(Frozen):
@@ -65,7 +66,7 @@ class ShakedownSettings(Frozen):
 
 
 MIN_SLIP_SAMPLES = 40   # samples of an axle and phase the grip ratio needs
-DELAY_PRIOR = 0.08      # [s] predicted over before anything is known: the middle of the family's 0 to 180 ms
+DELAY_PRIOR = PRIOR     # [s] predicted over before anything is known (gprace.mpc.delay.PRIOR)
 QUIET_KAPPA = 0.004     # largest centre-line curvature [1/m] over the horizon where a faster profile is taken
 DRIVE_LEAD = 0.2        # the drive limit's share of nominal may exceed the lateral one by this much
 SLIP_WINDOW = (0.2, 1.5)  # slip angles (share of the nominal peak) the grip ratio uses
