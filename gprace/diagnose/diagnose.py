@@ -964,8 +964,10 @@ def _excess(ev: Evaluation) -> np.ndarray:
 
 
 def _with_base(prob: nm.Problem, fits: list[nm.Fit], i: int) -> nm.Problem:
-    """The problem with every chosen effect but the i-th in the model (the i-th is being fitted)."""
-    return replace(prob, base=[g.effect() for j, g in enumerate(fits) if j != i])
+    """The problem with every effect of ``fits`` but the i-th added to its model (the i-th is
+    being fitted); the problem's own base (the effects chosen in earlier rounds) is kept: a
+    candidate is refitted on top of them, as it is scored."""
+    return replace(prob, base=list(prob.base) + [g.effect() for j, g in enumerate(fits) if j != i])
 
 
 def _sub(model: NominalModel, sub: int) -> int:
