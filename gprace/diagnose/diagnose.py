@@ -630,6 +630,7 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
     evaluation; an effect whose channels stay structured is not named but kept as *partial*."""
     effects = list(named.effects)
     notes: list[str] = []
+    dropped: list[NamedEffect] = []
     if effects:
         log(f"diagnose: verifying {', '.join(e.name for e in effects)} on held-out windows (parsimony)")
     # parsimony: each effect must still improve held-out fit given all the others
@@ -643,6 +644,7 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
         ok, where, t = _significant(ctx, l_wo, l_all)
         if not ok:
             drop = effects.pop(i)
+            dropped.append(drop)
             # the others were fitted beside it: refit them without it (a profile named next to
             # its window lacks what the window explained)
             effects = _refit_each(ctx, effects)
@@ -676,6 +678,17 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
                 notes.append(f"{e.name} fits part of the error but leaves {left} structured: not named (kept in "
                              f"the augmented model as a partial fit: it improves held-out prediction)")
         out = [r[0] for r in rejected]
+        gone = [e for e in out if e.fit.profile is not None]
+        if gone and any(set(d.channels) & set(g.channels) for d in dropped for g in gone):
+            # parsimony dropped an effect beside a profile that is now left out: verify again
+            # without the profile, so what it displaced is not lost with it
+            keep = [e for e in named.effects if e.name not in {g.name for g in gone}]
+            keep = _refit_each(ctx, keep)  # they were fitted beside the profile
+            log(f"diagnose: {', '.join(g.name for g in gone)} left out: verifying again without "
+                f"{'it' if len(gone) == 1 else 'them'}")
+            again = verify(p, s, ctx, replace(named, effects=tuple(keep)), vehicle, seed, log)
+            why = [n for n in notes if any(n.startswith(g.name) for g in gone)]
+            return replace(again, notes=tuple(why) + again.notes)
         partial = [e for e in effects if e in out and e.fit.profile is None]
         effects = [e for e in effects if e not in out]
         if len(partial) < len(out):  # a profile left out: the others refitted without it, evaluated again
