@@ -393,3 +393,36 @@ def test_two_laps_are_folded_by_lap_so_a_bank_seen_in_one_lap_only_is_refused(ve
     short = starts[(data.lap[starts] == data.lap[starts].min()) | (np.arange(len(starts)) % 10 == 0)]
     assert len(np.unique(nm.folds(data, short))) == 3 and not np.array_equal(
         nm.folds(data, short), data.lap[short] - data.lap[short].min())
+
+
+def test_profile_not_cross_validated_when_it_cannot_beat_its_window_same_decision(vehicle, monkeypatch):
+    """A grade over one stretch of Norisring (a window, not a profile): the profile that fits no
+    better than the window in sample is not cross-validated (issue 36, stop 47), and the
+    diagnosis names what the exhaustive path (every profile cross-validated) names, with the
+    same values."""
+    from gprace.diagnose import diagnose as dg
+    from gprace.diagnose.synth import record
+    from gprace.tracks.loaders import load_track
+
+    if not TRACKS.exists():
+        pytest.skip("TUM racetrack database not available")
+    track = load_track(TRACKS / "Norisring.csv")
+    truth = {"angle": 0.06, "s_start": 700.0, "s_end": 900.0}
+    r = record(vehicle, track, [EffectConfig(name="road_grade", params=truth)], laps=3.0, seed=31, substeps=5)
+    skipped = []
+    lever = dg._profiles_worth_testing
+
+    def counted(top):
+        out = lever(top)
+        skipped.extend(f.name for f in top if f not in out)
+        return out
+
+    monkeypatch.setattr(dg, "_profiles_worth_testing", counted)
+    fast = dg.diagnose([r], vehicle).report
+    assert "road_grade_profile" in skipped
+    monkeypatch.setattr(dg, "_profiles_worth_testing", lambda top: list(top))
+    full = dg.diagnose([r], vehicle).report
+    assert [e["name"] for e in fast["effects"]] == [e["name"] for e in full["effects"]] == ["road_grade"]
+    for a, b in zip(fast["effects"], full["effects"]):
+        for k, p in a["parameters"].items():
+            assert p["value"] == pytest.approx(b["parameters"][k]["value"], rel=1e-9, abs=1e-12)

@@ -597,9 +597,27 @@ def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_stru
     cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV, ftol=nm.NAMING_FTOL) for f in _slots(cands, PRESCREEN_KEEP)),
                    key=lambda f: f.cost)
     top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20, ftol=nm.NAMING_FTOL) for f in _slots(cands, nm.SCREEN_TOP)]
+    top = _profiles_worth_testing(top)
     cv = {f.name: _cv_channels(replace(ctx, prob=prob), [f]) for f in top}
     top = window_or_profile(top, cv, ctx.bid)  # parsimony: the window unless the profile is better
     return cv, top
+
+
+def _profiles_worth_testing(top: list) -> list:
+    """The candidates without the profiles that cannot pass :func:`window_or_profile`: a profile
+    fitted beside its window is cross-validated only when, in sample on the same windows, it
+    gains more over the window than the parsimony margin (a tenth of the window's excess over
+    the noise floor). Held out, a profile gains less over its window than in sample (its
+    optimism, growing with its effective degrees of freedom, exceeds the window's), and the
+    window's excess is larger: what fails the margin in sample fails it held out."""
+    by = {f.name: f for f in top}
+    out = []
+    for f in top:
+        w = by.get(getattr(EFFECTS[f.name], "window_of", None)) if f.profile is not None else None
+        if w is not None and w.cost - f.cost <= nm.MIN_EXCESS_SHARE * max(w.cost - 1.0, 1e-12):
+            continue
+        out.append(f)
+    return out
 
 
 def _slots(cands: list, k: int) -> list:
