@@ -410,17 +410,17 @@ def test_profile_not_cross_validated_when_it_cannot_beat_its_window_same_decisio
     truth = {"angle": 0.06, "s_start": 700.0, "s_end": 900.0}
     r = record(vehicle, track, [EffectConfig(name="road_grade", params=truth)], laps=3.0, seed=31, substeps=5)
     skipped = []
-    lever = dg._profiles_worth_testing
+    lever = dg.worth_cross_validating
 
     def counted(top):
         out = lever(top)
         skipped.extend(f.name for f in top if f not in out)
         return out
 
-    monkeypatch.setattr(dg, "_profiles_worth_testing", counted)
+    monkeypatch.setattr(dg, "worth_cross_validating", counted)
     fast = dg.diagnose([r], vehicle).report
     assert "road_grade_profile" in skipped
-    monkeypatch.setattr(dg, "_profiles_worth_testing", lambda top: list(top))
+    monkeypatch.setattr(dg, "worth_cross_validating", lambda top: list(top))
     full = dg.diagnose([r], vehicle).report
     assert [e["name"] for e in fast["effects"]] == [e["name"] for e in full["effects"]] == ["road_grade"]
     for a, b in zip(fast["effects"], full["effects"]):

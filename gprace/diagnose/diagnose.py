@@ -38,7 +38,7 @@ from gprace.config import EffectConfig, VehicleConfig
 from gprace.diagnose import calibrate as cal, core, crossval as cv_, locate, name as nm, profiles as pf_, screen as scr
 from gprace.diagnose.core import CHANNELS, DYNAMIC, TESTED
 from gprace.diagnose.laps import wrap_runs
-from gprace.diagnose.profiles import leading, window_or_profile
+from gprace.diagnose.profiles import leading, window_or_profile, worth_cross_validating
 from gprace.diagnose.result import DiagnosisResult, residual_profile
 from gprace.errors import InputError
 from gprace.io.envelope import EnvelopeReport, envelope
@@ -597,27 +597,10 @@ def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_stru
     cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV, ftol=nm.NAMING_FTOL) for f in _slots(cands, PRESCREEN_KEEP)),
                    key=lambda f: f.cost)
     top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20, ftol=nm.NAMING_FTOL) for f in _slots(cands, nm.SCREEN_TOP)]
-    top = _profiles_worth_testing(top)
+    top = worth_cross_validating(top)
     cv = {f.name: _cv_channels(replace(ctx, prob=prob), [f]) for f in top}
     top = window_or_profile(top, cv, ctx.bid)  # parsimony: the window unless the profile is better
     return cv, top
-
-
-def _profiles_worth_testing(top: list) -> list:
-    """The candidates without the profiles that cannot pass :func:`window_or_profile`: a profile
-    fitted beside its window is cross-validated only when, in sample on the same windows, it
-    gains more over the window than the parsimony margin (a tenth of the window's excess over
-    the noise floor). Held out, a profile gains less over its window than in sample (its
-    optimism, growing with its effective degrees of freedom, exceeds the window's), and the
-    window's excess is larger: what fails the margin in sample fails it held out."""
-    by = {f.name: f for f in top}
-    out = []
-    for f in top:
-        w = by.get(getattr(EFFECTS[f.name], "window_of", None)) if f.profile is not None else None
-        if w is not None and w.cost - f.cost <= nm.MIN_EXCESS_SHARE * max(w.cost - 1.0, 1e-12):
-            continue
-        out.append(f)
-    return out
 
 
 def _slots(cands: list, k: int) -> list:

@@ -144,26 +144,30 @@ def estimate(X: np.ndarray, U: np.ndarray, dt: float, mask: np.ndarray | None = 
     shifts = np.arange(0.0, MAX_PERIODS + 1e-9, GRID)
     sse = np.zeros((len(shifts), len(LAGS)))
     steers_right = np.ones(sse.shape, dtype=bool)
-    residuals = {}
-    for k, (r_dot, base, steer, vx) in enumerate(parts):
-        v_mid = float(np.median(vx))
+    for part in parts:
         for i in range(len(shifts)):  # a small grid of least-squares fits (9 x 8)
             for j in range(len(LAGS)):
-                A = np.column_stack([base, steer[i, j], steer[i, j] * vx])
-                coef, *_ = np.linalg.lstsq(A, r_dot, rcond=None)
-                res = r_dot - A @ coef
+                res, gain = _yaw_fit(part, i, j)
                 sse[i, j] += res @ res
-                steers_right[i, j] &= bool(coef[-2] + coef[-1] * v_mid > 0.0)
-                residuals[k, i, j] = res
+                steers_right[i, j] &= gain > 0.0
     if not steers_right.any():
         return float("nan"), float("nan")
     sse = np.where(steers_right, sse, np.inf)
     best = np.unravel_index(int(np.argmin(sse)), sse.shape)
-    n_eff = sum(_effective_samples(residuals[k, best[0], best[1]]) for k in range(len(parts)))
+    n_eff = sum(_effective_samples(_yaw_fit(part, *best)[0]) for part in parts)
     as_good = sse <= sse.min() * (1.0 + CHI2_95 / n_eff)
     total = shifts[:, None] * dt + LAGS[None, :]
     i, j = np.unravel_index(int(np.argmin(np.where(as_good, np.abs(total - prior), np.inf))), sse.shape)
     return float(shifts[i] * dt), float(LAGS[j])
+
+
+def _yaw_fit(part: tuple, i: int, j: int) -> tuple[np.ndarray, float]:
+    """Residuals of one recording's yaw-acceleration fit with candidate ``(i, j)`` (dead time,
+    lag) and the fit's steering gain at the recording's median speed."""
+    r_dot, base, steer, vx = part
+    A = np.column_stack([base, steer[i, j], steer[i, j] * vx])
+    coef, *_ = np.linalg.lstsq(A, r_dot, rcond=None)
+    return r_dot - A @ coef, float(coef[-2] + coef[-1] * np.median(vx))
 
 
 def _effective_samples(res: np.ndarray) -> float:
