@@ -61,22 +61,27 @@ def compiled_function(f):
     return f if lib is None else ca.external(f.name(), str(lib))
 
 
-def compiled_source(name: str, source: str, flags: tuple[str, ...], what: str) -> Path | None:
+def compiled_source(name: str, source: str, flags: tuple[str, ...], what: str, libs: tuple[str, ...] = (),
+                    fallback: str = "it runs interpreted") -> Path | None:
     """The cached shared library of the C ``source`` compiled with ``flags`` (part of its name),
     or None. It is linked in a second step without them: linked with ``-ffast-math``, GCC adds a
     start-up file that switches the whole process to flushing subnormal numbers to zero, which
-    changes every other computation (a k-d tree of scipy recursed until the stack overflowed)."""
+    changes every other computation (a k-d tree of scipy recursed until the stack overflowed).
+    ``libs``: libraries it needs beside libm (e.g. ``-lmvec``); then an undefined symbol fails the
+    link (a library without a function it calls) instead of the later load. ``fallback``: what
+    runs instead when the build fails (said in the warning)."""
 
     def generate(file: str) -> str:
         Path(file).write_text(source)
         return file
 
-    return _compiled(generate, name, what, (*flags, "-fPIC"), ("-shared",))
+    link = ("-shared", "-Wl,--no-undefined", *libs) if libs else ("-shared",)
+    return _compiled(generate, name, what, (*flags, "-fPIC"), link, fallback)
 
 
 def _compiled(generate, name: str, what: str, flags: tuple[str, ...] = FLAGS,
-              link: tuple[str, ...] | None = None) -> Path | None:
-    """The cached library of the C that ``generate(file)`` writes, or None (interpreted, warned)."""
+              link: tuple[str, ...] | None = None, fallback: str = "it runs interpreted") -> Path | None:
+    """The cached library of the C that ``generate(file)`` writes, or None (``fallback``, warned)."""
     cc = compiler()
     if cc is None:
         console.warn(f"no C compiler found (set CC); the {what} {name!r} runs interpreted, 2 to 4 times slower")
@@ -85,7 +90,7 @@ def _compiled(generate, name: str, what: str, flags: tuple[str, ...] = FLAGS,
         return _build(generate, name, cc, what, flags, link)
     except (OSError, RuntimeError, subprocess.SubprocessError) as exc:  # a failed build only costs speed
         # (a compiler that fails or is missing, a cache folder that cannot be written, CasADi's code generation)
-        console.warn(f"compiling the {what} {name!r} failed ({str(exc).splitlines()[0][:200]}); it runs interpreted")
+        console.warn(f"compiling the {what} {name!r} failed ({str(exc).splitlines()[0][:200]}); {fallback}")
         return None
 
 
@@ -113,7 +118,9 @@ def _build(generate, name: str, cc: str, what: str, flags: tuple[str, ...] = FLA
                     steps = [[cc, *flags, str(src), "-o", str(part), "-lm"]]
                 else:  # compile, then link without the compile flags (see compiled_source)
                     obj = str(src.with_suffix(".o"))
-                    steps = [[cc, *flags, "-c", str(src), "-o", obj], [cc, *link, obj, "-o", str(part), "-lm"]]
+                    libs = [a for a in link if a.startswith("-l")]  # after the object, which needs them
+                    opts = [a for a in link if not a.startswith("-l")]
+                    steps = [[cc, *flags, "-c", str(src), "-o", obj], [cc, *opts, obj, "-o", str(part), *libs, "-lm"]]
                 for cmd in steps:
                     proc = subprocess.run(cmd, capture_output=True, text=True)
                     if proc.returncode != 0:

@@ -26,6 +26,8 @@ from __future__ import annotations
 import ctypes
 import functools
 import os
+import platform
+import sys
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
 
@@ -50,13 +52,18 @@ SENSOR_ONLY = ("gyro_bias", "velocity_misalignment")  # act on the measurement o
 KERNEL_FLAGS = ("-O3", "-march=native", "-fno-math-errno", "-fno-trapping-math")
 """Compiler flags of the kernel (cached per machine, so tuned to its processor); no -ffast-math:
 the driver relies on infinities (a recording without laps) and NaN passing through."""
+SIMD_FLAGS = (*KERNEL_FLAGS, "-mavx2", "-mfma")
+"""The 4-lane kernel's flags: AVX2 vectors whatever -march=native says (libmvec's ``_ZGVdN4*``
+functions take and return them in ymm registers); used only where the processor has AVX2 and FMA."""
+SIMD_ENV = "GPRACE_DIAGNOSE_SIMD"
+"""Environment variable: ``0`` keeps the scalar kernel even where the 4-lane one could run."""
 PROFILES = tuple(n for n, c in EFFECTS.items() if getattr(c, "profile", False))
 """Effects given along the lap by knots (:class:`~gprace.model.effects.ProfileEffect`): their value
 at the car's position is interpolated by the driver (numpy's rule, periodic over the lap) from a
 table per window and passed to the derivative beside the curvature, so the knot values never
 enter the compiled code (one variant serves every knot count and every batch of profiles)."""
 
-_DRIVER_C = r"""
+_LOOKUP_C = r"""
 /* numpy's floating remainder: the sign of the divisor */
 static inline double pymod(double a, double b) {
     double r = fmod(a, b);
@@ -91,6 +98,9 @@ static inline void stage_inputs(double s, long i, long m, double L, double off, 
     }
 }
 
+"""
+
+_DRIVER_C = r"""
 /* out (m, H, NXS): windows i start from X0[i] (m, NXS) and step with the inputs U[k0[i] + j]
    (rows clamped to nu - 1), RK4 with `sub` substeps of dt / sub, curvature per stage from the
    table (ks, kv) at s wrapped to the lap L[i] (infinite: no wrap) plus the offset off[i], and the
@@ -130,6 +140,169 @@ int gprace_predict(long m, long H, long sub, double dt, const double *X0, const 
 """
 
 
+_DRIVER4_C = r"""
+/* numpy.interp(x, xp, fp) as interp1, starting from the interval *hint of the previous call (the
+   same interval or the next is checked first, else searched): a window advancing along s finds its
+   interval in O(1); the interval, and so the value, is the one interp1 finds */
+static inline double interp1h(double x, const double *xp, const double *fp, long n, long *hint) {
+    if (!(x > xp[0])) return x < xp[0] || x == xp[0] ? fp[0] : x;  /* NaN passes through */
+    if (x >= xp[n - 1]) return fp[n - 1];
+    long lo = *hint;  /* xp[lo] <= x < xp[lo + 1] */
+    if (!(lo < n - 1 && xp[lo] <= x && x < xp[lo + 1])) {
+        if (lo + 2 < n && xp[lo + 1] <= x && x < xp[lo + 2]) lo++;
+        else {
+            long hi = n - 1; lo = 0;
+            while (hi - lo > 1) { long mid = (lo + hi) / 2; if (xp[mid] <= x) lo = mid; else hi = mid; }
+        }
+    }
+    *hint = lo;
+    double slope = (fp[lo + 1] - fp[lo]) / (xp[lo + 1] - xp[lo]);
+    return slope * (x - xp[lo]) + fp[lo];
+}
+
+/* the 4 lanes' curvature and profile values at their own s (stage_inputs, lane by lane) */
+static inline void stage4(v4d s, const long *idx, long m, const double *L, const double *off, const double *ks,
+                          const double *kv, long nk, const double *pk, const long *pko, const long *pn,
+                          const double *pL, const double *pv, const long *pvo, const long *prow, long hint[][1 + NPROF],
+                          v4d *kap) {
+    for (int l = 0; l < 4; l++) {
+        long i = idx[l];
+        double si = s[l], Li = L[i];
+        kap[0][l] = interp1h((isfinite(Li) ? pymod(si, Li) : si) + off[i], ks, kv, nk, &hint[l][0]);
+        for (long q = 0; q < NPROF; q++) {
+            double x = pL[q] > 0 ? pymod(si, pL[q]) : si;
+            kap[1 + q][l] = interp1h(x, pk + pko[q], pv + pvo[q] + prow[q * m + i] * pn[q], pn[q], &hint[l][1 + q]);
+        }
+    }
+}
+
+/* gprace_predict on 4 windows at a time (lanes of one AVX2 vector: same H, sub and dt, each its own
+   start, inputs, parameters, lap and offset); the last group repeats the last window in its unused
+   lanes and writes only its own. Returns 0. */
+int gprace_predict4(long m, long H, long sub, double dt, const double *X0, const long *k0, const double *U,
+                    long nu, const double *P, long pstride, const double *ks, const double *kv, long nk,
+                    const double *L, const double *off, const double *pk, const long *pko, const long *pn,
+                    const double *pL, const double *pv, const long *pvo, const long *prow, double *out) {
+    v4d x[NXS], x2[NXS], k1[NXS], k2[NXS], k3[NXS], k4[NXS], kap[1 + NPROF], u[2], p[NP > 0 ? NP : 1];
+    double h = dt / (double)sub;
+    for (long g = 0; g < m; g += 4) {
+        long idx[4], hint[4][1 + NPROF];
+        for (int l = 0; l < 4; l++) {
+            idx[l] = g + l < m ? g + l : m - 1;
+            for (int q = 0; q < 1 + NPROF; q++) hint[l][q] = 0;
+            for (int q = 0; q < NXS; q++) x[q][l] = X0[idx[l] * NXS + q];
+            for (int q = 0; q < NP; q++) p[q][l] = P[idx[l] * pstride + q];
+        }
+        long nl = m - g < 4 ? m - g : 4;
+        for (long j = 0; j < H; j++) {
+            for (int l = 0; l < 4; l++) {
+                long r = k0[idx[l]] + j; if (r > nu - 1) r = nu - 1;
+                u[0][l] = U[2 * r]; u[1][l] = U[2 * r + 1];
+            }
+            for (long t = 0; t < sub; t++) {
+                stage4(x[5], idx, m, L, off, ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); gprace_deriv4(x, u, kap, p, k1);
+                for (int q = 0; q < NXS; q++) x2[q] = x[q] + 0.5 * h * k1[q];
+                stage4(x2[5], idx, m, L, off, ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); gprace_deriv4(x2, u, kap, p, k2);
+                for (int q = 0; q < NXS; q++) x2[q] = x[q] + 0.5 * h * k2[q];
+                stage4(x2[5], idx, m, L, off, ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); gprace_deriv4(x2, u, kap, p, k3);
+                for (int q = 0; q < NXS; q++) x2[q] = x[q] + h * k3[q];
+                stage4(x2[5], idx, m, L, off, ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); gprace_deriv4(x2, u, kap, p, k4);
+                for (int q = 0; q < NXS; q++) x[q] = x[q] + (h / 6.0) * (k1[q] + 2 * k2[q] + 2 * k3[q] + k4[q]);
+            }
+            for (long l = 0; l < nl; l++)
+                for (int q = 0; q < NXS; q++) out[((g + l) * H + j) * NXS + q] = x[q][l];
+        }
+    }
+    return 0;
+}
+"""
+
+_VEC_HEAD_C = r"""#include <math.h>
+#include <immintrin.h>
+typedef double v4d __attribute__((vector_size(32)));
+typedef long long v4l __attribute__((vector_size(32)));
+static inline v4d vsel(v4l c, v4d a, v4d b) { return (v4d)(((v4l)a & c) | ((v4l)b & ~c)); }
+static inline v4d vbool(v4l c) { return vsel(c, (v4d){1, 1, 1, 1}, (v4d){0, 0, 0, 0}); }
+static inline v4l vtrue(v4d a) { return a != (v4d){0, 0, 0, 0}; }  /* C truth: NaN is true */
+"""
+
+# operations of the emitter: CasADi op code name -> C of a 4-lane expression of its arguments
+# (a, b); the comparisons and logic give 1.0 / 0.0 like CasADi's scalar code, fmin/fmax follow
+# C99's fmin/fmax (a NaN argument gives the other one), if_else_zero gives exactly 0 where false
+_VEC_OPS = {
+    "OP_ASSIGN": "{a}", "OP_ADD": "{a} + {b}", "OP_SUB": "{a} - {b}", "OP_MUL": "{a} * {b}",
+    "OP_DIV": "{a} / {b}", "OP_NEG": "-{a}", "OP_SQ": "{a} * {a}", "OP_TWICE": "{a} + {a}",
+    "OP_INV": "1.0 / {a}", "OP_SQRT": "(v4d)_mm256_sqrt_pd((__m256d){a})",
+    "OP_FABS": "(v4d)((v4l){a} & (v4l){{0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL}})",
+    "OP_FMIN": "vsel(({a} <= {b}) | ({b} != {b}), {a}, {b})", "OP_FMAX": "vsel(({a} >= {b}) | ({b} != {b}), {a}, {b})",
+    "OP_LT": "vbool({a} < {b})", "OP_LE": "vbool({a} <= {b})", "OP_EQ": "vbool({a} == {b})",
+    "OP_NE": "vbool({a} != {b})", "OP_NOT": "vbool(~vtrue({a}))", "OP_AND": "vbool(vtrue({a}) & vtrue({b}))",
+    "OP_OR": "vbool(vtrue({a}) | vtrue({b}))", "OP_IF_ELSE_ZERO": "(v4d)(vtrue({a}) & (v4l){b})",
+}
+_VEC_MATH = {"OP_SIN": "sin", "OP_COS": "cos", "OP_TAN": "tan", "OP_ATAN": "atan", "OP_ASIN": "asin",
+             "OP_ACOS": "acos", "OP_EXP": "exp", "OP_LOG": "log", "OP_TANH": "tanh", "OP_SINH": "sinh",
+             "OP_COSH": "cosh"}
+"""One-argument functions taken from glibc's libmvec, AVX2 4-lane variants (``_ZGVdN4v_<name>``)."""
+_VEC_MATH2 = {"OP_ATAN2": "atan2", "OP_POW": "pow"}  # two arguments: _ZGVdN4vv_<name>
+
+
+def _c_double(c: float) -> str:
+    if c != c:
+        return "NAN"
+    if c in (float("inf"), float("-inf")):
+        return "INFINITY" if c > 0 else "(-INFINITY)"
+    return repr(float(c))
+
+
+def emit_vector(F) -> str:
+    """C of ``static void gprace_deriv4(x, u, kappa, p, out)``: the CasADi SX function ``F``
+    (four inputs, one output) evaluated on 4 lanes at once, one statement per instruction of its
+    algorithm (``instruction_id/input/output/constant``), in AVX2 vectors of GCC's vector
+    extension, the transcendental functions from libmvec. NotImplementedError for an operation
+    it does not know (the caller keeps the scalar kernel)."""
+    import casadi as ca
+
+    name = {getattr(ca, n): n for n in dir(ca) if n.startswith("OP_")}
+    body, used = [], set()
+    for k in range(F.n_instructions()):
+        op = name.get(F.instruction_id(k), str(F.instruction_id(k)))
+        i, o = F.instruction_input(k), F.instruction_output(k)
+        if op == "OP_INPUT":
+            body.append(f"w{o[0]} = a{i[0]}[{i[1]}];")
+            continue
+        if op == "OP_OUTPUT":
+            body.append(f"r[{o[1]}] = w{i[0]};")
+            continue
+        if op == "OP_CONST":
+            c = _c_double(F.instruction_constant(k))
+            body.append(f"w{o[0]} = (v4d){{{c}, {c}, {c}, {c}}};")
+            continue
+        args = {"a": f"w{i[0]}", "b": f"w{i[1]}" if len(i) > 1 else ""}
+        if op in _VEC_OPS:
+            expr = _VEC_OPS[op].format(**args)
+        elif op in _VEC_MATH:
+            fn = f"_ZGVdN4v_{_VEC_MATH[op]}"
+            used.add(f"v4d {fn}(v4d);")
+            expr = f"{fn}({args['a']})"
+        elif op in _VEC_MATH2:
+            fn = f"_ZGVdN4vv_{_VEC_MATH2[op]}"
+            used.add(f"v4d {fn}(v4d, v4d);")
+            expr = f"{fn}({args['a']}, {args['b']})"
+        else:
+            raise NotImplementedError(f"the 4-lane emitter has no {op}")
+        body.append(f"w{o[0]} = {expr};")
+    work = ", ".join(f"w{j}" for j in range(max(F.sz_w(), 1)))
+    decl = "".join(f"extern {d}\n" for d in sorted(used))
+    return (decl + "static void gprace_deriv4(const v4d *a0, const v4d *a1, const v4d *a2, const v4d *a3, v4d *r) {\n"
+            f"    v4d {work};\n    " + "\n    ".join(body) + "\n}\n")
+
+
+def vector_source(F, lay: Layout, nprof: int) -> str:
+    """C of the 4-lane kernel (``gprace_predict4``): the emitted derivative and the 4-lane driver."""
+    return (_VEC_HEAD_C + f"#define NXS {lay.nx}\n#define NPROF {nprof}\n#define NP {lay.np}\n" + emit_vector(F)
+            + _LOOKUP_C + _DRIVER4_C)
+
+
 @dataclass(frozen=True)
 class Layout:
     """Where each parameter sits in the universal function's parameter row."""
@@ -154,14 +327,11 @@ def _layout(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | No
     return Layout(longitudinal, lags, names, index, NX + len(lags))
 
 
-@functools.cache
-def _kernel(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | None = None,
-            profiles: tuple[str, ...] = ()):
-    """(ctypes function, Layout) of a compiled variant, or None (no compiler, or a failed build).
-    ``profiles``: the profile effects present, whose values come in beside the curvature."""
+def _deriv_function(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | None, profiles: tuple[str, ...]):
+    """(CasADi SX function ``gprace_deriv(x, u, kappa, p) -> xdot``, Layout) of a variant: the
+    model's own :func:`~gprace.model.dynamics.dynamics` with every parameter an input."""
     import casadi as ca
 
-    from gprace.backends.compiled import compiled_source
     from gprace.model.nominal import _casadi_ops
 
     lay = _layout(longitudinal, lags, only)
@@ -179,24 +349,94 @@ def _kernel(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | No
         e.z0 = z0
         effects.append(e)
     xdot = dynamics([x[i] for i in range(lay.nx)], [u[0], u[1]], k[0], p, effects, _casadi_ops())
-    F = ca.Function("gprace_deriv", [x, u, k, P], [ca.vertcat(*xdot)])
-    gen = ca.CodeGenerator("gprace_deriv.c", {"with_header": False, "with_mem": False})
-    gen.add(F)
-    src = gen.dump() + f"\n#define NXS {lay.nx}\n#define SZW {F.sz_w()}\n#define SZIW {F.sz_iw()}\n" \
-        f"#define NPROF {len(profiles)}\n#define DERIV gprace_deriv\n" + _DRIVER_C
+    return ca.Function("gprace_deriv", [x, u, k, P], [ca.vertcat(*xdot)]), lay
+
+
+def _tag(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | None, profiles: tuple[str, ...]) -> str:
     fx = "all" if only is None else ("-".join("".join(w[0] for w in n.split("_")) for n in only) or "none")
     if profiles:
         fx += "_p" + "-".join("".join(w[0] for w in n.split("_")) for n in profiles)
-    tag = f"diagnose_predict_{longitudinal}_{'_'.join(lags) or 'nolag'}_{fx}"
-    lib = compiled_source(tag, src, KERNEL_FLAGS, "diagnosis prediction kernel")
-    if lib is None:
-        return None
-    fn = ctypes.CDLL(str(lib)).gprace_predict
+    return f"diagnose_predict_{longitudinal}_{'_'.join(lags) or 'nolag'}_{fx}"
+
+
+def _bind(lib, symbol: str):
+    fn = getattr(ctypes.CDLL(str(lib)), symbol)
     dp, lp, L_ = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_long), ctypes.c_long
     fn.argtypes = [L_, L_, L_, ctypes.c_double, dp, lp, dp, L_, dp, L_, dp, dp, L_, dp, dp,
                    dp, lp, lp, dp, dp, lp, lp, dp]
     fn.restype = ctypes.c_int
-    return fn, lay
+    return fn
+
+
+def scalar_source(F, lay: Layout, nprof: int) -> str:
+    """C of the scalar kernel: CasADi's generated derivative and the driver (``gprace_predict``)."""
+    import casadi as ca
+
+    gen = ca.CodeGenerator("gprace_deriv.c", {"with_header": False, "with_mem": False})
+    gen.add(F)
+    return gen.dump() + f"\n#define NXS {lay.nx}\n#define SZW {F.sz_w()}\n#define SZIW {F.sz_iw()}\n" \
+        f"#define NPROF {nprof}\n#define DERIV gprace_deriv\n" + _LOOKUP_C + _DRIVER_C
+
+
+@functools.cache
+def _kernel(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | None = None,
+            profiles: tuple[str, ...] = ()):
+    """(ctypes function, Layout) of a compiled variant, or None (no compiler, or a failed build).
+    ``profiles``: the profile effects present, whose values come in beside the curvature."""
+    from gprace.compiled import compiled_source
+
+    F, lay = _deriv_function(longitudinal, lags, only, profiles)
+    lib = compiled_source(_tag(longitudinal, lags, only, profiles), scalar_source(F, lay, len(profiles)),
+                          KERNEL_FLAGS, "diagnosis prediction kernel")
+    return None if lib is None else (_bind(lib, "gprace_predict"), lay)
+
+
+@functools.cache
+def _simd_kernel(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...] | None = None,
+                 profiles: tuple[str, ...] = ()):
+    """(ctypes function, Layout) of the 4-lane variant (same arguments and outputs as the scalar
+    one), or None: SIMD switched off, no AVX2/FMA on this processor, not x86-64 Linux, an operation
+    the emitter does not know, no libmvec (or one without the functions), or a failed build."""
+    if not simd_available():
+        return None
+    from gprace.compiled import compiled_source
+
+    F, lay = _deriv_function(longitudinal, lags, only, profiles)
+    try:
+        src = vector_source(F, lay, len(profiles))
+    except NotImplementedError:
+        return None
+    lib = compiled_source(_tag(longitudinal, lags, only, profiles) + "_simd4", src, SIMD_FLAGS,
+                          "4-lane diagnosis prediction kernel", libs=("-lmvec",), fallback="the scalar kernel runs")
+    if lib is None:
+        return None
+    try:
+        return _bind(lib, "gprace_predict4"), lay
+    except OSError:  # a libmvec without the functions at load time
+        return None
+
+
+@functools.cache
+def simd_available() -> bool:
+    """The 4-lane kernel may run here: not switched off (``GPRACE_DIAGNOSE_SIMD=0``), x86-64 Linux
+    (glibc's libmvec) and a processor with AVX2 and FMA (its flags in /proc/cpuinfo). Whether
+    libmvec has the functions is found when the kernel is linked (``-lmvec``, no undefined symbol)."""
+    raw = os.environ.get(SIMD_ENV, "").strip()
+    if raw not in ("", "0", "1"):
+        from gprace.errors import ConfigError
+
+        raise ConfigError(f"{SIMD_ENV}={raw!r}: expected 0 (scalar kernel) or 1 (4-lane kernel where it runs)")
+    if raw == "0" or not sys.platform.startswith("linux") or platform.machine().lower() not in ("x86_64", "amd64"):
+        return False
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("flags"):
+                    flags = set(line.split(":", 1)[1].split())
+                    return {"avx2", "fma"} <= flags
+    except OSError:
+        pass
+    return False
 
 
 def _symbolic_profile(name: str, value):
@@ -300,7 +540,8 @@ def predict_states(model: NominalModel, data, starts: np.ndarray, H: int, subste
     if pl is None:
         return None
     profs = sorted((e for e in pl[2] if e.name in PROFILES), key=lambda e: PROFILES.index(e.name))
-    kern = _kernel(pl[0], pl[1], tuple(e.name for e in pl[2] if e.name in NEUTRAL), tuple(e.name for e in profs))
+    key = (pl[0], pl[1], tuple(e.name for e in pl[2] if e.name in NEUTRAL), tuple(e.name for e in profs))
+    kern = _simd_kernel(*key) or _kernel(*key)
     if kern is None:
         return None
     fn, lay = kern
@@ -385,5 +626,6 @@ def _run_chunks(fn, lay, m, H, sub, dt, X0, k0, U, P, data, L, off, prof_args, o
     if n <= 1:
         call(0, m)
         return
-    edges = np.linspace(0, m, n + 1).astype(int)
+    edges = np.minimum(4 * np.round(np.linspace(0, m, n + 1) / 4).astype(int), m)  # whole 4-lane groups
+    edges[-1] = m
     list(_pool(n).map(lambda ab: call(*ab), zip(edges[:-1], edges[1:])))

@@ -1,0 +1,163 @@
+"""Speed of the diagnosis's prediction kernel (issue 36, stop 48), one JSON row per recording and
+model variant: nanoseconds per window-step (one RK4 step of one window: 4 derivatives and 4
+curvature/profile look-ups) of the scalar kernel and of the 4-lane kernel, one thread, and the
+largest relative difference of their predictions.
+
+With ``--parts``, the scalar kernel's time split into the derivative, the curvature/profile
+look-ups and the rest (RK4 bookkeeping, input rows, stores), by timing variants of its driver with
+the look-ups replaced by a constant and/or the derivative by a linear stand-in (benchmark-only
+builds; the split is approximate: the parts overlap in the processor).
+
+Recordings: the two real logs as ``benchmarks/real_logs.py`` imports them (or ``--runs DIR``
+with ``ini_01-45-24.h5`` and ``iac.h5``), all their windows of ``--horizon`` steps, 1 substep
+(the diagnosis's setting), with the vehicle's nominal parameters.
+
+    python benchmarks/kernel_speed.py [--runs DIR] [--only ini,iac] [--repeat 5] [--parts]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+os.environ.setdefault("GPRACE_DIAGNOSE_THREADS", "1")
+
+
+def variants(lap_length: float):
+    """(label, effects) of the model kinds a diagnosis meets."""
+    from gprace.model import EFFECTS
+
+    knots = np.linspace(0.0, lap_length, 48, endpoint=False)
+    return [
+        ("nominal", []),
+        ("lags", [EFFECTS["steering_lag"](tau=0.05), EFFECTS["drivetrain_lag"](tau=0.1)]),
+        ("effects", [EFFECTS["downforce"](c_l=1.0), EFFECTS["load_transfer"](cog_height=0.3),
+                     EFFECTS["combined_slip"](k=0.5), EFFECTS["tire_friction"](front=0.9, rear=1.1)]),
+        ("profile", [EFFECTS["road_bank_profile"](knots=knots.tolist(), values=(0.02 * np.sin(knots)).tolist(),
+                                                  lap_length=lap_length)]),
+    ]
+
+
+def _timed(fn, repeat: int) -> float:
+    fn()
+    best = np.inf
+    for _ in range(repeat):
+        t = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def _part_kernels(key):
+    """Scalar driver variants: full, no look-ups, no derivative, neither (benchmark-only builds)."""
+    from gprace.compiled import compiled_source
+    from gprace.diagnose import fastpredict as fp
+
+    F, lay = fp._deriv_function(*key)
+    src = fp.scalar_source(F, lay, len(key[3]))
+    stub_stage = ("static inline void stage_const(double s, long i, long m, double L, double off, const double *ks, "
+                  "const double *kv, long nk, const double *pk, const long *pko, const long *pn, const double *pL, "
+                  "const double *pv, const long *pvo, const long *prow, double *kap) { for (int q = 0; q <= NPROF; q++) "
+                  "kap[q] = 1e-3; }\n")
+    stub_deriv = ("static int deriv_lin(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, "
+                  "int mem) { for (int q = 0; q < NXS; q++) res[0][q] = 1e-3 * arg[0][(q + 1) % NXS] + arg[2][0] "
+                  "+ arg[1][q % 2]; return 0; }\n")
+    out = {}
+    for label, stage, deriv in (("full", False, False), ("no_lookup", True, False), ("no_deriv", False, True),
+                                ("neither", True, True)):
+        s = src
+        head, drv = s.split("/* out (m, H, NXS)", 1)
+        if stage:
+            drv = drv.replace("stage_inputs(", "stage_const(")
+        if deriv:
+            drv = drv.replace("DERIV(", "deriv_lin(")
+        s = head + stub_stage + stub_deriv + "/* out (m, H, NXS)" + drv
+        lib = compiled_source(fp._tag(*key) + "_bench_" + label, s, fp.KERNEL_FLAGS, "benchmark kernel")
+        out[label] = fp._bind(lib, "gprace_predict")
+    return out, lay
+
+
+def rows_for(key_name: str, run, vehicle, H: int, repeat: int, parts: bool) -> list[dict]:
+    from gprace.diagnose import core, fastpredict as fp
+
+    data = core.build_dataset([run])
+    starts = data.windows(H)
+    rows = []
+    L = float(data.L[0]) if np.isfinite(data.L[0]) else float(np.ptp(data.Y[:, 5]))
+    for label, effects in variants(L):
+        model = core.model_for(vehicle, data, effects)
+        Z = core.lag_states(model, data) if model.nx > 6 else np.zeros((data.n, 0))
+        X0 = core.initial_states(model, data.Y[starts], Z[starts])
+        pl = fp.plan(model)
+        profs = [e.name for e in pl[2] if e.name in fp.PROFILES]
+        key = (pl[0], pl[1], tuple(e.name for e in pl[2] if e.name in fp.NEUTRAL), tuple(profs))
+        steps = len(starts) * H
+        res = {}
+        for kind, kern in (("scalar", fp._kernel(*key)), ("simd4", fp._simd_kernel(*key))):
+            if kern is None:
+                continue
+            orig = fp._simd_kernel
+            fp._simd_kernel = (lambda *a, k=kern: k) if kind == "simd4" else (lambda *a: None)
+            try:
+                call = lambda: fp.predict_states(model, data, starts, H, 1, X0, core._OFFSET)  # noqa: E731
+                res[kind] = (_timed(call, repeat), call())
+            finally:
+                fp._simd_kernel = orig
+        row = {"recording": key_name, "variant": label, "kernel": fp._tag(*key), "windows": int(len(starts)), "H": H,
+               "ns_per_window_step": {k: round(v[0] / steps * 1e9, 1) for k, v in res.items()}}
+        if len(res) == 2:
+            a, b = res["scalar"][1], res["simd4"][1]
+            row["speedup"] = round(res["scalar"][0] / res["simd4"][0], 2)
+            row["max_rel_diff"] = float(np.nanmax(np.abs(a - b) / np.maximum(np.abs(a), 1e-6 * np.abs(a).max(axis=(0, 1)))))
+        if parts:
+            kerns, lay = _part_kernels(key)
+            t = {}
+            for lab, fn in kerns.items():
+                orig_k, orig_s = fp._kernel, fp._simd_kernel
+                fp._kernel, fp._simd_kernel = (lambda *a, f=fn: (f, lay)), (lambda *a: None)
+                try:
+                    t[lab] = _timed(lambda: fp.predict_states(model, data, starts, H, 1, X0, core._OFFSET), repeat)
+                finally:
+                    fp._kernel, fp._simd_kernel = orig_k, orig_s
+            ns = {k: v / steps * 1e9 for k, v in t.items()}
+            row["scalar_parts_ns"] = {"derivative": round(ns["full"] - ns["no_deriv"], 1),
+                                      "lookups": round(ns["full"] - ns["no_lookup"], 1),
+                                      "rest": round(ns["neither"], 1), "full": round(ns["full"], 1)}
+        rows.append(row)
+        print(json.dumps(row), file=sys.stderr, flush=True)
+    return rows
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=Path, default=None)
+    ap.add_argument("--only", default="ini,iac")
+    ap.add_argument("--horizon", type=int, default=15)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--parts", action="store_true")
+    args = ap.parse_args()
+    import real_logs
+
+    from gprace.config import load_vehicle
+
+    rows = []
+    for key in args.only.split(","):
+        run, _ = real_logs.load(key, args.runs)
+        vehicle = load_vehicle(real_logs.RECORDINGS[key]["vehicle"])
+        rows += rows_for(key, run, vehicle, args.horizon, args.repeat, args.parts)
+    json.dump({"rows": rows, "load_average": [round(x, 2) for x in os.getloadavg()]}, sys.stdout, indent=1)
+    print()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
