@@ -6,32 +6,26 @@ of model the diagnosis builds; where it cannot run, or is switched off, the scal
 from __future__ import annotations
 
 import ctypes
-from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_data import TUM_TRACKS
 
-from gprace.config import load_vehicle
 from gprace.diagnose import core, fastpredict as fp
 from gprace.diagnose.synth import record
 from gprace.io.runs import Run
 from gprace.model import EFFECTS
 
-TRACKS = Path("/work/shared/data/tumftm-racetrack-database/tracks")
-pytestmark = pytest.mark.skipif(not TRACKS.exists(), reason="TUM racetrack database not available")
-
 
 @pytest.fixture(scope="module")
-def setup():
+def setup(audi):
+    """The Audi on 0.6 laps of Norisring, where the 4-lane kernel and a compiler exist."""
     from gprace.compiled import compiler
     from gprace.tracks.loaders import load_track
 
-    if compiler() is None:
-        pytest.skip("no C compiler")
-    if not fp.simd_available():
-        pytest.skip("no AVX2/FMA x86-64 Linux: the 4-lane kernel does not run here")
-    audi = load_vehicle("audi_tt_cup")
-    track = load_track(TRACKS / "Norisring.csv")
+    if not TUM_TRACKS.exists() or compiler() is None or not fp.simd_available():
+        pytest.skip("needs the TUM circuits, a C compiler and an AVX2/FMA x86-64 Linux (libmvec)")
+    track = load_track(TUM_TRACKS / "Norisring.csv")
     return audi, track, record(audi, track, [], laps=0.6, seed=4, substeps=5)
 
 
