@@ -66,84 +66,16 @@ enter the compiled code (one variant serves every knot count and every batch of 
 _LOOKUP_C = r"""
 /* numpy's floating remainder: the sign of the divisor */
 static inline double pymod(double a, double b) {
+    if (a > 0 && a < b) return a;  /* inside the lap already: what fmod gives, without its cost */
     double r = fmod(a, b);
     if (r != 0.0) { if ((b < 0) != (r < 0)) r += b; } else r = copysign(0.0, b);
     return r;
 }
 
-/* numpy.interp(x, xp, fp) on a sorted table of n points */
-static double interp1(double x, const double *xp, const double *fp, long n) {
-    if (!(x > xp[0])) return x < xp[0] || x == xp[0] ? fp[0] : x;  /* NaN passes through */
-    if (x >= xp[n - 1]) return fp[n - 1];
-    long lo = 0, hi = n - 1;  /* xp[lo] <= x < xp[hi] */
-    while (hi - lo > 1) { long mid = (lo + hi) / 2; if (xp[mid] <= x) lo = mid; else hi = mid; }
-    double slope = (fp[hi] - fp[lo]) / (xp[hi] - xp[lo]);
-    return slope * (x - xp[lo]) + fp[lo];
-}
-
-static inline double kappa_at(double s, double L, double off, const double *ks, const double *kv, long nk) {
-    return interp1((isfinite(L) ? pymod(s, L) : s) + off, ks, kv, nk);
-}
-
-/* curvature kap[0] and the NPROF profile values kap[1..] at s for window i (of m): profile q has
-   pn[q] knots at pk + pko[q] (extended by one on each side when periodic, pL[q] > 0) and its values
-   in row prow[q * m + i] of the table at pv + pvo[q] */
-static inline void stage_inputs(double s, long i, long m, double L, double off, const double *ks, const double *kv,
-                                long nk, const double *pk, const long *pko, const long *pn, const double *pL,
-                                const double *pv, const long *pvo, const long *prow, double *kap) {
-    kap[0] = kappa_at(s, L, off, ks, kv, nk);
-    for (long q = 0; q < NPROF; q++) {
-        double x = pL[q] > 0 ? pymod(s, pL[q]) : s;
-        kap[1 + q] = interp1(x, pk + pko[q], pv + pvo[q] + prow[q * m + i] * pn[q], pn[q]);
-    }
-}
-
-"""
-
-_DRIVER_C = r"""
-/* out (m, H, NXS): windows i start from X0[i] (m, NXS) and step with the inputs U[k0[i] + j]
-   (rows clamped to nu - 1), RK4 with `sub` substeps of dt / sub, curvature per stage from the
-   table (ks, kv) at s wrapped to the lap L[i] (infinite: no wrap) plus the offset off[i], and the
-   profiles' values (stage_inputs); parameters P + i * pstride (NP values). Returns 0. */
-int gprace_predict(long m, long H, long sub, double dt, const double *X0, const long *k0, const double *U,
-                   long nu, const double *P, long pstride, const double *ks, const double *kv, long nk,
-                   const double *L, const double *off, const double *pk, const long *pko, const long *pn,
-                   const double *pL, const double *pv, const long *pvo, const long *prow, double *out) {
-    double x[NXS], x2[NXS], k1[NXS], k2[NXS], k3[NXS], k4[NXS], kap[1 + NPROF], u[2];
-    casadi_real w[SZW > 0 ? SZW : 1];
-    casadi_int iw[SZIW > 0 ? SZIW : 1];
-    const casadi_real *arg[4];
-    casadi_real *res[1];
-    double h = dt / (double)sub;
-    for (long i = 0; i < m; i++) {
-        const double *p = P + i * pstride;
-        for (int q = 0; q < NXS; q++) x[q] = X0[i * NXS + q];
-        arg[1] = u; arg[2] = kap; arg[3] = p;
-        for (long j = 0; j < H; j++) {
-            long r = k0[i] + j; if (r > nu - 1) r = nu - 1;
-            u[0] = U[2 * r]; u[1] = U[2 * r + 1];
-            for (long t = 0; t < sub; t++) {
-                stage_inputs(x[5], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, kap); arg[0] = x; res[0] = k1; DERIV(arg, res, iw, w, 0);
-                for (int q = 0; q < NXS; q++) x2[q] = x[q] + 0.5 * h * k1[q];
-                stage_inputs(x2[5], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, kap); arg[0] = x2; res[0] = k2; DERIV(arg, res, iw, w, 0);
-                for (int q = 0; q < NXS; q++) x2[q] = x[q] + 0.5 * h * k2[q];
-                stage_inputs(x2[5], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, kap); arg[0] = x2; res[0] = k3; DERIV(arg, res, iw, w, 0);
-                for (int q = 0; q < NXS; q++) x2[q] = x[q] + h * k3[q];
-                stage_inputs(x2[5], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, kap); arg[0] = x2; res[0] = k4; DERIV(arg, res, iw, w, 0);
-                for (int q = 0; q < NXS; q++) x[q] = x[q] + (h / 6.0) * (k1[q] + 2 * k2[q] + 2 * k3[q] + k4[q]);
-            }
-            for (int q = 0; q < NXS; q++) out[(i * H + j) * NXS + q] = x[q];
-        }
-    }
-    return 0;
-}
-"""
-
-
-_DRIVER4_C = r"""
-/* numpy.interp(x, xp, fp) as interp1, starting from the interval *hint of the previous call (the
-   same interval or the next is checked first, else searched): a window advancing along s finds its
-   interval in O(1); the interval, and so the value, is the one interp1 finds */
+/* numpy.interp(x, xp, fp) on a sorted table of n points, starting from the interval *hint of the
+   previous call (that interval or the next is checked first, else it is searched): a window advancing
+   along s finds its interval in O(1). The interval holding x is unique (xp[lo] <= x < xp[lo + 1]),
+   so the value is that of a plain binary search. */
 static inline double interp1h(double x, const double *xp, const double *fp, long n, long *hint) {
     if (!(x > xp[0])) return x < xp[0] || x == xp[0] ? fp[0] : x;  /* NaN passes through */
     if (x >= xp[n - 1]) return fp[n - 1];
@@ -160,19 +92,75 @@ static inline double interp1h(double x, const double *xp, const double *fp, long
     return slope * (x - xp[lo]) + fp[lo];
 }
 
+
+/* curvature kap[0] and the NPROF profile values kap[1..] at s for window i (of m): profile q has
+   pn[q] knots at pk + pko[q] (extended by one on each side when periodic, pL[q] > 0) and its values
+   in row prow[q * m + i] of the table at pv + pvo[q] */
+static inline void stage_inputs(double s, long i, long m, double L, double off, const double *ks, const double *kv,
+                                long nk, const double *pk, const long *pko, const long *pn, const double *pL,
+                                const double *pv, const long *pvo, const long *prow, long *hint, double *kap) {
+    kap[0] = interp1h((isfinite(L) ? pymod(s, L) : s) + off, ks, kv, nk, &hint[0]);
+    for (long q = 0; q < NPROF; q++) {
+        double x = pL[q] > 0 ? pymod(s, pL[q]) : s;
+        kap[1 + q] = interp1h(x, pk + pko[q], pv + pvo[q] + prow[q * m + i] * pn[q], pn[q], &hint[1 + q]);
+    }
+}
+
+"""
+
+_DRIVER_C = r"""
+/* out (m, H, NXS): windows i start from X0[i] (m, NXS) and step with the inputs U[k0[i] + j]
+   (rows clamped to nu - 1), RK4 with `sub` substeps of dt / sub, curvature per stage from the
+   table (ks, kv) at s wrapped to the lap L[i] (infinite: no wrap) plus the offset off[i], and the
+   profiles' values (stage_inputs); parameters P + i * pstride (NP values). Returns 0. */
+int gprace_predict(long m, long H, long sub, double dt, const double *X0, const long *k0, const double *U,
+                   long nu, const double *P, long pstride, const double *ks, const double *kv, long nk,
+                   const double *L, const double *off, const double *pk, const long *pko, const long *pn,
+                   const double *pL, const double *pv, const long *pvo, const long *prow, double *out) {
+    double x[NXS], x2[NXS], k1[NXS], k2[NXS], k3[NXS], k4[NXS], kap[1 + NPROF], u[2];
+    long hint[1 + NPROF];
+    casadi_real w[SZW > 0 ? SZW : 1];
+    casadi_int iw[SZIW > 0 ? SZIW : 1];
+    const casadi_real *arg[4];
+    casadi_real *res[1];
+    double h = dt / (double)sub;
+    for (long i = 0; i < m; i++) {
+        const double *p = P + i * pstride;
+        for (int q = 0; q < NXS; q++) x[q] = X0[i * NXS + q];
+        for (int q = 0; q < 1 + NPROF; q++) hint[q] = 0;
+        arg[1] = u; arg[2] = kap; arg[3] = p;
+        for (long j = 0; j < H; j++) {
+            long r = k0[i] + j; if (r > nu - 1) r = nu - 1;
+            u[0] = U[2 * r]; u[1] = U[2 * r + 1];
+            for (long t = 0; t < sub; t++) {
+                stage_inputs(x[5], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); arg[0] = x; res[0] = k1; DERIV(arg, res, iw, w, 0);
+                for (int q = 0; q < NXS; q++) x2[q] = x[q] + 0.5 * h * k1[q];
+                stage_inputs(x2[5], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); arg[0] = x2; res[0] = k2; DERIV(arg, res, iw, w, 0);
+                for (int q = 0; q < NXS; q++) x2[q] = x[q] + 0.5 * h * k2[q];
+                stage_inputs(x2[5], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); arg[0] = x2; res[0] = k3; DERIV(arg, res, iw, w, 0);
+                for (int q = 0; q < NXS; q++) x2[q] = x[q] + h * k3[q];
+                stage_inputs(x2[5], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); arg[0] = x2; res[0] = k4; DERIV(arg, res, iw, w, 0);
+                for (int q = 0; q < NXS; q++) x[q] = x[q] + (h / 6.0) * (k1[q] + 2 * k2[q] + 2 * k3[q] + k4[q]);
+            }
+            for (int q = 0; q < NXS; q++) out[(i * H + j) * NXS + q] = x[q];
+        }
+    }
+    return 0;
+}
+"""
+
+
+_DRIVER4_C = r"""
 /* the 4 lanes' curvature and profile values at their own s (stage_inputs, lane by lane) */
 static inline void stage4(v4d s, const long *idx, long m, const double *L, const double *off, const double *ks,
                           const double *kv, long nk, const double *pk, const long *pko, const long *pn,
                           const double *pL, const double *pv, const long *pvo, const long *prow, long hint[][1 + NPROF],
                           v4d *kap) {
+    double k[1 + NPROF];
     for (int l = 0; l < 4; l++) {
         long i = idx[l];
-        double si = s[l], Li = L[i];
-        kap[0][l] = interp1h((isfinite(Li) ? pymod(si, Li) : si) + off[i], ks, kv, nk, &hint[l][0]);
-        for (long q = 0; q < NPROF; q++) {
-            double x = pL[q] > 0 ? pymod(si, pL[q]) : si;
-            kap[1 + q][l] = interp1h(x, pk + pko[q], pv + pvo[q] + prow[q * m + i] * pn[q], pn[q], &hint[l][1 + q]);
-        }
+        stage_inputs(s[l], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint[l], k);
+        for (int q = 0; q < 1 + NPROF; q++) kap[q][l] = k[q];
     }
 }
 
