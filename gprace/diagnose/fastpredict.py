@@ -55,6 +55,8 @@ the driver relies on infinities (a recording without laps) and NaN passing throu
 SIMD_FLAGS = (*KERNEL_FLAGS, "-mavx2", "-mfma")
 """The 4-lane kernel's flags: AVX2 vectors whatever -march=native says (libmvec's ``_ZGVdN4*``
 functions take and return them in ymm registers); used only where the processor has AVX2 and FMA."""
+GROUPS = 2
+"""Vectors of 4 windows the 4-lane kernel advances together (8 windows)."""
 SIMD_ENV = "GPRACE_DIAGNOSE_SIMD"
 """Environment variable: ``0`` keeps the scalar kernel even where the 4-lane one could run."""
 PROFILES = tuple(n for n, c in EFFECTS.items() if getattr(c, "profile", False))
@@ -151,54 +153,59 @@ int gprace_predict(long m, long H, long sub, double dt, const double *X0, const 
 
 
 _DRIVER4_C = r"""
-/* the 4 lanes' curvature and profile values at their own s (stage_inputs, lane by lane) */
-static inline void stage4(v4d s, const long *idx, long m, const double *L, const double *off, const double *ks,
-                          const double *kv, long nk, const double *pk, const long *pko, const long *pn,
-                          const double *pL, const double *pv, const long *pvo, const long *prow, long hint[][1 + NPROF],
-                          v4d *kap) {
+/* the curvature and profile values of the 4 G lanes at their own s (stage_inputs, lane by lane);
+   entry q of vector group g sits at [q * G + g] */
+static inline void stage_lanes(const v4d *x, const long *idx, long m, const double *L, const double *off,
+                               const double *ks, const double *kv, long nk, const double *pk, const long *pko,
+                               const long *pn, const double *pL, const double *pv, const long *pvo, const long *prow,
+                               long hint[][1 + NPROF], v4d *kap) {
     double k[1 + NPROF];
-    for (int l = 0; l < 4; l++) {
-        long i = idx[l];
-        stage_inputs(s[l], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint[l], k);
-        for (int q = 0; q < 1 + NPROF; q++) kap[q][l] = k[q];
+    for (int c = 0; c < 4 * G; c++) {
+        int g = c / 4, l = c % 4;
+        long i = idx[c];
+        stage_inputs(x[5 * G + g][l], i, m, L[i], off[i], ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint[c], k);
+        for (int q = 0; q < 1 + NPROF; q++) kap[q * G + g][l] = k[q];
     }
 }
 
-/* gprace_predict on 4 windows at a time (lanes of one AVX2 vector: same H, sub and dt, each its own
-   start, inputs, parameters, lap and offset); the last group repeats the last window in its unused
-   lanes and writes only its own. Returns 0. */
+/* gprace_predict on 4 G windows at a time (G groups of 4 lanes of AVX2 vectors, advanced together so
+   that the processor overlaps their dependency chains; same H, sub and dt, each window its own start,
+   inputs, parameters, lap and offset); the last group repeats the last window in its unused lanes
+   and writes only its own. Returns 0. */
 int gprace_predict4(long m, long H, long sub, double dt, const double *X0, const long *k0, const double *U,
                     long nu, const double *P, long pstride, const double *ks, const double *kv, long nk,
                     const double *L, const double *off, const double *pk, const long *pko, const long *pn,
                     const double *pL, const double *pv, const long *pvo, const long *prow, double *out) {
-    v4d x[NXS], x2[NXS], k1[NXS], k2[NXS], k3[NXS], k4[NXS], kap[1 + NPROF], u[2], p[NP > 0 ? NP : 1];
+    v4d x[NXS * G], x2[NXS * G], k1[NXS * G], k2[NXS * G], k3[NXS * G], k4[NXS * G], kap[(1 + NPROF) * G],
+        u[2 * G], p[(NP > 0 ? NP : 1) * G];
     double h = dt / (double)sub;
-    for (long g = 0; g < m; g += 4) {
-        long idx[4], hint[4][1 + NPROF];
-        for (int l = 0; l < 4; l++) {
-            idx[l] = g + l < m ? g + l : m - 1;
-            for (int q = 0; q < 1 + NPROF; q++) hint[l][q] = 0;
-            for (int q = 0; q < NXS; q++) x[q][l] = X0[idx[l] * NXS + q];
-            for (int q = 0; q < NP; q++) p[q][l] = P[idx[l] * pstride + q];
+    for (long g0 = 0; g0 < m; g0 += 4 * G) {
+        long idx[4 * G], hint[4 * G][1 + NPROF];
+        for (int c = 0; c < 4 * G; c++) {
+            int g = c / 4, l = c % 4;
+            idx[c] = g0 + c < m ? g0 + c : m - 1;
+            for (int q = 0; q < 1 + NPROF; q++) hint[c][q] = 0;
+            for (int q = 0; q < NXS; q++) x[q * G + g][l] = X0[idx[c] * NXS + q];
+            for (int q = 0; q < NP; q++) p[q * G + g][l] = P[idx[c] * pstride + q];
         }
-        long nl = m - g < 4 ? m - g : 4;
+        long nl = m - g0 < 4 * G ? m - g0 : 4 * G;
         for (long j = 0; j < H; j++) {
-            for (int l = 0; l < 4; l++) {
-                long r = k0[idx[l]] + j; if (r > nu - 1) r = nu - 1;
-                u[0][l] = U[2 * r]; u[1][l] = U[2 * r + 1];
+            for (int c = 0; c < 4 * G; c++) {
+                long r = k0[idx[c]] + j; if (r > nu - 1) r = nu - 1;
+                u[c / 4][c % 4] = U[2 * r]; u[G + c / 4][c % 4] = U[2 * r + 1];
             }
             for (long t = 0; t < sub; t++) {
-                stage4(x[5], idx, m, L, off, ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); gprace_deriv4(x, u, kap, p, k1);
-                for (int q = 0; q < NXS; q++) x2[q] = x[q] + 0.5 * h * k1[q];
-                stage4(x2[5], idx, m, L, off, ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); gprace_deriv4(x2, u, kap, p, k2);
-                for (int q = 0; q < NXS; q++) x2[q] = x[q] + 0.5 * h * k2[q];
-                stage4(x2[5], idx, m, L, off, ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); gprace_deriv4(x2, u, kap, p, k3);
-                for (int q = 0; q < NXS; q++) x2[q] = x[q] + h * k3[q];
-                stage4(x2[5], idx, m, L, off, ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); gprace_deriv4(x2, u, kap, p, k4);
-                for (int q = 0; q < NXS; q++) x[q] = x[q] + (h / 6.0) * (k1[q] + 2 * k2[q] + 2 * k3[q] + k4[q]);
+                stage_lanes(x, idx, m, L, off, ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); gprace_deriv4(x, u, kap, p, k1);
+                for (int q = 0; q < NXS * G; q++) x2[q] = x[q] + 0.5 * h * k1[q];
+                stage_lanes(x2, idx, m, L, off, ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); gprace_deriv4(x2, u, kap, p, k2);
+                for (int q = 0; q < NXS * G; q++) x2[q] = x[q] + 0.5 * h * k2[q];
+                stage_lanes(x2, idx, m, L, off, ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); gprace_deriv4(x2, u, kap, p, k3);
+                for (int q = 0; q < NXS * G; q++) x2[q] = x[q] + h * k3[q];
+                stage_lanes(x2, idx, m, L, off, ks, kv, nk, pk, pko, pn, pL, pv, pvo, prow, hint, kap); gprace_deriv4(x2, u, kap, p, k4);
+                for (int q = 0; q < NXS * G; q++) x[q] = x[q] + (h / 6.0) * (k1[q] + 2 * k2[q] + 2 * k3[q] + k4[q]);
             }
-            for (long l = 0; l < nl; l++)
-                for (int q = 0; q < NXS; q++) out[((g + l) * H + j) * NXS + q] = x[q][l];
+            for (long c = 0; c < nl; c++)
+                for (int q = 0; q < NXS; q++) out[((g0 + c) * H + j) * NXS + q] = x[q * G + c / 4][c % 4];
         }
     }
     return 0;
@@ -242,7 +249,7 @@ def _c_double(c: float) -> str:
     return repr(float(c))
 
 
-def emit_vector(F) -> str:
+def emit_vector(F, groups: int = 1) -> str:
     """C of ``static void gprace_deriv4(x, u, kappa, p, out)``: the CasADi SX function ``F``
     (four inputs, one output) evaluated on 4 lanes at once, one statement per instruction of its
     algorithm (``instruction_id/input/output/constant``), in AVX2 vectors of GCC's vector
@@ -251,44 +258,48 @@ def emit_vector(F) -> str:
     import casadi as ca
 
     name = {getattr(ca, n): n for n in dir(ca) if n.startswith("OP_")}
-    body, used = [], set()
+    body, used, G = [], set(), groups
     for k in range(F.n_instructions()):
         op = name.get(F.instruction_id(k), str(F.instruction_id(k)))
         i, o = F.instruction_input(k), F.instruction_output(k)
-        if op == "OP_INPUT":
-            body.append(f"w{o[0]} = a{i[0]}[{i[1]}];")
-            continue
-        if op == "OP_OUTPUT":
-            body.append(f"r[{o[1]}] = w{i[0]};")
-            continue
-        if op == "OP_CONST":
-            c = _c_double(F.instruction_constant(k))
-            body.append(f"w{o[0]} = (v4d){{{c}, {c}, {c}, {c}}};")
-            continue
-        args = {"a": f"w{i[0]}", "b": f"w{i[1]}" if len(i) > 1 else ""}
-        if op in _VEC_OPS:
-            expr = _VEC_OPS[op].format(**args)
-        elif op in _VEC_MATH:
-            fn = f"_ZGVdN4v_{_VEC_MATH[op]}"
-            used.add(f"v4d {fn}(v4d);")
-            expr = f"{fn}({args['a']})"
-        elif op in _VEC_MATH2:
-            fn = f"_ZGVdN4vv_{_VEC_MATH2[op]}"
-            used.add(f"v4d {fn}(v4d, v4d);")
-            expr = f"{fn}({args['a']}, {args['b']})"
-        else:
-            raise NotImplementedError(f"the 4-lane emitter has no {op}")
-        body.append(f"w{o[0]} = {expr};")
-    work = ", ".join(f"w{j}" for j in range(max(F.sz_w(), 1)))
+        for g in range(G):  # the groups' statements side by side: independent chains to overlap
+            if op == "OP_INPUT":
+                body.append(f"w{o[0]}_{g} = a{i[0]}[{i[1] * G + g}];")
+                continue
+            if op == "OP_OUTPUT":
+                body.append(f"r[{o[1] * G + g}] = w{i[0]}_{g};")
+                continue
+            if op == "OP_CONST":
+                c = _c_double(F.instruction_constant(k))
+                body.append(f"w{o[0]}_{g} = (v4d){{{c}, {c}, {c}, {c}}};")
+                continue
+            args = {"a": f"w{i[0]}_{g}", "b": f"w{i[1]}_{g}" if len(i) > 1 else ""}
+            if op in _VEC_OPS:
+                expr = _VEC_OPS[op].format(**args)
+            elif op in _VEC_MATH:
+                fn = f"_ZGVdN4v_{_VEC_MATH[op]}"
+                used.add(f"v4d {fn}(v4d);")
+                expr = f"{fn}({args['a']})"
+            elif op in _VEC_MATH2:
+                fn = f"_ZGVdN4vv_{_VEC_MATH2[op]}"
+                used.add(f"v4d {fn}(v4d, v4d);")
+                expr = f"{fn}({args['a']}, {args['b']})"
+            else:
+                raise NotImplementedError(f"the 4-lane emitter has no {op}")
+            body.append(f"w{o[0]}_{g} = {expr};")
+    work = ", ".join(f"w{j}_{g}" for j in range(max(F.sz_w(), 1)) for g in range(G))
     decl = "".join(f"extern {d}\n" for d in sorted(used))
-    return (decl + "static void gprace_deriv4(const v4d *a0, const v4d *a1, const v4d *a2, const v4d *a3, v4d *r) {\n"
+    return (decl + "static inline __attribute__((always_inline)) void gprace_deriv4(const v4d *a0, const v4d *a1, "
+            "const v4d *a2, const v4d *a3, v4d *r) {\n"
             f"    v4d {work};\n    " + "\n    ".join(body) + "\n}\n")
 
 
-def vector_source(F, lay: Layout, nprof: int) -> str:
-    """C of the 4-lane kernel (``gprace_predict4``): the emitted derivative and the 4-lane driver."""
-    return (_VEC_HEAD_C + f"#define NXS {lay.nx}\n#define NPROF {nprof}\n#define NP {lay.np}\n" + emit_vector(F)
-            + _LOOKUP_C + _DRIVER4_C)
+def vector_source(F, lay: Layout, nprof: int, groups: int = None) -> str:
+    """C of the 4-lane kernel (``gprace_predict4``): the emitted derivative and the 4-lane driver,
+    ``groups`` (default :data:`GROUPS`) vectors of 4 windows advanced together."""
+    G = GROUPS if groups is None else groups
+    return (_VEC_HEAD_C + f"#define NXS {lay.nx}\n#define NPROF {nprof}\n#define NP {lay.np}\n#define G {G}\n"
+            + emit_vector(F, G) + _LOOKUP_C + _DRIVER4_C)
 
 
 @dataclass(frozen=True)
@@ -614,6 +625,7 @@ def _run_chunks(fn, lay, m, H, sub, dt, X0, k0, U, P, data, L, off, prof_args, o
     if n <= 1:
         call(0, m)
         return
-    edges = np.minimum(4 * np.round(np.linspace(0, m, n + 1) / 4).astype(int), m)  # whole 4-lane groups
+    w = 4 * GROUPS  # chunks of whole 4-lane groups (the scalar kernel does not mind)
+    edges = np.minimum(w * np.round(np.linspace(0, m, n + 1) / w).astype(int), m)
     edges[-1] = m
     list(_pool(n).map(lambda ab: call(*ab), zip(edges[:-1], edges[1:])))
