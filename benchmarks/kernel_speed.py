@@ -1,7 +1,10 @@
 """Speed of the diagnosis's prediction kernel (issue 36, stop 48), one JSON row per recording and
 model variant: nanoseconds per window-step (one RK4 step of one window: 4 derivatives and 4
 curvature/profile look-ups) of the scalar kernel and of the 4-lane kernel, one thread, and the
-largest relative difference of their predictions.
+largest relative difference of their predictions. Timed as the difference of calls on 48 and on 8
+windows (the least of ``--repeat`` runs each, at 40 places): short runs escape the preemption of a
+loaded machine, and the difference removes the per-call overhead (~90 us, ~5 ns per window-step
+in a diagnosis's calls).
 
 With ``--parts``, the scalar kernel's time split into the derivative, the curvature/profile
 look-ups and the rest (RK4 bookkeeping, input rows, stores), by timing variants of its driver with
@@ -47,14 +50,23 @@ def variants(lap_length: float):
     ]
 
 
-def _timed(fn, repeat: int) -> float:
-    fn()
-    best = np.inf
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
+def _timed(call, m: int, repeat: int, big: int = 48, small: int = 8) -> float:
+    """Seconds per window: ``call(a, b)`` on ``big`` and on ``small`` windows from the same start,
+    the least of ``repeat`` runs of each, their difference per window averaged over the starts.
+    Short runs escape the preemption of a loaded machine, and the difference removes the per-call
+    overhead (about 90 us of Python and ctypes)."""
+    diff, n = 0.0, 0
+    for a in range(0, m - big, max(big, (m - big) // 40)):
+        best = {}
+        for size in (big, small):
+            best[size] = np.inf
+            for _ in range(repeat):
+                t = time.perf_counter()
+                call(a, a + size)
+                best[size] = min(best[size], time.perf_counter() - t)
+        diff += (best[big] - best[small]) / (big - small)
+        n += 1
+    return diff / n
 
 
 def _part_kernels(key):
@@ -66,7 +78,7 @@ def _part_kernels(key):
     src = fp.scalar_source(F, lay, len(key[3]))
     stub_stage = ("static inline void stage_const(double s, long i, long m, double L, double off, const double *ks, "
                   "const double *kv, long nk, const double *pk, const long *pko, const long *pn, const double *pL, "
-                  "const double *pv, const long *pvo, const long *prow, double *kap) { for (int q = 0; q <= NPROF; q++) "
+                  "const double *pv, const long *pvo, const long *prow, long *hint, double *kap) { for (int q = 0; q <= NPROF; q++) "
                   "kap[q] = 1e-3; }\n")
     stub_deriv = ("static int deriv_lin(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, "
                   "int mem) { for (int q = 0; q < NXS; q++) res[0][q] = 1e-3 * arg[0][(q + 1) % NXS] + arg[2][0] "
@@ -108,8 +120,8 @@ def rows_for(key_name: str, run, vehicle, H: int, repeat: int, parts: bool) -> l
             orig = fp._simd_kernel
             fp._simd_kernel = (lambda *a, k=kern: k) if kind == "simd4" else (lambda *a: None)
             try:
-                call = lambda: fp.predict_states(model, data, starts, H, 1, X0, core._OFFSET)  # noqa: E731
-                res[kind] = (_timed(call, repeat), call())
+                call = lambda a, b: fp.predict_states(model, data, starts[a:b], H, 1, X0[a:b], core._OFFSET)  # noqa: E731
+                res[kind] = (_timed(call, len(starts), repeat) * len(starts), call(0, len(starts)))
             finally:
                 fp._simd_kernel = orig
         row = {"recording": key_name, "variant": label, "kernel": fp._tag(*key), "windows": int(len(starts)), "H": H,
@@ -125,7 +137,8 @@ def rows_for(key_name: str, run, vehicle, H: int, repeat: int, parts: bool) -> l
                 orig_k, orig_s = fp._kernel, fp._simd_kernel
                 fp._kernel, fp._simd_kernel = (lambda *a, f=fn: (f, lay)), (lambda *a: None)
                 try:
-                    t[lab] = _timed(lambda: fp.predict_states(model, data, starts, H, 1, X0, core._OFFSET), repeat)
+                    t[lab] = _timed(lambda a, b: fp.predict_states(model, data, starts[a:b], H, 1, X0[a:b], core._OFFSET),
+                                    len(starts), repeat) * len(starts)
                 finally:
                     fp._kernel, fp._simd_kernel = orig_k, orig_s
             ns = {k: v / steps * 1e9 for k, v in t.items()}
