@@ -91,21 +91,22 @@ static inline double pymod(double a, double b) {
     return r;
 }
 
-/* numpy.interp(x, xp, fp) on a sorted table of n points, starting from the interval *hint of the
-   previous call (that interval or the next is checked first, else it is searched): a window advancing
-   along s finds its interval in O(1). The interval holding x is unique (xp[lo] <= x < xp[lo + 1]),
-   so the value is that of a plain binary search. */
+/* numpy.interp(x, xp, fp) on a sorted table of n points, searching from the interval *hint of the
+   previous call (galloping to a bracket, then bisecting): a window advancing along s finds its
+   interval in a few comparisons, even where the table holds several laps' samples. The interval
+   holding x is unique (xp[lo] <= x < xp[lo + 1]), so the value is that of a plain binary search. */
 static inline double interp1h(double x, const double *xp, const double *fp, long n, long *hint) {
     if (!(x > xp[0])) return x < xp[0] || x == xp[0] ? fp[0] : x;  /* NaN passes through */
     if (x >= xp[n - 1]) return fp[n - 1];
-    long lo = *hint;  /* xp[lo] <= x < xp[lo + 1] */
-    if (!(lo < n - 1 && xp[lo] <= x && x < xp[lo + 1])) {
-        if (lo + 2 < n && xp[lo + 1] <= x && x < xp[lo + 2]) lo++;
-        else {
-            long hi = n - 1; lo = 0;
-            while (hi - lo > 1) { long mid = (lo + hi) / 2; if (xp[mid] <= x) lo = mid; else hi = mid; }
-        }
+    long lo = *hint < n - 1 ? *hint : 0, hi, step = 1;  /* wanted: xp[lo] <= x < xp[lo + 1] */
+    if (xp[lo] <= x) {  /* gallop forward from the hint to a bracket xp[lo] <= x < xp[hi] */
+        hi = lo + 1;
+        while (xp[hi] <= x) { lo = hi; hi = lo + step < n - 1 ? lo + step : n - 1; step *= 2; }
+    } else {  /* or backward */
+        hi = lo; lo = hi - 1;
+        while (xp[lo] > x) { hi = lo; lo = hi - step > 0 ? hi - step : 0; step *= 2; }
     }
+    while (hi - lo > 1) { long mid = (lo + hi) / 2; if (xp[mid] <= x) lo = mid; else hi = mid; }
     *hint = lo;
     double slope = (fp[lo + 1] - fp[lo]) / (xp[lo + 1] - xp[lo]);
     return slope * (x - xp[lo]) + fp[lo];
