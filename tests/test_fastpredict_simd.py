@@ -194,3 +194,36 @@ def test_emitter_follows_casadi_on_every_operation_it_knows(setup):
             ref = np.asarray(F(a4[lane], b4[lane], 0.0, 0.0)).ravel()
             np.testing.assert_allclose(R[lane], ref, rtol=1e-14, atol=0, equal_nan=True,
                                        err_msg=f"{a4[lane]}, {b4[lane]}")
+
+
+def test_a_failed_four_lane_build_falls_back_to_the_scalar_kernel(setup, monkeypatch):
+    """A 4-lane build that fails (here: a compiler that cannot link libmvec) leaves the scalar
+    kernel running with the same predictions, and no other variant is tried in the process."""
+    from gprace import compiled
+
+    audi, track, run = setup
+    data = _data(run, "kinematic")
+    starts = data.windows(15)[::9]
+    model = core.model_for(audi, data, [EFFECTS["yaw_inertia"](factor=1.1)])
+    X0 = core.initial_states(model, data.Y[starts], np.zeros((len(starts), 0)))
+    scalar = _states(model, data, starts, X0, "scalar")
+    real = compiled.compiled_source
+    tried = []
+
+    def broken(name, source, flags, what, libs=(), fallback=""):
+        if libs:
+            tried.append(name)
+            return None  # what _compiled returns when the build fails (after its warning)
+        return real(name, source, flags, what, libs, fallback)
+
+    monkeypatch.setattr(compiled, "compiled_source", broken)
+    fp._simd_kernel.cache_clear()
+    monkeypatch.setattr(fp, "_SIMD_FAILED", [])
+    try:
+        got = fp.predict_states(model, data, starts, 15, 2, X0, core._OFFSET)
+        assert np.array_equal(got, scalar) and len(tried) == 1
+        other = core.model_for(audi, data, [EFFECTS["downforce"](c_l=1.0)])
+        assert fp.predict_states(other, data, starts, 15, 2, X0, core._OFFSET) is not None
+        assert len(tried) == 1  # not tried again
+    finally:
+        fp._simd_kernel.cache_clear()

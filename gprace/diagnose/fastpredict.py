@@ -414,7 +414,7 @@ def _simd_kernel(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...]
     """(ctypes function, Layout) of the 4-lane variant (same arguments and outputs as the scalar
     one), or None: SIMD switched off, no AVX2/FMA on this processor, not x86-64 Linux, an operation
     the emitter does not know, no libmvec (or one without the functions), or a failed build."""
-    if not simd_available():
+    if not simd_available() or _SIMD_FAILED:
         return None
     from gprace.compiled import compiled_source
 
@@ -425,12 +425,19 @@ def _simd_kernel(longitudinal: str, lags: tuple[str, ...], only: tuple[str, ...]
         return None
     lib = compiled_source(_tag(longitudinal, lags, only, profiles) + "_simd4", src, SIMD_FLAGS,
                           "4-lane diagnosis prediction kernel", libs=("-lmvec",), fallback="the scalar kernel runs")
-    if lib is None:
+    if lib is None:  # no libmvec, or a compiler without AVX2: the other variants would fail too
+        _SIMD_FAILED.append(_tag(longitudinal, lags, only, profiles))
         return None
     try:
         return _bind(lib, "gprace_predict4"), lay
     except OSError:  # a libmvec without the functions at load time
+        _SIMD_FAILED.append(_tag(longitudinal, lags, only, profiles))
         return None
+
+
+_SIMD_FAILED: list[str] = []
+"""Variants whose 4-lane build failed in this process: no other is tried (one warning, not one
+per variant; the scalar kernel runs)."""
 
 
 @functools.cache
