@@ -15,7 +15,10 @@ Recordings: the two real logs as ``benchmarks/real_logs.py`` imports them (or ``
 with ``ini_01-45-24.h5`` and ``iac.h5``), all their windows of ``--horizon`` steps, 1 substep
 (the diagnosis's setting), with the vehicle's nominal parameters.
 
-    python benchmarks/kernel_speed.py [--runs DIR] [--only ini,iac] [--repeat 5] [--parts]
+With ``--diagnose``: the whole-log diagnosis of each log instead, CPU and wall seconds of its
+second run in the process (kernel cache warm), the kernel's calls, window-steps and wall time.
+
+    python benchmarks/kernel_speed.py [--runs DIR] [--only ini,iac] [--repeat 5] [--parts] [--diagnose]
 """
 
 from __future__ import annotations
@@ -32,7 +35,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-os.environ.setdefault("GPRACE_DIAGNOSE_THREADS", "1")
+_USER_ENV = set(os.environ)
+os.environ.setdefault("GPRACE_DIAGNOSE_THREADS", "1")  # the kernel timings: one thread
 
 
 def variants(lap_length: float):
@@ -150,6 +154,41 @@ def rows_for(key_name: str, run, vehicle, H: int, repeat: int, parts: bool) -> l
     return rows
 
 
+def diagnosis_row(key: str, run, vehicle) -> dict:
+    """The whole-log diagnosis as ``real_logs.py`` runs it, timed on its second run in the process
+    (the kernel cache warm), with the kernel's calls, window-steps and wall time counted."""
+    from gprace.diagnose import core, fastpredict as fp
+    from gprace.diagnose.diagnose import diagnose
+
+    diagnose([run], vehicle)  # builds what the kernel cache lacks
+    count = [0.0, 0, 0]
+    inner = core._compiled_states
+
+    def counted(model, data, starts, H, substeps, X0):
+        t = time.perf_counter()
+        out = inner(model, data, starts, H, substeps, X0)
+        count[0] += time.perf_counter() - t
+        count[1] += 1
+        count[2] += len(starts) * H * substeps
+        return out
+
+    core._compiled_states = counted
+    load = os.getloadavg()[0]
+    c0, w0 = time.process_time(), time.perf_counter()
+    try:
+        rep = diagnose([run], vehicle).report
+    finally:
+        core._compiled_states = inner
+    cpu, wall, n = time.process_time() - c0, time.perf_counter() - w0, rep["samples"]
+    row = {"recording": key, "diagnosed_samples": n, "cpu_s": round(cpu, 2), "wall_s": round(wall, 2),
+           "cpu_s_per_10k": round(cpu / n * 1e4, 2), "wall_s_per_10k": round(wall / n * 1e4, 2),
+           "kernel_wall_s": round(count[0], 2), "kernel_calls": count[1], "window_steps_M": round(count[2] / 1e6, 2),
+           "kernel_threads": fp._threads(),
+           "load_1min": [round(load, 2), round(os.getloadavg()[0], 2)], "named": [e["name"] for e in rep["effects"]]}
+    print(json.dumps(row), file=sys.stderr, flush=True)
+    return row
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=Path, default=None)
@@ -157,7 +196,11 @@ def main() -> int:
     ap.add_argument("--horizon", type=int, default=15)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--parts", action="store_true")
+    ap.add_argument("--diagnose", action="store_true",
+                    help="time the whole-log diagnosis instead (kernel threads as GPRACE_DIAGNOSE_THREADS, default 2)")
     args = ap.parse_args()
+    if args.diagnose and os.environ.get("GPRACE_DIAGNOSE_THREADS") == "1" and "GPRACE_DIAGNOSE_THREADS" not in _USER_ENV:
+        del os.environ["GPRACE_DIAGNOSE_THREADS"]  # the diagnosis's own default
     import real_logs
 
     from gprace.config import load_vehicle
@@ -166,7 +209,10 @@ def main() -> int:
     for key in args.only.split(","):
         run, _ = real_logs.load(key, args.runs)
         vehicle = load_vehicle(real_logs.RECORDINGS[key]["vehicle"])
-        rows += rows_for(key, run, vehicle, args.horizon, args.repeat, args.parts)
+        if args.diagnose:
+            rows.append(diagnosis_row(key, run, vehicle))
+        else:
+            rows += rows_for(key, run, vehicle, args.horizon, args.repeat, args.parts)
     json.dump({"rows": rows, "load_average": [round(x, 2) for x in os.getloadavg()]}, sys.stdout, indent=1)
     print()
     return 0
