@@ -307,7 +307,7 @@ def emit_vector(F, groups: int = 1) -> str:
             body.append(f"w{o[0]}_{g} = {expr};")
     work = ", ".join(f"w{j}_{g}" for j in range(max(F.sz_w(), 1)) for g in range(G))
     decl = "".join(f"extern {d}\n" for d in sorted(used))
-    return (decl + "static inline __attribute__((always_inline)) void gprace_deriv4(const v4d *a0, const v4d *a1, "
+    return (decl + "static void gprace_deriv4(const v4d *a0, const v4d *a1, "
             "const v4d *a2, const v4d *a3, v4d *r) {\n"
             f"    v4d {work};\n    " + "\n    ".join(body) + "\n}\n")
 
