@@ -38,7 +38,7 @@ from gprace.config import EffectConfig, VehicleConfig
 from gprace.diagnose import calibrate as cal, core, crossval as cv_, locate, name as nm, profiles as pf_, screen as scr
 from gprace.diagnose.core import CHANNELS, DYNAMIC, TESTED
 from gprace.diagnose.laps import wrap_runs
-from gprace.diagnose.profiles import leading, window_or_profile
+from gprace.diagnose.profiles import leading, window_or_profile, worth_cross_validating
 from gprace.diagnose.result import DiagnosisResult, residual_profile
 from gprace.errors import InputError
 from gprace.io.envelope import EnvelopeReport, envelope
@@ -597,6 +597,7 @@ def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_stru
     cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV, ftol=nm.NAMING_FTOL) for f in _slots(cands, PRESCREEN_KEEP)),
                    key=lambda f: f.cost)
     top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20, ftol=nm.NAMING_FTOL) for f in _slots(cands, nm.SCREEN_TOP)]
+    top = worth_cross_validating(top)
     cv = {f.name: _cv_channels(replace(ctx, prob=prob), [f]) for f in top}
     top = window_or_profile(top, cv, ctx.bid)  # parsimony: the window unless the profile is better
     return cv, top
@@ -630,6 +631,7 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
     evaluation; an effect whose channels stay structured is not named but kept as *partial*."""
     effects = list(named.effects)
     notes: list[str] = []
+    dropped: list[NamedEffect] = []
     if effects:
         log(f"diagnose: verifying {', '.join(e.name for e in effects)} on held-out windows (parsimony)")
     # parsimony: each effect must still improve held-out fit given all the others
@@ -643,6 +645,7 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
         ok, where, t = _significant(ctx, l_wo, l_all)
         if not ok:
             drop = effects.pop(i)
+            dropped.append(drop)
             # the others were fitted beside it: refit them without it (a profile named next to
             # its window lacks what the window explained)
             effects = _refit_each(ctx, effects)
@@ -676,6 +679,17 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
                 notes.append(f"{e.name} fits part of the error but leaves {left} structured: not named (kept in "
                              f"the augmented model as a partial fit: it improves held-out prediction)")
         out = [r[0] for r in rejected]
+        gone = [e for e in out if e.fit.profile is not None]
+        if gone and any(set(d.channels) & set(g.channels) for d in dropped for g in gone):
+            # parsimony dropped an effect beside a profile that is now left out: verify again
+            # without the profile, so what it displaced is not lost with it
+            keep = [e for e in named.effects if e.name not in {g.name for g in gone}]
+            keep = _refit_each(ctx, keep)  # they were fitted beside the profile
+            log(f"diagnose: {', '.join(g.name for g in gone)} left out: verifying again without "
+                f"{'it' if len(gone) == 1 else 'them'}")
+            again = verify(p, s, ctx, replace(named, effects=tuple(keep)), vehicle, seed, log)
+            why = [n for n in notes if any(n.startswith(g.name) for g in gone)]
+            return replace(again, notes=tuple(why) + again.notes)
         partial = [e for e in effects if e in out and e.fit.profile is None]
         effects = [e for e in effects if e not in out]
         if len(partial) < len(out):  # a profile left out: the others refitted without it, evaluated again
@@ -964,8 +978,10 @@ def _excess(ev: Evaluation) -> np.ndarray:
 
 
 def _with_base(prob: nm.Problem, fits: list[nm.Fit], i: int) -> nm.Problem:
-    """The problem with every chosen effect but the i-th in the model (the i-th is being fitted)."""
-    return replace(prob, base=[g.effect() for j, g in enumerate(fits) if j != i])
+    """The problem with every effect of ``fits`` but the i-th added to its model (the i-th is
+    being fitted); the problem's own base (the effects chosen in earlier rounds) is kept: a
+    candidate is refitted on top of them, as it is scored."""
+    return replace(prob, base=list(prob.base) + [g.effect() for j, g in enumerate(fits) if j != i])
 
 
 def _sub(model: NominalModel, sub: int) -> int:

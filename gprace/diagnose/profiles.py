@@ -457,6 +457,25 @@ def leading(fits: list, k: int) -> list:
     return out
 
 
+def worth_cross_validating(top: list) -> list:
+    """``top`` without the profiles that cannot pass :func:`window_or_profile`: a profile fitted
+    beside its window is cross-validated only when, in sample on the same windows, it gains more
+    over the window than the parsimony margin (a tenth of the window's excess over the noise
+    floor). Held out, a profile gains less over its window than in sample (its optimism, growing
+    with its effective degrees of freedom, exceeds the window's), and the window's excess is
+    larger: what fails the margin in sample fails it held out."""
+    from gprace.diagnose import name as nm
+
+    by = {f.name: f for f in top}
+    out = []
+    for f in top:
+        w = by.get(getattr(EFFECTS[f.name], "window_of", None)) if is_profile(f.name) else None
+        if w is not None and w.cost - f.cost <= nm.MIN_EXCESS_SHARE * max(w.cost - 1.0, 1e-12):
+            continue
+        out.append(f)
+    return out
+
+
 def window_or_profile(top: list, cv: dict[str, np.ndarray], bid: np.ndarray) -> list:
     """Parsimony between a window and its profile, both cross-validated: the profile stays only
     when its held-out gain over the window passes the naming stage's test (paired block t or
