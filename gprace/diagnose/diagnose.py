@@ -185,6 +185,9 @@ class Ctx:
     skip: frozenset = frozenset()
     """Catalogue effects not tried: the calibration fits their parameter as a nominal one, or the
     recordings' inputs cannot test them."""
+    refused: dict = field(default_factory=dict, compare=False, repr=False)
+    """Profile candidates refused as no road property, {name: why} (the report's notes): values
+    at their physical bound, or an error that repeats with the driven line but follows the state."""
 
 
 @dataclass(frozen=True)
@@ -597,10 +600,34 @@ def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_stru
     cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV, ftol=nm.NAMING_FTOL) for f in _slots(cands, PRESCREEN_KEEP)),
                    key=lambda f: f.cost)
     top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20, ftol=nm.NAMING_FTOL) for f in _slots(cands, nm.SCREEN_TOP)]
-    top = worth_cross_validating(top)
+    top = _road_profiles(prob, ctx, worth_cross_validating(top), log)
     cv = {f.name: _cv_channels(replace(ctx, prob=prob), [f]) for f in top}
     top = window_or_profile(top, cv, ctx.bid)  # parsimony: the window unless the profile is better
     return cv, top
+
+
+def _road_profiles(prob: nm.Problem, ctx: Ctx, top: list, log: Callable[[str], None]) -> list:
+    """``top`` without the profile candidates that are no property of the road (issue 36, stop
+    48), each with its reason in ``ctx.refused``: values at their physical bound
+    (:func:`~gprace.diagnose.profiles.at_bound`: a 34-degree bank on a road course), or, for a
+    bank or grade, an error that repeats with the driven line but follows the car's state at the
+    same place (:func:`~gprace.diagnose.profiles.line_check`). Checked before the
+    cross-validation: a refused profile costs no fold refits."""
+    out, R = [], None
+    for f in top:
+        why = pf_.at_bound(f, prob.vehicle, prob.data) if f.profile is not None else None
+        if why is not None:
+            why = pf_.bound_note(f, why)
+        elif f.profile is not None and f.name in pf_.ADDITIVE:
+            R = prob.residuals(prob.model(), ctx.eval_w) if R is None else R
+            chk = pf_.line_check(prob, f.name, ctx.eval_w, ctx.fold, ctx.bid, R)
+            why = chk.note(f.name) if chk is not None and not chk.road else None
+        if why is None:
+            out.append(f)
+            continue
+        ctx.refused[f.name] = why
+        log(f"diagnose: {why}")
+    return out
 
 
 def _slots(cands: list, k: int) -> list:
@@ -632,6 +659,13 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
     effects = list(named.effects)
     notes: list[str] = []
     dropped: list[NamedEffect] = []
+    bound = {e.name: pf_.at_bound(e.fit, vehicle, p.data) for e in effects if e.fit.profile is not None}
+    if any(bound.values()):  # the final refit pressed a profile against its bound: no road property
+        for e in [e for e in effects if bound.get(e.name)]:
+            effects.remove(e)
+            notes.append(pf_.bound_note(e.fit, bound[e.name]))
+            log(f"diagnose: {notes[-1]}")
+        effects = _refit_each(ctx, effects)  # they were fitted beside it
     if effects:
         log(f"diagnose: verifying {', '.join(e.name for e in effects)} on held-out windows (parsimony)")
     # parsimony: each effect must still improve held-out fit given all the others
@@ -817,6 +851,8 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
     tot1 = float(sum(ex1[i] / aug.stats[i].rmse_twin**2 for i in range(3)))
     explained = (1.0 - tot1 / tot0) if tot0 > 0 else 0.0
     notes = list(p.notes) + [env.note() for env in p.envelopes if env.excluded] + list(ver.notes)
+    notes += [why for n, why in ctx.refused.items() if n not in {e.name for e in ver.modelled}
+              and not any(x.startswith(n) for x in ver.notes)]
     if s.not_identifiable:
         notes.append("not identifiable from these recordings: " + "; ".join(
             f"{e} ({why})" for e, why in s.not_identifiable.items()))

@@ -511,3 +511,154 @@ def to_json(fit, unit: str) -> dict[str, Any]:
             "ci95_high": r(pf.upper if pf.upper is not None else nan),
             "unit": unit, "lap_length": round(pf.basis.L, 3), "smoothing": float(f"{pf.lam:.4g}"),
             "edf": round(float(pf.edf), 2) if np.isfinite(pf.edf) else None}
+
+
+# --------------------------------------------------------------------------------------------
+# a road profile or a mismatch that repeats with the driven line (issue 36, stop 48)
+
+ADDITIVE = {"road_bank_profile": 1, "road_grade_profile": 0}
+"""The profiles that add a force whatever the car's state (g sin(angle(s))), with the dynamic
+channel it acts on. A friction profile scales the tire forces: it is state-dependent by nature."""
+LINE_RIDGE = 1e-3
+"""Ridge of the linear place and state regressions, relative to the mean diagonal of X'X."""
+
+
+def state_features(data: Dataset, starts: np.ndarray, H: int) -> np.ndarray:
+    """(m, q) what a model mismatch scales with, over each window: means over its samples of the
+    lateral acceleration v_x r, v_x^2, the recorded a_x, the steering, v_y and the yaw rate,
+    standardised, with their squares and pairwise products (a smooth function of the state to
+    second order) and a constant."""
+    from gprace.model import Input, State
+
+    idx = starts[:, None] + np.arange(H + 1)[None, :]
+    Y, U = data.Y[idx], data.U[idx]
+    vx, vy, r = Y[..., State.V_X], Y[..., State.V_Y], Y[..., State.YAW_RATE]
+    base = np.stack([(vx * r).mean(1), (vx * vx).mean(1), data.A[idx].mean(1), U[..., Input.DELTA].mean(1),
+                     vy.mean(1), r.mean(1)], axis=1)
+    z = (base - base.mean(0)) / np.maximum(base.std(0), 1e-12)
+    i, j = np.triu_indices(z.shape[1])
+    return np.column_stack([np.ones(len(starts)), z, z[:, i] * z[:, j]])
+
+
+def place_features(basis: Basis, data: Dataset, starts: np.ndarray) -> np.ndarray:
+    """(m, K) the degree-1 B-spline of the window's start in lap position (the profile's knots)."""
+    from gprace.model import State
+
+    i, w = basis.locate(data.Y[starts, State.S])
+    X = np.zeros((len(starts), basis.K))
+    X[np.arange(len(starts)), i] = 1.0 - w
+    X[np.arange(len(starts)), (i + 1) % basis.K] += w
+    return X
+
+
+def _heldout_linear(X: np.ndarray, R: np.ndarray, fold: np.ndarray) -> np.ndarray:
+    """(m,) per-window held-out mean square of ``R`` (m, H) after the ridge regression on ``X``
+    fitted without the window's fold."""
+    out = np.empty(len(R))
+    for f in np.unique(fold):
+        te = fold == f
+        A = X[~te].T @ X[~te]
+        lam = LINE_RIDGE * max(float(np.mean(np.diag(A))), 1e-12)
+        B = np.linalg.solve(A + lam * np.eye(A.shape[0]), X[~te].T @ R[~te])
+        out[te] = np.mean((R[te] - X[te] @ B) ** 2, axis=1)
+    return out
+
+
+@dataclass(frozen=True)
+class LineCheck:
+    """Held-out losses (per window) of the profile's channel: left as it is (``none``), explained
+    by place (a profile over lap position), by the car's state (a mismatch that scales with it) and
+    by both; ``t``: paired block t of both against place (positive: at the same place, the state
+    still predicts the error); ``road``: the verdict."""
+
+    place: np.ndarray
+    state: np.ndarray
+    both: np.ndarray
+    none: np.ndarray
+    t: float
+    road: bool
+
+    def gains(self) -> tuple[float, float, float]:
+        n = max(float(self.none.mean()), 1e-300)
+        return tuple(float(1.0 - x.mean() / n) for x in (self.place, self.state, self.both))
+
+    def note(self, name: str) -> str:
+        gp, gs, gb = self.gains()
+        return (f"{name} repeats with the driven line: road or state mismatch, not named (held out by lap, "
+                f"place explains {100 * gp:.0f} % of its channel's error, the car's state {100 * gs:.0f} %, both "
+                f"{100 * gb:.0f} %: at the same place the error still follows the state, t = {self.t:.1f}; a bank "
+                f"or grade adds the same force whatever the state)")
+
+
+def line_check(prob, name: str, starts: np.ndarray, fold: np.ndarray, bid: np.ndarray,
+               R: np.ndarray | None = None) -> LineCheck | None:
+    """Is what a bank or grade profile explains a property of the road or a mismatch that repeats
+    with the driven line? A bank or grade adds g sin(angle(s)) whatever the car's state; a model
+    mismatch scales with the state (a_y, v_x^2, slip), which at one place differs a little from
+    lap to lap. Both repeat at the same place every lap, so a profile over lap position predicts
+    either on held-out laps. What tells them apart: the windows' errors on the profile's channel
+    regressed (linear ridge, held out by the naming folds) on the place (the profile's knots) and
+    on place and state together (:func:`state_features`). A road property leaves nothing for the
+    state once the place is known; a mismatch does. Not a road property when the state adds,
+    beyond the place, a significant held-out gain (paired block t or signed-rank z above
+    ``T_GAIN_STRONG``) of more than ``MIN_EXCESS_SHARE`` of what the place explains.
+
+    ``R`` (m, H, 3): the windows' normalised errors of the model the profile is added to
+    (computed when None). None when ``name`` is no additive profile, the recordings have no laps
+    or a single fold."""
+    from gprace.diagnose import name as nm
+
+    ch = ADDITIVE.get(name)
+    basis = make_basis(prob.data, prob.H) if ch is not None else None
+    if basis is None or len(np.unique(fold)) < 2:
+        return None
+    if R is None:
+        R = prob.residuals(prob.model(), starts)
+    r = np.where(np.isfinite(R[..., ch]), R[..., ch], 0.0)
+    P, S = place_features(basis, prob.data, starts), state_features(prob.data, starts, prob.H)
+    lp, ls, lb = (_heldout_linear(X, r, fold) for X in (P, S, np.hstack([P, S[:, 1:]])))
+    t = max(nm.gain_test(lp, lb, bid)[1], nm.rank_test(lp, lb, bid))
+    extra, by_place = float(lp.mean() - lb.mean()), float(np.mean(r**2) - lp.mean())
+    road = not (t > nm.T_GAIN_STRONG and extra > nm.MIN_EXCESS_SHARE * max(by_place, 0.0))
+    return LineCheck(lp, ls, lb, np.mean(r**2, axis=1), t, road)
+
+
+# --------------------------------------------------------------------------------------------
+# a profile pressed against its physical bound (issue 36, stop 48)
+
+BOUND_SHARE = 0.01
+"""A knot value within this share of the physical range from a bound is at the bound (a bank
+within 0.012 rad of 0.6 rad): a profile the fit pushes there follows something the road cannot
+be, as a calibrated parameter pressed against its range does."""
+
+
+def at_bound(fit, vehicle, data: Dataset | None) -> str | None:
+    """Where and how far a profile fit's values reach their physical bound
+    (:func:`gprace.diagnose.name.physical_bounds`, within :data:`BOUND_SHARE` of the range), as a
+    phrase for the report; None when every fitted knot is inside."""
+    from gprace.diagnose import name as nm
+
+    pf = fit.profile
+    if pf is None:
+        return None
+    lo, hi = nm.physical_bounds(fit.name, "values", vehicle, data)
+    v = pf.neutral + fit.x
+    free = pf.free if pf.free is not None else np.ones(len(v), dtype=bool)
+    tol = BOUND_SHARE * (hi - lo)
+    hit = free & ((v <= lo + tol) | (v >= hi - tol))
+    if not hit.any():
+        return None
+    unit = EFFECTS[fit.name].params["values"].unit
+    s = pf.basis.knots[hit]
+    j = int(np.flatnonzero(hit)[np.argmax(np.abs(v[hit] - pf.neutral))])
+    bound = lo if v[j] <= lo + tol else hi
+    at = ", ".join(f"{x:.0f}" for x in s[:6]) + (", ..." if len(s) > 6 else "")
+    return (f"{int(hit.sum())} of {int(free.sum())} knots at its physical bound {bound:.3g} {unit} (s = {at} m; "
+            f"extreme {v[j]:.3g} {unit} at s = {pf.basis.knots[j]:.0f} m)")
+
+
+def bound_note(fit, where: str) -> str:
+    """The report's note on a profile refused at its bound (``where`` from :func:`at_bound`)."""
+    what = {"road_bank_profile": "bank", "road_grade_profile": "grade"}.get(fit.name, "grip")
+    return (f"{fit.name} not named: {where}; a road has no such {what}: the profile follows an error "
+            f"that is something else (reported like a calibrated parameter pressed against its range)")
