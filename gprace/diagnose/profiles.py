@@ -598,10 +598,14 @@ def line_check(prob, name: str, starts: np.ndarray, fold: np.ndarray, bid: np.nd
     lap to lap. Both repeat at the same place every lap, so a profile over lap position predicts
     either on held-out laps. What tells them apart: the windows' errors on the profile's channel
     regressed (linear ridge, held out by the naming folds) on the place (the profile's knots) and
-    on place and state together (:func:`state_features`). A road property leaves nothing for the
-    state once the place is known; a mismatch does. Not a road property when the state adds,
-    beyond the place, a significant held-out gain (paired block t or signed-rank z above
-    ``T_GAIN_STRONG``) of more than ``MIN_EXCESS_SHARE`` of what the place explains.
+    on the state alone (:func:`state_features`) and on both. A road property leaves nothing for
+    the state once the place is known; a mismatch does. Not a road property when, at the same
+    place, the state still predicts the error (both against place: paired block t or signed-rank
+    z above ``T_GAIN_STRONG``) and that matters: the state alone predicts as well as the place
+    (a profile adds nothing the state does not explain), or the state adds more than
+    ``MIN_EXCESS_SHARE`` of what the place explains. A bank where the car corners (TUM's oval:
+    30 degrees in the turns) is explained as well by the state as by the place, but nothing is
+    left for the state at a place: named.
 
     ``R`` (m, H, 3): the windows' normalised errors of the model the profile is added to
     (computed when None). None when ``name`` is no additive profile, the recordings have no laps
@@ -619,7 +623,8 @@ def line_check(prob, name: str, starts: np.ndarray, fold: np.ndarray, bid: np.nd
     lp, ls, lb = (_heldout_linear(X, r, fold) for X in (P, S, np.hstack([P, S[:, 1:]])))
     t = max(nm.gain_test(lp, lb, bid)[1], nm.rank_test(lp, lb, bid))
     extra, by_place = float(lp.mean() - lb.mean()), float(np.mean(r**2) - lp.mean())
-    road = not (t > nm.T_GAIN_STRONG and extra > nm.MIN_EXCESS_SHARE * max(by_place, 0.0))
+    state_too = ls.mean() <= lp.mean() or extra > nm.MIN_EXCESS_SHARE * max(by_place, 0.0)
+    road = not (t > nm.T_GAIN_STRONG and state_too)
     return LineCheck(lp, ls, lb, np.mean(r**2, axis=1), t, road)
 
 
