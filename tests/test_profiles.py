@@ -426,3 +426,100 @@ def test_profile_not_cross_validated_when_it_cannot_beat_its_window_same_decisio
     for a, b in zip(fast["effects"], full["effects"]):
         for k, p in a["parameters"].items():
             assert p["value"] == pytest.approx(b["parameters"][k]["value"], rel=1e-9, abs=1e-12)
+
+
+# ------------------------------------------------------------------------------------------
+# no road profile from values at the bound or from a mismatch that repeats with the line (stop 48)
+
+
+def _ctx(prob, starts):
+    from gprace.diagnose import diagnose as dg
+    from gprace.diagnose import locate
+    from gprace.diagnose import name as nm
+
+    return dg.Ctx(prob, starts, starts, starts, nm.folds(prob.data, starts), locate.blocks(prob.data, starts), 1, (),
+                  3.0)
+
+
+def test_profile_at_its_physical_bound_is_not_named(vehicle, oval_run):
+    """A bank profile whose values reach the catalogue's 0.6 rad (34 degrees; IAC's Putnam Park
+    bank of stop 47) is no property of the road: refused in the naming round with where and how
+    far it reaches the bound, and left out at verification when the final refit pushes it there;
+    the oval's true 30-degree bank, inside, is not refused for its values."""
+    from dataclasses import replace
+
+    from gprace.diagnose import diagnose as dg
+    from gprace.diagnose import profiles as pr
+
+    prob, starts = _problem(vehicle, oval_run, every=4)
+    fit = pr.fit_profile(prob, "road_bank_profile", starts)
+    assert pr.at_bound(fit, vehicle, prob.data) is None
+    pressed = replace(fit, x=fit.x.copy())
+    pressed.profile, pressed.win = fit.profile, fit.win
+    j = np.argsort(np.abs(fit.profile.basis.knots - 400.0))[:3]  # three knots around s = 400 m
+    pressed.x[j] = 0.6 - 1e-9
+    where = pr.at_bound(pressed, vehicle, prob.data)
+    assert where is not None and where.startswith("3 of ") and "0.6 rad" in where
+    assert f"{fit.profile.basis.knots[j].min():.0f}" in where
+    ctx = _ctx(prob, starts)
+    assert dg._road_profiles(prob, ctx, [pressed], lambda m: None) == []
+    assert "not named" in ctx.refused["road_bank_profile"] and "physical bound" in ctx.refused["road_bank_profile"]
+    # verification: a named profile the final refit pressed against the bound is left out
+    p = dg.prepare([oval_run], 15, vehicle.wheelbase)
+    s = dg.screen(p, vehicle, 0)
+    named = dg.Named((dg.NamedEffect(pressed, {}, {}, 0.5),), ())
+    ver = dg.verify(p, s, replace(ctx, prob=replace(prob, data=p.data)), named, vehicle, 0, lambda m: None)
+    assert ver.effects == () and ver.partial == () and any("physical bound" in n for n in ver.notes)
+
+
+class LateralShare:
+    """Outside the catalogue: a lateral force proportional to the lateral acceleration,
+    ``F = -m k v_x r`` (tyres that carry a share ``k`` more than the model says, whatever the
+    place). On the mean line it is a bank of ``asin(k a_y / g)`` where the car corners; at one
+    place it follows the car's state from lap to lap, a bank does not."""
+
+    @staticmethod
+    def make(k: float):
+        from gprace.model import Effect, ParamSpec
+
+        class _Share(Effect):
+            name = "test_lateral_share"
+            description = "F_y = -m k v_x r"
+            channels = ("v_y",)
+            params = {"k": ParamSpec(None, -1.0, 1.0, "-", "share of the lateral acceleration")}
+
+            def forces(self, c):
+                c.f_lat = c.f_lat - c.p.m * self.k * c.vx * c.r
+
+        return _Share(k=k)
+
+
+def test_road_bank_told_from_a_state_mismatch_that_repeats_with_the_line(vehicle, oval, oval_run):
+    """Two recordings of the same driver on TUM's banked oval, the same line every lap: one with
+    the 30-degree corner bank, one flat with a lateral force that scales with the lateral
+    acceleration (:class:`LateralShare`: on the mean line, a bank where the car corners). A bank
+    profile fits both in sample, and a profile over lap position predicts both on held-out laps;
+    only the bank leaves nothing for the car's state at a place. The bank is a road profile;
+    the other is refused as repeating with the line. (The bank is named end to end:
+    test_bank_profile_recovered_on_tum_banked_oval.)"""
+    from gprace.diagnose import diagnose as dg
+    from gprace.diagnose import profiles as pr
+    from gprace.diagnose.synth import record
+
+    share = record(vehicle, oval, [LateralShare.make(0.3)], laps=4.0, seed=2, substeps=5)
+    verdicts = {}
+    for label, run in (("bank", oval_run), ("share", share)):
+        prob, starts = _problem(vehicle, run, every=4)
+        ctx = _ctx(prob, starts)
+        chk = pr.line_check(prob, "road_bank_profile", starts, ctx.fold, ctx.bid)
+        place, state, both = chk.gains()
+        assert place > 0.3, (label, chk.gains())  # a profile over lap position predicts held-out laps
+        fit = pr.fit_profile(prob, "road_bank_profile", starts)
+        base = float(np.mean(prob.residuals(prob.model(), starts)[..., 1] ** 2))
+        with_fit = float(np.mean(prob.residuals(prob.model([fit.effect()]), starts)[..., 1] ** 2))
+        assert with_fit < 0.5 * base, (label, with_fit, base)  # and fits v_y in sample
+        verdicts[label] = (chk.road, dg._road_profiles(prob, ctx, [fit], lambda m: None), ctx.refused)
+    road, kept, refused = verdicts["bank"]
+    assert road and len(kept) == 1 and not refused
+    road, kept, refused = verdicts["share"]
+    assert not road and kept == [] and "repeats with the driven line" in refused["road_bank_profile"]
