@@ -603,9 +603,10 @@ def line_check(prob, name: str, starts: np.ndarray, fold: np.ndarray, bid: np.nd
     place, the state still predicts the error (both against place: paired block t or signed-rank
     z above ``T_GAIN_STRONG``) and that matters: the state alone predicts as well as the place
     (a profile adds nothing the state does not explain), or the state adds more than
-    ``MIN_EXCESS_SHARE`` of what the place explains. A bank where the car corners (TUM's oval:
-    30 degrees in the turns) is explained as well by the state as by the place, but nothing is
-    left for the state at a place: named.
+    ``MIN_EXCESS_SHARE`` of what the place explains. When the place predicts nothing held out,
+    nothing repeats with the line: the profile's own cross-validation decides. A bank where the
+    car corners (TUM's oval: 30 degrees in the turns) is explained as well by the state as by the
+    place, but nothing is left for the state at a place: named.
 
     ``R`` (m, H, 3): the windows' normalised errors of the model the profile is added to
     (computed when None). None when ``name`` is no additive profile, the recordings have no laps
@@ -624,7 +625,7 @@ def line_check(prob, name: str, starts: np.ndarray, fold: np.ndarray, bid: np.nd
     t = max(nm.gain_test(lp, lb, bid)[1], nm.rank_test(lp, lb, bid))
     extra, by_place = float(lp.mean() - lb.mean()), float(np.mean(r**2) - lp.mean())
     state_too = ls.mean() <= lp.mean() or extra > nm.MIN_EXCESS_SHARE * max(by_place, 0.0)
-    road = not (t > nm.T_GAIN_STRONG and state_too)
+    road = not (by_place > 0.0 and t > nm.T_GAIN_STRONG and state_too)  # nothing repeats: the folds decide
     return LineCheck(lp, ls, lb, np.mean(r**2, axis=1), t, road)
 
 
