@@ -630,6 +630,21 @@ def _road_profiles(prob: nm.Problem, ctx: Ctx, top: list, log: Callable[[str], N
     return out
 
 
+def _inside_bounds(ctx: Ctx, effects: list[NamedEffect], vehicle: VehicleConfig, data: core.Dataset,
+                   notes: list[str], log: Callable[[str], None]) -> list[NamedEffect]:
+    """``effects`` without the profiles whose values reach their physical bound (no property of
+    the road, :func:`~gprace.diagnose.profiles.at_bound`; a note each), the others refitted
+    without them."""
+    where = {e.name: pf_.at_bound(e.fit, vehicle, data) for e in effects if e.fit.profile is not None}
+    if not any(where.values()):
+        return effects
+    for e in effects:
+        if where.get(e.name):
+            notes.append(pf_.bound_note(e.fit, where[e.name]))
+            log(f"diagnose: {notes[-1]}")
+    return _refit_each(ctx, [e for e in effects if not where.get(e.name)])  # they were fitted beside it
+
+
 def _slots(cands: list, k: int) -> list:
     """The candidates carried on: the profiles among the ``k`` leading families
     (:func:`~gprace.diagnose.profiles.leading`) and, beside them, the ``k`` leading scalar
@@ -659,13 +674,7 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
     effects = list(named.effects)
     notes: list[str] = []
     dropped: list[NamedEffect] = []
-    bound = {e.name: pf_.at_bound(e.fit, vehicle, p.data) for e in effects if e.fit.profile is not None}
-    if any(bound.values()):  # the final refit pressed a profile against its bound: no road property
-        for e in [e for e in effects if bound.get(e.name)]:
-            effects.remove(e)
-            notes.append(pf_.bound_note(e.fit, bound[e.name]))
-            log(f"diagnose: {notes[-1]}")
-        effects = _refit_each(ctx, effects)  # they were fitted beside it
+    effects = _inside_bounds(ctx, effects, vehicle, p.data, notes, log)  # the final refit may press a profile there
     if effects:
         log(f"diagnose: verifying {', '.join(e.name for e in effects)} on held-out windows (parsimony)")
     # parsimony: each effect must still improve held-out fit given all the others
@@ -690,6 +699,7 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
                          f"{', '.join(e.name for e in effects)} {'is' if len(effects) == 1 else 'are'} in the model "
                          f"(t = {t:.1f}): they trade off, reported as ambiguous, not named")
             log(f"diagnose: {notes[-1]}")
+    effects = _inside_bounds(ctx, effects, vehicle, p.data, notes, log)  # so may a refit after a drop
     m1 = core.model_for(vehicle, p.data, [e.fit.effect() for e in effects])
     ev1 = evaluate(p, m1, s.sigma, seed + 2, scale=s.scale) if effects else s.nominal
     ex0, ex1 = _excess(s.nominal), _excess(ev1)
