@@ -615,18 +615,21 @@ def _road_profiles(prob: nm.Problem, ctx: Ctx, top: list, log: Callable[[str], N
     cross-validation: a refused profile costs no fold refits."""
     out, R = [], None
     for f in top:
-        why = pf_.at_bound(f, prob.vehicle, prob.data) if f.profile is not None else None
-        if why is not None:
-            why = pf_.bound_note(f, why)
-        elif f.profile is not None and f.name in pf_.ADDITIVE:
-            R = prob.residuals(prob.model(), ctx.eval_w) if R is None else R
-            chk = pf_.line_check(prob, f.name, ctx.eval_w, ctx.fold, ctx.bid, R)
-            why = chk.note(f.name) if chk is not None and not chk.road else None
-        if why is None:
+        if f.profile is None:
             out.append(f)
             continue
-        ctx.refused[f.name] = why
-        log(f"diagnose: {why}")
+        bound = pf_.at_bound(f, prob.vehicle, prob.data)
+        why = [pf_.bound_note(f, bound)] if bound is not None else []
+        if f.name in pf_.ADDITIVE:  # both reasons when both hold (the second says what it was)
+            R = prob.residuals(prob.model(), ctx.eval_w) if R is None else R
+            chk = pf_.line_check(prob, f.name, ctx.eval_w, ctx.fold, ctx.bid, R)
+            if chk is not None and not chk.road:
+                why.append(chk.note(f.name))
+        if not why:
+            out.append(f)
+            continue
+        ctx.refused[f.name] = "; ".join(why)
+        log(f"diagnose: {ctx.refused[f.name]}")
     return out
 
 
