@@ -620,11 +620,11 @@ def _road_profiles(prob: nm.Problem, ctx: Ctx, top: list, log: Callable[[str], N
             continue
         bound = pf_.at_bound(f, prob.vehicle, prob.data)
         why = [pf_.bound_note(f, bound)] if bound is not None else []
-        if f.name in pf_.ADDITIVE:  # both reasons when both hold (the second says what it was)
+        if f.name in pf_.ADDITIVE or f.name in pf_.SCALING:  # both reasons when both hold
             R = prob.residuals(prob.model(), ctx.eval_w) if R is None else R
             chk = pf_.line_check(prob, f.name, ctx.eval_w, ctx.fold, ctx.bid, R)
             if chk is not None and not chk.road:
-                why.append(chk.note(f.name))
+                why.append(chk.note())
         if not why:
             out.append(f)
             continue

@@ -516,9 +516,12 @@ def to_json(fit, unit: str) -> dict[str, Any]:
 # --------------------------------------------------------------------------------------------
 # a road profile or a mismatch that repeats with the driven line (issue 36, stop 48)
 
-ADDITIVE = {"road_bank_profile": 1, "road_grade_profile": 0}
+ADDITIVE = {"road_bank_profile": (1,), "road_grade_profile": (0,)}
 """The profiles that add a force whatever the car's state (g sin(angle(s))), with the dynamic
-channel it acts on. A friction profile scales the tire forces: it is state-dependent by nature."""
+channels they act on."""
+SCALING = {"friction_profile": (1, 2)}
+"""The profiles that scale the tyre forces: their error follows the state at a place by nature
+(grip matters near the limit), so what they must show is a place the state alone does not explain."""
 LINE_RIDGE = 1e-3
 """Ridge of the linear place and state regressions, relative to the mean diagonal of X'X."""
 
@@ -566,67 +569,86 @@ def _heldout_linear(X: np.ndarray, R: np.ndarray, fold: np.ndarray) -> np.ndarra
 
 @dataclass(frozen=True)
 class LineCheck:
-    """Held-out losses (per window) of the profile's channel: left as it is (``none``), explained
-    by place (a profile over lap position), by the car's state (a mismatch that scales with it) and
-    by both; ``t``: paired block t of both against place (positive: at the same place, the state
-    still predicts the error); ``road``: the verdict."""
+    """Held-out losses (per window) of the profile's channels: left as they are (``none``),
+    explained by place (a profile over lap position), by the car's state (a mismatch that scales
+    with it) and by both; ``t_within``: paired block t of both against place (positive: at the
+    same place the state still predicts the error); ``t_beyond``: of both against state
+    (positive: the place adds what the state does not explain); ``road``: the verdict."""
 
+    name: str
     place: np.ndarray
     state: np.ndarray
     both: np.ndarray
     none: np.ndarray
-    t: float
+    t_within: float
+    t_beyond: float
     road: bool
 
     def gains(self) -> tuple[float, float, float]:
         n = max(float(self.none.mean()), 1e-300)
         return tuple(float(1.0 - x.mean() / n) for x in (self.place, self.state, self.both))
 
-    def note(self, name: str) -> str:
-        gp, gs, gb = self.gains()
-        return (f"{name} repeats with the driven line: road or state mismatch, not named (held out by lap, "
-                f"place explains {100 * gp:.0f} % of its channel's error, the car's state {100 * gs:.0f} %, both "
-                f"{100 * gb:.0f} %: at the same place the error still follows the state, t = {self.t:.1f}; a bank "
-                f"or grade adds the same force whatever the state)")
+    def note(self) -> str:
+        gp, gs, gb = (round(100 * g) for g in self.gains())
+        shares = (f"held out by lap, place explains {gp} % of its channels' error, the car's state {gs} %, "
+                  f"both {gb} %")
+        if self.name in SCALING:
+            return (f"{self.name} repeats with the driven line: road or state mismatch, not named ({shares}: "
+                    f"the place adds nothing the state does not explain, t = {self.t_beyond:.1f})")
+        return (f"{self.name} repeats with the driven line: road or state mismatch, not named ({shares}: at the "
+                f"same place the error still follows the state, t = {self.t_within:.1f}; a bank or grade adds "
+                f"the same force whatever the state)")
 
 
 def line_check(prob, name: str, starts: np.ndarray, fold: np.ndarray, bid: np.ndarray,
                R: np.ndarray | None = None) -> LineCheck | None:
-    """Is what a bank or grade profile explains a property of the road or a mismatch that repeats
-    with the driven line? A bank or grade adds g sin(angle(s)) whatever the car's state; a model
-    mismatch scales with the state (a_y, v_x^2, slip), which at one place differs a little from
-    lap to lap. Both repeat at the same place every lap, so a profile over lap position predicts
-    either on held-out laps. What tells them apart: the windows' errors on the profile's channel
-    regressed (linear ridge, held out by the naming folds) on the place (the profile's knots) and
-    on the state alone (:func:`state_features`) and on both. A road property leaves nothing for
-    the state once the place is known; a mismatch does. Not a road property when, at the same
-    place, the state still predicts the error (both against place: paired block t or signed-rank
-    z above ``T_GAIN_STRONG``) and that matters: the state alone predicts as well as the place
-    (a profile adds nothing the state does not explain), or the state adds more than
-    ``MIN_EXCESS_SHARE`` of what the place explains. When the place predicts nothing held out,
-    nothing repeats with the line: the profile's own cross-validation decides. A bank where the
-    car corners (TUM's oval: 30 degrees in the turns) is explained as well by the state as by the
-    place, but nothing is left for the state at a place: named.
+    """Is what a profile explains a property of the road or a mismatch that repeats with the
+    driven line? Both repeat at the same place every lap, so a profile over lap position predicts
+    either on held-out laps. The windows' errors on the profile's channels are regressed (linear
+    ridge, held out by the naming folds) on the place (the profile's knots), on the state alone
+    (:func:`state_features`) and on both.
 
-    ``R`` (m, H, 3): the windows' normalised errors of the model the profile is added to
-    (computed when None). None when ``name`` is no additive profile, the recordings have no laps
+    - A bank or grade (:data:`ADDITIVE`) adds g sin(angle(s)) whatever the car's state; a model
+      mismatch scales with the state (a_y, v_x^2, slip), which at one place differs a little
+      from lap to lap. Not a road property when, at the same place, the state still predicts the
+      error (both against place) and that matters: significant (paired block t or signed-rank z
+      above ``T_GAIN_STRONG``) and more than ``MIN_EXCESS_SHARE`` of what the place explains, or
+      significant above ``T_GAIN`` while the state alone predicts as well as the place (the
+      naming stage's two-level test of :func:`~gprace.diagnose.diagnose._significant`). A bank
+      where the car corners (TUM's oval: 30 degrees in the turns) is explained as well by the
+      state as by the place, but nothing relevant is left for the state at a place: named.
+    - A friction profile (:data:`SCALING`) follows the state at a place by nature; it is no
+      road property when the place adds nothing significant (``T_GAIN_STRONG``) to what the
+      state alone explains.
+
+    When the place predicts nothing held out, nothing repeats with the line: the profile's own
+    cross-validation decides. ``R`` (m, H, 3): the windows' normalised errors of the model the
+    profile is added to (computed when None). None for other effects, recordings without laps,
     or a single fold."""
     from gprace.diagnose import name as nm
 
-    ch = ADDITIVE.get(name)
+    ch = ADDITIVE.get(name) or SCALING.get(name)
     basis = make_basis(prob.data, prob.H) if ch is not None else None
     if basis is None or len(np.unique(fold)) < 2:
         return None
     if R is None:
         R = prob.residuals(prob.model(), starts)
-    r = np.where(np.isfinite(R[..., ch]), R[..., ch], 0.0)
+    r = np.concatenate([R[..., c] for c in ch], axis=1)
+    r = np.where(np.isfinite(r), r, 0.0)
     P, S = place_features(basis, prob.data, starts), state_features(prob.data, starts, prob.H)
     lp, ls, lb = (_heldout_linear(X, r, fold) for X in (P, S, np.hstack([P, S[:, 1:]])))
-    t = max(nm.gain_test(lp, lb, bid)[1], nm.rank_test(lp, lb, bid))
+    t_w = max(nm.gain_test(lp, lb, bid)[1], nm.rank_test(lp, lb, bid))
+    t_b = max(nm.gain_test(ls, lb, bid)[1], nm.rank_test(ls, lb, bid))
     extra, by_place = float(lp.mean() - lb.mean()), float(np.mean(r**2) - lp.mean())
-    state_too = ls.mean() <= lp.mean() or extra > nm.MIN_EXCESS_SHARE * max(by_place, 0.0)
-    road = not (by_place > 0.0 and t > nm.T_GAIN_STRONG and state_too)  # nothing repeats: the folds decide
-    return LineCheck(lp, ls, lb, np.mean(r**2, axis=1), t, road)
+    if by_place <= 0.0:  # nothing repeats with the line
+        road = True
+    elif name in SCALING:
+        road = bool(t_b > nm.T_GAIN_STRONG and lb.mean() < ls.mean())
+    else:
+        follows = (t_w > nm.T_GAIN_STRONG and extra > nm.MIN_EXCESS_SHARE * by_place) or (
+            t_w > nm.T_GAIN and ls.mean() <= lp.mean())
+        road = not follows
+    return LineCheck(name, lp, ls, lb, np.mean(r**2, axis=1), t_w, t_b, road)
 
 
 # --------------------------------------------------------------------------------------------
