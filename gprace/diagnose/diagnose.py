@@ -38,7 +38,7 @@ from gprace.config import EffectConfig, VehicleConfig
 from gprace.diagnose import calibrate as cal, core, crossval as cv_, locate, name as nm, profiles as pf_, screen as scr
 from gprace.diagnose.core import CHANNELS, DYNAMIC, TESTED
 from gprace.diagnose.laps import wrap_runs
-from gprace.diagnose.profiles import leading, window_or_profile
+from gprace.diagnose.profiles import leading, window_or_profile, worth_cross_validating
 from gprace.diagnose.result import DiagnosisResult, residual_profile
 from gprace.errors import InputError
 from gprace.io.envelope import EnvelopeReport, envelope
@@ -185,6 +185,9 @@ class Ctx:
     skip: frozenset = frozenset()
     """Catalogue effects not tried: the calibration fits their parameter as a nominal one, or the
     recordings' inputs cannot test them."""
+    refused: dict = field(default_factory=dict, compare=False, repr=False)
+    """Profile candidates refused as no road property, {name: why} (the report's notes): values
+    at their physical bound, or an error that repeats with the driven line but follows the state."""
 
 
 @dataclass(frozen=True)
@@ -597,9 +600,52 @@ def _best_effect(prob: nm.Problem, loc: Located, s: Screened, ctx: Ctx, dyn_stru
     cands = sorted((nm.refit(prob, f, ctx.screen_w, max_nfev=SCREEN_NFEV, ftol=nm.NAMING_FTOL) for f in _slots(cands, PRESCREEN_KEEP)),
                    key=lambda f: f.cost)
     top = [nm.refit(prob, f, ctx.fit_w, max_nfev=20, ftol=nm.NAMING_FTOL) for f in _slots(cands, nm.SCREEN_TOP)]
+    top = _road_profiles(prob, ctx, worth_cross_validating(top), log)
     cv = {f.name: _cv_channels(replace(ctx, prob=prob), [f]) for f in top}
     top = window_or_profile(top, cv, ctx.bid)  # parsimony: the window unless the profile is better
     return cv, top
+
+
+def _road_profiles(prob: nm.Problem, ctx: Ctx, top: list, log: Callable[[str], None]) -> list:
+    """``top`` without the profile candidates that are no property of the road (issue 36, stop
+    48), each with its reason in ``ctx.refused``: values at their physical bound
+    (:func:`~gprace.diagnose.profiles.at_bound`: a 34-degree bank on a road course), or, for a
+    bank or grade, an error that repeats with the driven line but follows the car's state at the
+    same place (:func:`~gprace.diagnose.profiles.line_check`). Checked before the
+    cross-validation: a refused profile costs no fold refits."""
+    out, R = [], None
+    for f in top:
+        if f.profile is None:
+            out.append(f)
+            continue
+        bound = pf_.at_bound(f, prob.vehicle, prob.data)
+        why = [pf_.bound_note(f, bound)] if bound is not None else []
+        if f.name in pf_.ADDITIVE or f.name in pf_.SCALING:  # both reasons when both hold
+            R = prob.residuals(prob.model(), ctx.eval_w) if R is None else R
+            chk = pf_.line_check(prob, f.name, ctx.eval_w, ctx.fold, ctx.bid, R)
+            if chk is not None and not chk.road:
+                why.append(chk.note())
+        if not why:
+            out.append(f)
+            continue
+        ctx.refused[f.name] = "; ".join(why)
+        log(f"diagnose: {ctx.refused[f.name]}")
+    return out
+
+
+def _inside_bounds(ctx: Ctx, effects: list[NamedEffect], vehicle: VehicleConfig, data: core.Dataset,
+                   notes: list[str], log: Callable[[str], None]) -> list[NamedEffect]:
+    """``effects`` without the profiles whose values reach their physical bound (no property of
+    the road, :func:`~gprace.diagnose.profiles.at_bound`; a note each), the others refitted
+    without them."""
+    where = {e.name: pf_.at_bound(e.fit, vehicle, data) for e in effects if e.fit.profile is not None}
+    if not any(where.values()):
+        return effects
+    for e in effects:
+        if where.get(e.name):
+            notes.append(pf_.bound_note(e.fit, where[e.name]))
+            log(f"diagnose: {notes[-1]}")
+    return _refit_each(ctx, [e for e in effects if not where.get(e.name)])  # they were fitted beside it
 
 
 def _slots(cands: list, k: int) -> list:
@@ -630,6 +676,8 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
     evaluation; an effect whose channels stay structured is not named but kept as *partial*."""
     effects = list(named.effects)
     notes: list[str] = []
+    dropped: list[NamedEffect] = []
+    effects = _inside_bounds(ctx, effects, vehicle, p.data, notes, log)  # the final refit may press a profile there
     if effects:
         log(f"diagnose: verifying {', '.join(e.name for e in effects)} on held-out windows (parsimony)")
     # parsimony: each effect must still improve held-out fit given all the others
@@ -643,6 +691,7 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
         ok, where, t = _significant(ctx, l_wo, l_all)
         if not ok:
             drop = effects.pop(i)
+            dropped.append(drop)
             # the others were fitted beside it: refit them without it (a profile named next to
             # its window lacks what the window explained)
             effects = _refit_each(ctx, effects)
@@ -653,6 +702,7 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
                          f"{', '.join(e.name for e in effects)} {'is' if len(effects) == 1 else 'are'} in the model "
                          f"(t = {t:.1f}): they trade off, reported as ambiguous, not named")
             log(f"diagnose: {notes[-1]}")
+    effects = _inside_bounds(ctx, effects, vehicle, p.data, notes, log)  # so may a refit after a drop
     m1 = core.model_for(vehicle, p.data, [e.fit.effect() for e in effects])
     ev1 = evaluate(p, m1, s.sigma, seed + 2, scale=s.scale) if effects else s.nominal
     ex0, ex1 = _excess(s.nominal), _excess(ev1)
@@ -676,6 +726,17 @@ def verify(p: Prepared, s: Screened, ctx: Ctx, named: Named, vehicle: VehicleCon
                 notes.append(f"{e.name} fits part of the error but leaves {left} structured: not named (kept in "
                              f"the augmented model as a partial fit: it improves held-out prediction)")
         out = [r[0] for r in rejected]
+        gone = [e for e in out if e.fit.profile is not None]
+        if gone and any(set(d.channels) & set(g.channels) for d in dropped for g in gone):
+            # parsimony dropped an effect beside a profile that is now left out: verify again
+            # without the profile, so what it displaced is not lost with it
+            keep = [e for e in named.effects if e.name not in {g.name for g in gone}]
+            keep = _refit_each(ctx, keep)  # they were fitted beside the profile
+            log(f"diagnose: {', '.join(g.name for g in gone)} left out: verifying again without "
+                f"{'it' if len(gone) == 1 else 'them'}")
+            again = verify(p, s, ctx, replace(named, effects=tuple(keep)), vehicle, seed, log)
+            why = [n for n in notes if any(n.startswith(g.name) for g in gone)]
+            return replace(again, notes=tuple(why) + again.notes)
         partial = [e for e in effects if e in out and e.fit.profile is None]
         effects = [e for e in effects if e not in out]
         if len(partial) < len(out):  # a profile left out: the others refitted without it, evaluated again
@@ -803,6 +864,8 @@ def _report(p: Prepared, s: Screened, ctx: Ctx, c: Calibrated, named: Named, ver
     tot1 = float(sum(ex1[i] / aug.stats[i].rmse_twin**2 for i in range(3)))
     explained = (1.0 - tot1 / tot0) if tot0 > 0 else 0.0
     notes = list(p.notes) + [env.note() for env in p.envelopes if env.excluded] + list(ver.notes)
+    notes += [why for n, why in ctx.refused.items() if n not in {e.name for e in ver.modelled}
+              and not any(x.startswith(n) for x in ver.notes)]
     if s.not_identifiable:
         notes.append("not identifiable from these recordings: " + "; ".join(
             f"{e} ({why})" for e, why in s.not_identifiable.items()))
@@ -964,8 +1027,10 @@ def _excess(ev: Evaluation) -> np.ndarray:
 
 
 def _with_base(prob: nm.Problem, fits: list[nm.Fit], i: int) -> nm.Problem:
-    """The problem with every chosen effect but the i-th in the model (the i-th is being fitted)."""
-    return replace(prob, base=[g.effect() for j, g in enumerate(fits) if j != i])
+    """The problem with every effect of ``fits`` but the i-th added to its model (the i-th is
+    being fitted); the problem's own base (the effects chosen in earlier rounds) is kept: a
+    candidate is refitted on top of them, as it is scored."""
+    return replace(prob, base=list(prob.base) + [g.effect() for j, g in enumerate(fits) if j != i])
 
 
 def _sub(model: NominalModel, sub: int) -> int:

@@ -457,6 +457,25 @@ def leading(fits: list, k: int) -> list:
     return out
 
 
+def worth_cross_validating(top: list) -> list:
+    """``top`` without the profiles that cannot pass :func:`window_or_profile`: a profile fitted
+    beside its window is cross-validated only when, in sample on the same windows, it gains more
+    over the window than the parsimony margin (a tenth of the window's excess over the noise
+    floor). Held out, a profile gains less over its window than in sample (its optimism, growing
+    with its effective degrees of freedom, exceeds the window's), and the window's excess is
+    larger: what fails the margin in sample fails it held out."""
+    from gprace.diagnose import name as nm
+
+    by = {f.name: f for f in top}
+    out = []
+    for f in top:
+        w = by.get(getattr(EFFECTS[f.name], "window_of", None)) if is_profile(f.name) else None
+        if w is not None and w.cost - f.cost <= nm.MIN_EXCESS_SHARE * max(w.cost - 1.0, 1e-12):
+            continue
+        out.append(f)
+    return out
+
+
 def window_or_profile(top: list, cv: dict[str, np.ndarray], bid: np.ndarray) -> list:
     """Parsimony between a window and its profile, both cross-validated: the profile stays only
     when its held-out gain over the window passes the naming stage's test (paired block t or
@@ -492,3 +511,184 @@ def to_json(fit, unit: str) -> dict[str, Any]:
             "ci95_high": r(pf.upper if pf.upper is not None else nan),
             "unit": unit, "lap_length": round(pf.basis.L, 3), "smoothing": float(f"{pf.lam:.4g}"),
             "edf": round(float(pf.edf), 2) if np.isfinite(pf.edf) else None}
+
+
+# --------------------------------------------------------------------------------------------
+# a road profile or a mismatch that repeats with the driven line (issue 36, stop 48)
+
+ADDITIVE = {"road_bank_profile": (1,), "road_grade_profile": (0,)}
+"""The profiles that add a force whatever the car's state (g sin(angle(s))), with the dynamic
+channels they act on."""
+SCALING = {"friction_profile": (1, 2)}
+"""The profiles that scale the tyre forces: their error follows the state at a place by nature
+(grip matters near the limit), so what they must show is a place the state alone does not explain."""
+LINE_RIDGE = 1e-3
+"""Ridge of the linear place and state regressions, relative to the mean diagonal of X'X."""
+
+
+def state_features(data: Dataset, starts: np.ndarray, H: int) -> np.ndarray:
+    """(m, q) what a model mismatch scales with, over each window: means over its samples of the
+    lateral acceleration v_x r, v_x^2, the recorded a_x, the steering, v_y and the yaw rate,
+    standardised, with their squares and pairwise products (a smooth function of the state to
+    second order) and a constant."""
+    from gprace.model import Input, State
+
+    idx = starts[:, None] + np.arange(H + 1)[None, :]
+    Y, U = data.Y[idx], data.U[idx]
+    vx, vy, r = Y[..., State.V_X], Y[..., State.V_Y], Y[..., State.YAW_RATE]
+    base = np.stack([(vx * r).mean(1), (vx * vx).mean(1), data.A[idx].mean(1), U[..., Input.DELTA].mean(1),
+                     vy.mean(1), r.mean(1)], axis=1)
+    z = (base - base.mean(0)) / np.maximum(base.std(0), 1e-12)
+    i, j = np.triu_indices(z.shape[1])
+    return np.column_stack([np.ones(len(starts)), z, z[:, i] * z[:, j]])
+
+
+def place_features(basis: Basis, data: Dataset, starts: np.ndarray) -> np.ndarray:
+    """(m, K) the degree-1 B-spline of the window's start in lap position (the profile's knots)."""
+    from gprace.model import State
+
+    i, w = basis.locate(data.Y[starts, State.S])
+    X = np.zeros((len(starts), basis.K))
+    X[np.arange(len(starts)), i] = 1.0 - w
+    X[np.arange(len(starts)), (i + 1) % basis.K] += w
+    return X
+
+
+def _heldout_linear(X: np.ndarray, R: np.ndarray, fold: np.ndarray) -> np.ndarray:
+    """(m,) per-window held-out mean square of ``R`` (m, H) after the ridge regression on ``X``
+    fitted without the window's fold."""
+    out = np.empty(len(R))
+    for f in np.unique(fold):
+        te = fold == f
+        A = X[~te].T @ X[~te]
+        lam = LINE_RIDGE * max(float(np.mean(np.diag(A))), 1e-12)
+        B = np.linalg.solve(A + lam * np.eye(A.shape[0]), X[~te].T @ R[~te])
+        out[te] = np.mean((R[te] - X[te] @ B) ** 2, axis=1)
+    return out
+
+
+@dataclass(frozen=True)
+class LineCheck:
+    """Held-out losses (per window) of the profile's channels: left as they are (``none``),
+    explained by place (a profile over lap position), by the car's state (a mismatch that scales
+    with it) and by both; ``t_within``: paired block t of both against place (positive: at the
+    same place the state still predicts the error); ``t_beyond``: of both against state
+    (positive: the place adds what the state does not explain); ``road``: the verdict."""
+
+    name: str
+    place: np.ndarray
+    state: np.ndarray
+    both: np.ndarray
+    none: np.ndarray
+    t_within: float
+    t_beyond: float
+    road: bool
+
+    def gains(self) -> tuple[float, float, float]:
+        n = max(float(self.none.mean()), 1e-300)
+        return tuple(float(1.0 - x.mean() / n) for x in (self.place, self.state, self.both))
+
+    def note(self) -> str:
+        gp, gs, gb = (round(100 * g) for g in self.gains())
+        shares = (f"held out by lap, place explains {gp} % of its channels' error, the car's state {gs} %, "
+                  f"both {gb} %")
+        if self.name in SCALING:
+            return (f"{self.name} repeats with the driven line: road or state mismatch, not named ({shares}: "
+                    f"the place adds nothing the state does not explain, t = {self.t_beyond:.1f})")
+        return (f"{self.name} repeats with the driven line: road or state mismatch, not named ({shares}: at the "
+                f"same place the error still follows the state, t = {self.t_within:.1f}; a bank or grade adds "
+                f"the same force whatever the state)")
+
+
+def line_check(prob, name: str, starts: np.ndarray, fold: np.ndarray, bid: np.ndarray,
+               R: np.ndarray | None = None) -> LineCheck | None:
+    """Is what a profile explains a property of the road or a mismatch that repeats with the
+    driven line? Both repeat at the same place every lap, so a profile over lap position predicts
+    either on held-out laps. The windows' errors on the profile's channels are regressed (linear
+    ridge, held out by the naming folds) on the place (the profile's knots), on the state alone
+    (:func:`state_features`) and on both.
+
+    - A bank or grade (:data:`ADDITIVE`) adds g sin(angle(s)) whatever the car's state; a model
+      mismatch scales with the state (a_y, v_x^2, slip), which at one place differs a little
+      from lap to lap. Not a road property when, at the same place, the state still predicts the
+      error (both against place) and that matters: significant (paired block t or signed-rank z
+      above ``T_GAIN_STRONG``) and more than ``MIN_EXCESS_SHARE`` of what the place explains, or
+      significant above ``T_GAIN`` while the state alone predicts as well as the place (the
+      naming stage's two-level test of :func:`~gprace.diagnose.diagnose._significant`). A bank
+      where the car corners (TUM's oval: 30 degrees in the turns) is explained as well by the
+      state as by the place, but nothing relevant is left for the state at a place: named.
+    - A friction profile (:data:`SCALING`) follows the state at a place by nature; it is no
+      road property when the place adds nothing significant (``T_GAIN_STRONG``) to what the
+      state alone explains.
+
+    When the place predicts nothing held out, nothing repeats with the line: the profile's own
+    cross-validation decides. ``R`` (m, H, 3): the windows' normalised errors of the model the
+    profile is added to (computed when None). None for other effects, recordings without laps,
+    or a single fold."""
+    from gprace.diagnose import name as nm
+
+    ch = ADDITIVE.get(name) or SCALING.get(name)
+    basis = make_basis(prob.data, prob.H) if ch is not None else None
+    if basis is None or len(np.unique(fold)) < 2:
+        return None
+    if R is None:
+        R = prob.residuals(prob.model(), starts)
+    r = np.concatenate([R[..., c] for c in ch], axis=1)
+    r = np.where(np.isfinite(r), r, 0.0)
+    P, S = place_features(basis, prob.data, starts), state_features(prob.data, starts, prob.H)
+    lp, ls, lb = (_heldout_linear(X, r, fold) for X in (P, S, np.hstack([P, S[:, 1:]])))
+    t_w = max(nm.gain_test(lp, lb, bid)[1], nm.rank_test(lp, lb, bid))
+    t_b = max(nm.gain_test(ls, lb, bid)[1], nm.rank_test(ls, lb, bid))
+    extra, by_place = float(lp.mean() - lb.mean()), float(np.mean(r**2) - lp.mean())
+    if by_place <= 0.0:  # nothing repeats with the line
+        road = True
+    elif name in SCALING:
+        road = bool(t_b > nm.T_GAIN_STRONG and lb.mean() < ls.mean())
+    else:
+        follows = (t_w > nm.T_GAIN_STRONG and extra > nm.MIN_EXCESS_SHARE * by_place) or (
+            t_w > nm.T_GAIN and ls.mean() <= lp.mean())
+        road = not follows
+    return LineCheck(name, lp, ls, lb, np.mean(r**2, axis=1), t_w, t_b, road)
+
+
+# --------------------------------------------------------------------------------------------
+# a profile pressed against its physical bound (issue 36, stop 48)
+
+BOUND_SHARE = 1e-3
+"""A knot value within this share of the physical range from a bound is at the bound (the fit's
+clip active; :func:`gprace.diagnose.name.at_bound`'s tolerance): a profile the fit presses there
+follows something the road cannot be, as a calibrated parameter pressed against its range does.
+1 % (a bank within 0.012 rad of 0.6 rad) was tried: the top fit of TUM's 30-degree oval overshot
+one knot to -0.593 rad (truth -0.524) and the bank was refused (recovery, seed 939504)."""
+
+
+def at_bound(fit, vehicle, data: Dataset | None) -> str | None:
+    """Where and how far a profile fit's values reach their physical bound
+    (:func:`gprace.diagnose.name.physical_bounds`, within :data:`BOUND_SHARE` of the range), as a
+    phrase for the report; None when every fitted knot is inside."""
+    from gprace.diagnose import name as nm
+
+    pf = fit.profile
+    if pf is None:
+        return None
+    lo, hi = nm.physical_bounds(fit.name, "values", vehicle, data)
+    v = pf.neutral + fit.x
+    free = pf.free if pf.free is not None else np.ones(len(v), dtype=bool)
+    tol = BOUND_SHARE * (hi - lo)
+    hit = free & ((v <= lo + tol) | (v >= hi - tol))
+    if not hit.any():
+        return None
+    unit = EFFECTS[fit.name].params["values"].unit
+    s = pf.basis.knots[hit]
+    j = int(np.flatnonzero(hit)[np.argmax(np.abs(v[hit] - pf.neutral))])
+    bound = lo if v[j] <= lo + tol else hi
+    at = ", ".join(f"{x:.0f}" for x in s[:6]) + (", ..." if len(s) > 6 else "")
+    return (f"{int(hit.sum())} of {int(free.sum())} knots at its physical bound {bound:.3g} {unit} (s = {at} m; "
+            f"extreme {v[j]:.3g} {unit} at s = {pf.basis.knots[j]:.0f} m)")
+
+
+def bound_note(fit, where: str) -> str:
+    """The report's note on a profile refused at its bound (``where`` from :func:`at_bound`)."""
+    what = {"road_bank_profile": "bank", "road_grade_profile": "grade"}.get(fit.name, "grip")
+    return (f"{fit.name} not named: {where}; a road has no such {what}: the profile follows an error "
+            f"that is something else (reported like a calibrated parameter pressed against its range)")
