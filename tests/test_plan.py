@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gprace.config import load_vehicle
-from gprace.errors import ConfigError, InputError
+from gprace.errors import ConfigError, InputError, SolverError
 from gprace.model import NominalModel
 from gprace.plan import PlanSettings, curvature_plan, max_corner_speed, plan_min_time, read_plan
 from gprace.tracks import load_track
@@ -51,6 +51,31 @@ def test_warm_start_and_gp_compensation(setup, circle_plan):
     slower = plan_min_time(tr, m, PlanSettings(ds=6.0), warm=circle_plan,
                            mu_plan=lambda X, U: np.column_stack([-0.5 * np.sign(X[:, 2]), np.zeros(len(X))]))
     assert slower.lap_time > circle_plan.lap_time + 0.05
+
+
+@pytest.mark.parametrize("barrier", ["adaptive", "monotone"])
+def test_both_barriers_reach_the_circle_optimum_from_a_warm_start(setup, circle_plan, barrier):
+    """Either barrier tried first, a warm-started re-plan (the time trial's case) lands on the
+    steady-state optimum the cold plan found."""
+    tr, m = setup
+    again = plan_min_time(tr, m, PlanSettings(ds=6.0, barrier=barrier), warm=circle_plan)
+    assert abs(again.lap_time - circle_plan.lap_time) < 1e-4 * circle_plan.lap_time
+    assert np.allclose(again.e_y, circle_plan.e_y, atol=1e-3)
+
+
+def test_the_second_barrier_takes_over_when_the_first_fails(setup, circle_plan, monkeypatch):
+    """A first try that stops without a solution (here: one iteration allowed to the adaptive
+    barrier only) is no lost plan: the other barrier solves it."""
+    from gprace.plan import nlp
+
+    tr, m = setup
+    tight = {**nlp.BARRIERS["adaptive"], "ipopt.max_iter": 1}
+    monkeypatch.setitem(nlp.BARRIERS, "adaptive", tight)
+    again = plan_min_time(tr, m, PlanSettings(ds=6.0, barrier="adaptive"))
+    assert abs(again.lap_time - circle_plan.lap_time) < 1e-4 * circle_plan.lap_time
+    monkeypatch.setitem(nlp.BARRIERS, "monotone", {**nlp.BARRIERS["monotone"], "ipopt.max_iter": 1})
+    with pytest.raises(SolverError, match="did not converge"):
+        plan_min_time(tr, m, PlanSettings(ds=6.0, barrier="adaptive"))
 
 
 def test_plan_roundtrip_and_other_track(setup, circle_plan, tmp_path):

@@ -54,7 +54,8 @@ def _replan(c: _Chain, i: int) -> None:
         # nominal peak, rear at the tracking MPC's grip bound): the GP compensation, read on the
         # warm start and held fixed, otherwise buys corner speed with steering far past the peak
         slip = guard.slip_bounds(c.mpc.grip_share) if st.never_worse else None
-        plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, limits=tuple(limits), slip_max=slip),
+        plan = plan_min_time(track, model, PlanSettings(ds=st.plan_ds, limits=tuple(limits), slip_max=slip,
+                                                             barrier="adaptive"),
                              warm=warm or read_plan(c.dir(i - 1) / "plan.h5", track),
                              mu_plan=lambda X, U: gp_plan.at(X, U)[0])
         if st.never_worse:
