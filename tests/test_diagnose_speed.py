@@ -206,3 +206,19 @@ def test_fold_refits_of_a_profile_share_one_jacobian_exactly(setup):
         assert np.abs(own.x - fit.x).max() > 1e-4
         np.testing.assert_allclose(g.x, own.x, rtol=1e-9, atol=1e-12)
         assert g.cost == pytest.approx(own.cost, rel=1e-9)
+
+
+def test_row_groups_match_numpy_unique():
+    """The runs-first grouping of parameter rows (crossval.row_groups) gives np.unique's distinct
+    rows, and each group holds exactly the rows equal to its row, in runs or shuffled."""
+    from gprace.diagnose.crossval import row_groups
+
+    rng = np.random.default_rng(0)
+    for trial in range(200):
+        base = rng.integers(0, 4, size=(rng.integers(1, 6), 3)).astype(float)
+        X = np.repeat(base, rng.integers(1, 5), axis=0)
+        X = X[rng.permutation(len(X))] if trial % 2 else X
+        rows, groups = row_groups(X)
+        ref, inv = np.unique(X, axis=0, return_inverse=True)
+        assert np.array_equal(rows, ref)
+        assert [sorted(g) for g in groups] == [list(np.flatnonzero(inv.ravel() == r)) for r in range(len(ref))]

@@ -90,16 +90,29 @@ def _model(prob, blocks: list[Block], X: np.ndarray):
     return model
 
 
+def row_groups(X: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """``(rows, groups)``: the distinct rows of ``X`` (m, P) as ``np.unique(X, axis=0)`` gives them,
+    and for each the indices of the rows of ``X`` equal to it. Equal rows mostly come in runs (a
+    Jacobian's parameter sets repeated per window), so the runs are found first and only their
+    first rows are sorted: O(m P) instead of a sort of all m rows (measured on the INI F1TENTH
+    log: ``np.unique`` over every row was a quarter of the diagnosis's CPU)."""
+    new = np.ones(len(X), dtype=bool)
+    new[1:] = np.any(X[1:] != X[:-1], axis=1)
+    rows, inv = np.unique(X[new], axis=0, return_inverse=True)
+    label = inv.ravel()[np.cumsum(new) - 1]
+    order = np.argsort(label, kind="stable")
+    return rows, np.split(order, np.cumsum(np.bincount(label, minlength=len(rows)))[:-1])
+
+
 def residual_rows(prob, blocks: list[Block], X: np.ndarray, starts: np.ndarray) -> np.ndarray:
     """(m, H, 3) normalised multi-step errors, window ``i`` with the parameters ``X[i]``."""
     m = len(starts)
     model = _model(prob, blocks, X)
     Z0 = None
     if model.nx > 6:  # lag states from the command history, per distinct parameter row
-        rows, inv = np.unique(X, axis=0, return_inverse=True)
+        rows, groups = row_groups(X)
         Z0 = np.empty((m, model.nx - 6))
-        for r in range(len(rows)):
-            idx = np.flatnonzero(inv.ravel() == r)
+        for r, idx in enumerate(groups):
             mr = _model(prob, blocks, rows[r:r + 1])
             mr.params = replace(mr.params, **{f.name: (float(v[0]) if isinstance(v := getattr(mr.params, f.name),
                                                                                np.ndarray) else v)
