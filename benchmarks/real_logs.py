@@ -134,7 +134,7 @@ def in_bounds(rep: dict, vehicle) -> tuple[bool, list[str], list[str]]:
     every knot value). Returns (all inside, what is outside, plausibility notes: a value a real car
     could have but few do, e.g. a radius of gyration beyond ``config.K_PLAUSIBLE``)."""
     from gprace.config import K_PLAUSIBLE, MU_PLAUSIBLE
-    from gprace.diagnose import calibrate as cal, name as nm, profiles as pf
+    from gprace.diagnose import calibrate as cal, name as nm
 
     out, notes = [], []
 
@@ -163,10 +163,9 @@ def in_bounds(rep: dict, vehicle) -> tuple[bool, list[str], list[str]]:
                 notes.append(f"{e['name']}.{k} {p['value']:.4g} at its physical bound")
         if e.get("profile"):  # every knot inside, none pressed against the bound (a 0.6 rad bank is no road's)
             lo, hi = nm.physical_bounds(e["name"], "values", vehicle, None)
-            tol = pf.BOUND_SHARE * (hi - lo)
             for s, v in zip(e["profile"]["s"], e["profile"]["value"]):
                 check(f"{e['name']}.values", v, lo, hi)
-                if lo <= v <= hi and not lo + tol < v < hi - tol:
+                if lo <= v <= hi and nm.at_bound(e["name"], "values", v, vehicle, None):
                     out.append(f"{e['name']}.values {v:.4g} at s = {s:.0f} m at its physical bound "
                                f"[{lo:.4g}, {hi:.4g}]")
     return not out, out, notes

@@ -926,7 +926,7 @@ def _effect_json(e: NamedEffect, fitted_on: VehicleConfig, data: core.Dataset) -
                      "at_bound": not k.startswith("s_") and nm.at_bound(e.name, k, float(v), fitted_on, data)}
     prof = e.fit.profile_json()
     if prof is not None:
-        prof["at_bound"] = any(nm.at_bound(e.name, "values", float(v), fitted_on, data) for v in prof["value"])
+        prof["at_bound"] = bool(np.any(nm.at_bound(e.name, "values", prof["value"], fitted_on, data)))
     return {"name": e.name, "parameters": params, "channels": e.channels,
             "heldout_rmse_before": e.heldout_before, "heldout_rmse_after": e.heldout_after,
             "improvement": round(e.improvement, 4), "ambiguous_with": list(e.ambiguous_with),

@@ -208,11 +208,14 @@ def physical_bounds(name: str, key: str, vehicle, data: Dataset | None) -> tuple
     return lo, hi
 
 
-def at_bound(name: str, key: str, value: float, vehicle, data: Dataset | None, rel: float = 1e-3) -> bool:
-    """Is ``value`` pressed against a bound of :func:`physical_bounds` (within ``rel`` of the range)?"""
+def at_bound(name: str, key: str, value, vehicle, data: Dataset | None, rel: float = 1e-3):
+    """Is ``value`` pressed against a bound of :func:`physical_bounds` (within ``rel`` of the range,
+    the fit's clip active)? A bool, or a bool array for an array of values (a profile's knots)."""
     lo, hi = physical_bounds(name, key, vehicle, data)
     tol = rel * (hi - lo)
-    return bool(value <= lo + tol or value >= hi - tol)
+    v = np.asarray(value, dtype=float)
+    hit = (v <= lo + tol) | (v >= hi - tol)
+    return bool(hit) if hit.ndim == 0 else hit
 
 
 def _bounds(name: str, free: list[str], data: Dataset, vehicle=None):

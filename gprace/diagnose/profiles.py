@@ -654,17 +654,15 @@ def line_check(prob, name: str, starts: np.ndarray, fold: np.ndarray, bid: np.nd
 # --------------------------------------------------------------------------------------------
 # a profile pressed against its physical bound (issue 36, stop 48)
 
-BOUND_SHARE = 1e-3
-"""A knot value within this share of the physical range from a bound is at the bound (the fit's
-clip active; :func:`gprace.diagnose.name.at_bound`'s tolerance): a profile the fit presses there
-follows something the road cannot be, as a calibrated parameter pressed against its range does.
-1 % (a bank within 0.012 rad of 0.6 rad) was tried: the top fit of TUM's 30-degree oval overshot
-one knot to -0.593 rad (truth -0.524) and the bank was refused (recovery, seed 939504)."""
+# A profile is at its bound when a knot is within name.at_bound's 1e-3 of the range (the fit's
+# clip active), as a calibrated parameter is flagged. 1 % (a bank within 0.012 rad of 0.6 rad)
+# was tried: the top fit of TUM's 30-degree oval overshot one knot to -0.593 rad (truth -0.524)
+# and the bank was refused (recovery, seed 939504).
 
 
 def at_bound(fit, vehicle, data: Dataset | None) -> str | None:
     """Where and how far a profile fit's values reach their physical bound
-    (:func:`gprace.diagnose.name.physical_bounds`, within :data:`BOUND_SHARE` of the range), as a
+    (:func:`gprace.diagnose.name.at_bound`), as a
     phrase for the report; None when every fitted knot is inside."""
     from gprace.diagnose import name as nm
 
@@ -674,14 +672,13 @@ def at_bound(fit, vehicle, data: Dataset | None) -> str | None:
     lo, hi = nm.physical_bounds(fit.name, "values", vehicle, data)
     v = pf.neutral + fit.x
     free = pf.free if pf.free is not None else np.ones(len(v), dtype=bool)
-    tol = BOUND_SHARE * (hi - lo)
-    hit = free & ((v <= lo + tol) | (v >= hi - tol))
+    hit = free & nm.at_bound(fit.name, "values", v, vehicle, data)
     if not hit.any():
         return None
     unit = EFFECTS[fit.name].params["values"].unit
     s = pf.basis.knots[hit]
     j = int(np.flatnonzero(hit)[np.argmax(np.abs(v[hit] - pf.neutral))])
-    bound = lo if v[j] <= lo + tol else hi
+    bound = lo if abs(v[j] - lo) <= abs(v[j] - hi) else hi
     at = ", ".join(f"{x:.0f}" for x in s[:6]) + (", ..." if len(s) > 6 else "")
     return (f"{int(hit.sum())} of {int(free.sum())} knots at its physical bound {bound:.3g} {unit} (s = {at} m; "
             f"extreme {v[j]:.3g} {unit} at s = {pf.basis.knots[j]:.0f} m)")
