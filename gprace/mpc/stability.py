@@ -153,7 +153,8 @@ class Envelope:
                 self.band = b
 
     def input_bounds(self, u_lo: np.ndarray, u_hi: np.ndarray, plan_brake: float = 0.0,
-                     lateral: float = 0.0, grip: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+                     lateral: float = 0.0, grip: float = np.inf, rear: float = 0.0,
+                     brake_limit: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The MPC's input bounds for the next period: the longitudinal range narrowed while active.
 
         Braking follows the friction circle (:func:`brake_share`): ``lateral`` is the lateral
@@ -167,13 +168,28 @@ class Envelope:
         of the limit whatever the car did, audi_hidden on the circle_100 plan could not slow to
         the eased speed on the straight-running moments and left the track (docs/decisions.md,
         issue 37, tt3).
+
+        A rear axle past its peak (``rear``, the rear slip angle over the nominal tire's peak slip
+        angle, at least 1) is an exception: it has no grip left for braking, and braking moves load
+        off it. Braking is then held to ``gentle_brake`` of ``brake_limit`` (the plan's braking
+        limit, what the car has been shown to take; else the command's), and the plan's own braking
+        is not kept. ``|v_x r|`` cannot see this: in a slide the car's speed falls, ``|v_x r|``
+        falls with it and the friction circle widened the braking while the rear stayed saturated.
+        Measured on the shakedown of a randomized Audi with a light rear (grip 0.85 of the front's
+        1.04) entering the 18 m hairpin of gprace_ring: with the circle the eased MPC braked at 5 to
+        6.4 m/s^2 through a slide of v_y = -4.7 m/s and spun the car; held to 0.4 of the plan's 6.1
+        m/s^2 while the rear was past its peak, the lap completed (docs/decisions.md, issue 37, stop 49).
         """
         if not self.active:
             return u_lo, u_hi
         st = self.settings
         lo, hi = u_lo.copy(), u_hi.copy()
-        share = brake_share(lateral, grip, st.gentle_brake)
-        lo[Input.A_X] = max(u_lo[Input.A_X], min(share * u_lo[Input.A_X], st.plan_brake_share * plan_brake))
+        if rear >= 1.0:
+            limit = -u_lo[Input.A_X] if brake_limit is None else min(float(brake_limit), -u_lo[Input.A_X])
+            lo[Input.A_X] = -st.gentle_brake * limit
+        else:
+            share = brake_share(lateral, grip, st.gentle_brake)
+            lo[Input.A_X] = max(u_lo[Input.A_X], min(share * u_lo[Input.A_X], st.plan_brake_share * plan_brake))
         hi[Input.A_X] = st.gentle_drive * u_hi[Input.A_X]
         return lo, hi
 
