@@ -114,12 +114,14 @@ class Envelope:
         self._last = 0.0
         self.period = -1   # periods seen
         self.onsets: list[int] = []  # period of each intervention's onset
+        self.scores: list[float] = []  # score of every period (the shakedown reads how calm the car was)
 
     def update(self, sig: np.ndarray, in_control: bool = True) -> float:
         """Score of this period (``max |signal| / band``); moves ``rho`` and counts onsets."""
         st = self.settings
         self.period += 1
         score = float(np.max(np.abs(sig) / self.band))
+        self.scores.append(score)
         # a slide persists, sensor noise does not: outside means two periods in a row, or twice the band
         outside = (score > 1.0 and self._last > 1.0) or score > 2.0
         self._last = score

@@ -14,7 +14,12 @@ widens each axis by ``step`` when
 - no tire came near its peak: the robust peak slip angle of either axle stays below ``hold`` of the
   nominal tire's peak slip angle (which does not depend on the friction, so it holds on a car with
   less grip than the model),
-- the stability envelope (:mod:`gprace.mpc.stability`) did not intervene, and
+- the stability envelope (:mod:`gprace.mpc.stability`) did not intervene, nor did its score come
+  to ``calm`` (0.8) of its band: a car that has begun to wobble under braking is at its edge before
+  the envelope intervenes (measured on randomized Audis with a high CoG or a light rear: the
+  braking widened from 6.5 to 7.2 m/s^2 after windows whose score reached 0.82 to 0.90, and the
+  car then spun under braking from 58 m/s or ran wide out of the slide; docs/decisions.md,
+  issue 37, stop 49),
 - the lateral limit stays below ``safety`` times the grip the car shows: per axle, the force the
   measured accelerations require (from the lateral and yaw balance) over the nominal tire's force
   at the measured slip angle, in every phase (braking, coasting, driving) with enough samples
@@ -57,6 +62,7 @@ class ShakedownSettings(Frozen):
     reach: float = Field(0.85, gt=0, le=1, description="share of an axis' limit the car must have used before it widens")
     hold: float = Field(0.8, gt=0, description="slip use (either axle, share of the nominal peak slip angle) that "
                         "stops the widening")
+    calm: float = Field(0.8, gt=0, description="stability-envelope score (share of its band) that stops the widening")
     back: float = Field(0.15, ge=0, lt=1, description="narrowing of every axis after an envelope intervention")
     safety: float = Field(0.85, gt=0, le=1, description="share of the shown grip the lateral limit may reach")
     every: float = Field(2.0, gt=0, description="seconds between updates [s]")
@@ -198,6 +204,8 @@ class Shakedown:
         shown = envelope_of(Yw, Uw, self.dt * np.arange(len(Yw)), okw)
         use = slip_use(Yw, Uw, self.model, okw)
         if not np.all(np.isfinite(shown)) or not np.isfinite(use) or use >= st.hold:
+            return
+        if max(env.scores[win], default=0.0) >= st.calm:  # the car came near the edge of its band
             return
         grip = axle_grip(Y[:k], U[:k], self.dt, self.model, ok)
         lat_cap = st.safety * min(grip.values()) * self.nominal[0] if grip else np.inf
