@@ -543,3 +543,35 @@ def test_delay_candidates_are_weighted_by_their_likelihood():
     assert w[0, 0] == pytest.approx(w[0, 1]) and w[1, 0] / w[0, 0] == pytest.approx(4.0**-5)
     sharp = likelihood_weights(np.array([[1.0, 1.5]]), np.ones((1, 2), bool), 1e5)
     assert sharp[0, 0] == pytest.approx(1.0) and np.all(np.isfinite(sharp))
+
+
+def test_the_shakedown_does_not_widen_after_a_wobble(stadium):
+    """The same samples widen the limits when the stability envelope's score stayed low, and do not
+    when it came to ``calm`` of its band in the window (the car wobbling before it intervenes)."""
+    from types import SimpleNamespace
+
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import racing_line
+    from gprace.timetrial import grip as G
+    from gprace.timetrial.drive import drive
+    from gprace.timetrial.shakedown import Shakedown, ShakedownSettings
+
+    m = NominalModel(load_vehicle("audi_tt_cup"))
+    st = ShakedownSettings(every=2.0, estimate_delay=False)
+
+    def shakedown():
+        return Shakedown(racing_line(stadium, m, 6.0), m, G.nominal_cap(m, 1.0), st, 0.05)
+
+    run = drive(shakedown().plan(), _plant([]), stadium, m, seed=3)
+    Y, U = run.states(), run.inputs()
+    k = 200  # 10 s: the start straight, the first hairpin and the next straight at the start limits
+    widened = {}
+    for peak in (0.3, st.calm + 0.05):
+        sh = shakedown()
+        start = sh.limits.copy()
+        scores = np.full(k, 0.3)
+        scores[k // 2] = peak
+        sh(k, Y[:k], U[:k], None, SimpleNamespace(onsets=[], scores=list(scores)))
+        widened[peak] = bool(np.any(sh.limits > start + 1e-9))
+    assert widened == {0.3: True, st.calm + 0.05: False}, widened
