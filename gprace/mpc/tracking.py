@@ -20,6 +20,10 @@ Each control period:
    one step (first period: the reference), all horizon points in one compiled CasADi call.
 4. **GP compensation**: the tracking GP's mean of the one-step errors of ``[v_y, yaw_rate]`` at the
    features ``[v_y, yaw_rate, delta]`` of that nominal trajectory enters the affine term.
+   Its gradient enters ``A`` and ``B`` (linearised with the nominal model), except where the
+   nominal lateral block (``v_y``, ``yaw_rate``) of a step is already unstable (spectral radius at
+   least 1: tires linearised at or past their peak) and the gradient would make it more so: there
+   it is shrunk until it does not (``gp_stable``, :func:`stable_share`; beyond the paper, issue 37).
 5. **Chance-constraint tightening**: ``Sigma_{k+1} = A_k Sigma_k A_k^T + diag(0, var_vy, var_r, 0..)``
    from ``Sigma_0 = 0`` (GP latent variances); ``gamma_k = sqrt(2) sigma_ey,k erfinv(2 beta - 1)``.
 5b. **Grip** (beyond the paper; Liniger et al. 2015, Kabzan et al. 2019 bound tire slip or the
@@ -109,6 +113,8 @@ class MPCSettings(CommandSettings):
     weights: Weights = Field(default_factory=Weights, description="weights of the tracking cost")
     delay: float = Field(0.0, ge=0, description="total actuator and measurement delay [s] the MPC predicts over "
                          "(gprace.mpc.delay); at most the horizon N dt")
+    gp_stable: bool = Field(True, description="where the nominal model's predicted lateral dynamics (v_y, yaw rate) "
+                            "are unstable, the tracking GP's gradient may not make them more so (it is shrunk)")
 
     @model_validator(mode="after")
     def _check(self) -> MPCSettings:
@@ -168,6 +174,44 @@ def rear_slip_rows(X: np.ndarray, lr: float, v_min: float) -> tuple[np.ndarray, 
     G[:, State.V_Y] = -vx / den
     G[:, State.YAW_RATE] = lr * vx / den
     return -np.arctan(w / vx), G
+
+
+def spectral_radius2(M: np.ndarray) -> np.ndarray:
+    """Spectral radius ``(n,)`` of 2x2 matrices ``M (n, 2, 2)`` (closed form)."""
+    tr = M[:, 0, 0] + M[:, 1, 1]
+    det = M[:, 0, 0] * M[:, 1, 1] - M[:, 0, 1] * M[:, 1, 0]
+    disc = 0.25 * tr * tr - det
+    real = 0.5 * np.abs(tr) + np.sqrt(np.maximum(disc, 0.0))
+    return np.where(disc >= 0.0, real, np.sqrt(np.abs(det)))
+
+
+STABLE_SHARES = np.linspace(1.0, 0.0, 9)  # shares of the gradient tried, largest first
+
+
+def stable_share(A0: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """Share ``t (N,)`` of the GP's gradient kept per step: 1 where the nominal block is stable
+    (``rho(A0) < 1``), else the largest of :data:`STABLE_SHARES` with ``rho(A0 + t J) <= rho(A0)``.
+
+    ``A0 (N, 2, 2)``: the nominal one-step Jacobian of ``(v_y, yaw_rate)`` on itself, ``J (N, 2, 2)``
+    the tracking GP's gradient in the same block. Where the nominal prediction is stable the GP may
+    take damping away, down to instability: an oversteering car above its critical speed is unstable,
+    and the GP that says so is right (measured on a randomized BMW at 45 m/s: capping it there lost
+    laps the full gradient completed). Where the nominal prediction is already unstable (the tires
+    linearised at or past their peak: a slide in a hairpin) the GP, whose one-step errors were
+    fitted on laps below that edge, may not add to it (t = 0 always qualifies).
+    docs/decisions.md, issue 37, stop 49."""
+    r0 = spectral_radius2(A0)
+    bound = r0 + 1e-9
+    t = np.zeros(len(A0))
+    open_ = r0 >= 1.0
+    t[~open_] = 1.0
+    for share in STABLE_SHARES:
+        if not open_.any():
+            break
+        ok = open_ & (spectral_radius2(A0 + share * J) <= bound)
+        t[ok] = share
+        open_ &= ~ok
+    return t
 
 
 def _at_s(X: np.ndarray, s0: float) -> np.ndarray:
@@ -233,6 +277,7 @@ class TrackingMPC:
         self.steps = 0
         self.last_target: np.ndarray | None = None
         self.speed_factor = 1.0
+        self.gp_share: np.ndarray | None = None  # share of the GP's gradient used per step (last period)
         self.use_gp = True  # False: the nominal model alone this period (drive: while the envelope is active)
         self.delay = float(settings.delay)
         self.sent: np.ndarray | None = None  # inputs sent, oldest first (the delay's history)
@@ -373,10 +418,7 @@ class TrackingMPC:
                 # as a constant only, a GP that learned the steering lag (mean falling with delta)
                 # made successive solutions flip sign until full lock on a straight.
                 mean, var, J = self.gp.at_with_gradient(Xb, Ub)
-                A, B = A.copy(), B.copy()
-                for j, name in enumerate(self.inputs):
-                    where, col = _REF[name]
-                    (A if where == "x" else B)[:, GP_STATES, col] += J[:, :, j]
+                A, B = self._compensate(A, B, J)
             else:
                 mean, var = self.gp(dyn_inputs(Xb, Ub, self.inputs))
         c = xn - np.einsum("kij,kj->ki", A, Xr) - np.einsum("kij,kj->ki", B, Ub)
@@ -418,6 +460,25 @@ class TrackingMPC:
         pb = LtvProblem(A, B, c, x0, xref, uref, lo, hi, u_lo, u_hi, self.delta_prev, self.settings.weights, **grip,
                         a_prev=self.a_prev, steer_step=self.steer_step)
         return pb, {"gamma": gamma, "s0": s0, "xref": xref, "uref": uref, "explored": xref is not xr0}
+
+    def _compensate(self, A: np.ndarray, B: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(A, B)`` with the GP's gradient ``J (N, 2, d)`` added to the nominal Jacobians. With ``settings.gp_stable`` the gradient of a step is
+        shrunk where the nominal lateral block is unstable and the gradient makes it more so
+        (:func:`stable_share`); ``self.gp_share (N,)`` keeps the share used."""
+        N = len(A)
+        JA = np.zeros((N, 2, 6))
+        JB = np.zeros((N, 2, 2))
+        for j, name in enumerate(self.inputs):
+            where, col = _REF[name]
+            (JA if where == "x" else JB)[:, :, col] += J[:, :, j]
+        t = np.ones(N)
+        if self.settings.gp_stable:
+            t = stable_share(A[:, GP_STATES, GP_STATES], JA[:, :, GP_STATES])
+        self.gp_share = t
+        A, B = A.copy(), B.copy()
+        A[:, GP_STATES] += JA * t[:, None, None]
+        B[:, GP_STATES] += JB * t[:, None, None]
+        return A, B
 
     def front_bounds(self, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Input bounds with the steering kept near the front tire's peak (``settings.front_share``).
