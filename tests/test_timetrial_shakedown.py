@@ -466,7 +466,7 @@ def test_envelope_does_not_brake_a_rear_past_its_peak():
     from gprace.model import NominalModel
     from gprace.model.dynamics import State, peak_slip
     from gprace.mpc.stability import Envelope, EnvelopeSettings
-    from gprace.timetrial.drive import rear_use
+    from gprace.timetrial.grip import rear_use
 
     st = EnvelopeSettings()
     env = Envelope(st, 0.05)
@@ -481,7 +481,7 @@ def test_envelope_does_not_brake_a_rear_past_its_peak():
     y = np.zeros(6)
     y[State.V_X], y[State.V_Y], y[State.YAW_RATE] = 10.0, -4.0, 0.8
     expected = abs(np.arctan((-4.0 - p.lr * 0.8) / 10.0)) / peak_slip(p.br, p.cr)
-    assert rear_use(y, m) == pytest.approx(expected) and expected > 1.0
+    assert rear_use(y[None, :], m)[0] == pytest.approx(expected) and expected > 1.0
 
 
 @pytest.mark.parametrize("args", [["iterate", "--delay", "1.5"], ["iterate", "--delay", "-0.1"]])

@@ -166,8 +166,8 @@ def likelihood_weights(sse: np.ndarray, ok: np.ndarray, n_eff: float) -> np.ndar
     """Normalised weights of the candidates ``ok`` from their residual sums of squares ``sse``: the
     Gaussian likelihood with the noise variance profiled out, ``(sse / sse_min) ** (-n_eff / 2)``
     (in logs, so a sharp surface does not underflow); 0 elsewhere."""
-    log_ratio = np.log(np.where(ok, sse, np.inf) / np.min(np.where(ok, sse, np.inf)))
-    w = np.where(ok, np.exp(-0.5 * n_eff * log_ratio), 0.0)
+    masked = np.where(ok, sse, np.inf)
+    w = np.exp(-0.5 * n_eff * np.log(masked / masked.min()))  # exp(-inf) = 0 where not ok
     return w / w.sum()
 
 

@@ -506,6 +506,17 @@ class TrackingMPC:
         lo[Input.DELTA], hi[Input.DELTA] = b_lo, b_hi
         return lo, hi
 
+    def plan_limits(self) -> np.ndarray:
+        """The plan's limits ``(lateral, drive, brake)`` [m/s^2] (``plan.meta["limits"]``, what the
+        car has been shown to take), else the nominal model's."""
+        lim = self.plan.meta.get("limits")
+        if lim is None or len(lim) != 3:
+            from gprace.plan.curvature import lateral_limit
+
+            v = self.model.vehicle.limits
+            lim = (lateral_limit(self.model), v.accel_max, -v.accel_min)
+        return np.asarray(lim, dtype=float)
+
     def ellipse_bounds(self, x: np.ndarray, uref: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The longitudinal range left by the friction ellipse of the plan's limits (``settings.ellipse``).
 
@@ -522,13 +533,7 @@ class TrackingMPC:
         share = self.settings.ellipse
         if share is None:
             return lo, hi
-        lim = self.plan.meta.get("limits")
-        if lim is None or len(lim) != 3:
-            from gprace.plan.curvature import lateral_limit
-
-            v = self.model.vehicle.limits
-            lim = (lateral_limit(self.model), v.accel_max, -v.accel_min)
-        lat, drive, brake = (share * float(v) for v in lim)
+        lat, drive, brake = share * self.plan_limits()
         use = min(1.0, abs(float(x[State.V_X] * x[State.YAW_RATE])) / max(lat, 1e-9))
         room = max(float(np.sqrt(1.0 - use * use)), self.settings.ellipse_floor)
         a_ref = uref[:1, Input.A_X]  # what the reference asks now (later steps are bounded again when they come)

@@ -28,6 +28,7 @@ from gprace.model.dynamics import Input, State
 from gprace.mpc.stability import SIGNALS, Envelope, EnvelopeSettings, signals
 from gprace.mpc.tracking import MPCSettings, TrackingMPC
 from gprace.sim.stop import run_end, step_plant
+from gprace.timetrial.grip import rear_use
 
 
 class DriveSettings(CommandSettings):
@@ -88,8 +89,8 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         mpc.speed_factor = env.rho
         mpc.use_gp = not (settings.envelope.nominal_when_active and env.active and _novel(gp, y, u_prev))
         lateral = float(y[State.V_X] * y[State.YAW_RATE])
-        mpc.bounds = env.input_bounds(mpc.u_lo, mpc.u_hi, plan_brake, lateral, grip, rear_use(y, model),
-                                      _brake_limit(mpc.plan))
+        rear = float(rear_use(y[None, :], model)[0])
+        mpc.bounds = env.input_bounds(mpc.u_lo, mpc.u_hi, plan_brake, lateral, grip, rear, mpc.plan_limits()[2])
         u, info = mpc.step(y)
         u_prev = u
         plan_brake = float(info["uref"][:, Input.A_X].min()) / mpc.speed_factor**2
@@ -144,21 +145,6 @@ def _log(cols: dict, k: int, lap: int, info: dict, mpc, sig, rho: float) -> None
     for name, v in zip(SIGNALS, sig):
         cols[name][k] = v
     cols["speed_factor"][k] = rho
-
-
-def rear_use(y: np.ndarray, model) -> float:
-    """The rear slip angle of the measured state over the nominal rear tire's peak slip angle."""
-    from gprace.model.dynamics import peak_slip
-    from gprace.mpc.tracking import rear_slip_rows
-
-    p = model.params
-    return abs(float(rear_slip_rows(np.asarray(y, float)[None, :6], p.lr, p.vmin)[0][0])) / peak_slip(p.br, p.cr)
-
-
-def _brake_limit(plan) -> float | None:
-    """The plan's braking limit [m/s^2] (``plan.meta["limits"]``, what the car has shown), or None."""
-    lim = plan.meta.get("limits")
-    return float(lim[2]) if lim is not None and len(lim) == 3 else None
 
 
 EXTRAPOLATING = 0.5  # latent std over prior std above which the tracking GP counts as extrapolating

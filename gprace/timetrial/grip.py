@@ -56,15 +56,20 @@ def envelope_of(X: np.ndarray, U: np.ndarray, t: np.ndarray, ok: np.ndarray, qua
                      np.quantile(np.maximum(-ax, 0.0), quantile)])
 
 
+def rear_use(X: np.ndarray, model) -> np.ndarray:
+    """``(n,)`` the rear slip angle of states ``X (n, 6)`` over the nominal rear tire's peak slip angle."""
+    p = model.params
+    a_r, _ = rear_slip_rows(np.asarray(X, float)[:, :6], p.lr, p.vmin)
+    return np.abs(a_r) / peak_slip(p.br, p.cr)
+
+
 def utilisation(run, model, in_control) -> float:
     """Robust peak of the rear slip angle over the nominal rear tire's peak slip angle."""
     X = run.states()
     ok = in_control(X)
     if not ok.any():
         return float("nan")
-    p = model.params
-    a_r, _ = rear_slip_rows(X[ok], p.lr, p.vmin)
-    return float(np.quantile(np.abs(a_r), QUANTILE) / peak_slip(p.br, p.cr))
+    return float(np.quantile(rear_use(X[ok], model), QUANTILE))
 
 
 def nominal_cap(model, share: float) -> np.ndarray:
