@@ -77,6 +77,7 @@ FEATURES = DYN_INPUTS
 EXPLORED = ("v_y", "yaw_rate", "delta")  # features Algorithm 1 may move the reference to
 FRONT_SHARE = 1.25  # default front slip bound: share of the nominal front tire's peak slip angle
 ELLIPSE = 1.0  # default friction ellipse of the longitudinal command: share of the plan's limits
+BRAKE_HEADROOM = 0.15  # braking beyond the plan's limit the ellipse leaves for tracking (MPCSettings.brake_headroom)
 RECOVER_STEPS = 10  # periods over which a rear slip beyond its bound is brought back
 KAPPA_DS = 1.0  # half-width [m] of the central difference giving the curvature's slope
 _REF = {"v_x": ("x", State.V_X), "v_y": ("x", State.V_Y), "yaw_rate": ("x", State.YAW_RATE),
@@ -108,6 +109,9 @@ class MPCSettings(CommandSettings):
                                   "this share of the plan's limits at the lateral acceleration used (None: no bound)")
     slip_by_speed: bool = Field(False, description="the rear slip row may be met by a higher v_x (the nominal "
                                 "model's view; False: only by v_y and yaw rate)")
+    brake_headroom: float = Field(BRAKE_HEADROOM, ge=0, le=1, description="braking the ellipse allows beyond the "
+                                  "plan's braking limit, as a share of it, so that a car faster than its reference "
+                                  "in a braking zone planned at the limit can still get back to it")
     ellipse_floor: float = Field(0.2, ge=0, le=1, description="share of the drive and braking limits the ellipse "
                                  "always leaves")
     weights: Weights = Field(default_factory=Weights, description="weights of the tracking cost")
@@ -524,6 +528,12 @@ class TrackingMPC:
         has been shown to take; else the nominal model's) and the lateral acceleration the car uses
         now, ``|v_x r|``: drive and braking are held to ``sqrt(1 - (a_y / lateral)^2)`` of their
         limits, never below ``ellipse_floor`` of them nor below what the reference itself asks now.
+        The braking limit has ``brake_headroom`` on top: a plan brakes at its limit, and a tracking
+        controller held to exactly the reference's own braking can never shed a speed excess it
+        carries into the braking zone (measured on the unseen plants, four of eight lost GP laps: 1
+        to 2.5 m/s too fast from the braking point on, braking held at the plan's 3.2 to 3.8 m/s^2
+        on cars that can brake at 5, the excess carried into the corner, which the car left or
+        spun in; docs/decisions.md, issue 37, stop 50).
         The nominal model has no combined slip: to it, drive and braking cost the tires nothing
         sideways, and the QP used the whole range to make up a metre of progress while the car was
         cornering at its limit (measured: full drive, 3.5 m/s^2, at 9.1 m/s^2 lateral on a
@@ -534,6 +544,7 @@ class TrackingMPC:
         if share is None:
             return lo, hi
         lat, drive, brake = share * self.plan_limits()
+        brake *= 1.0 + self.settings.brake_headroom
         use = min(1.0, abs(float(x[State.V_X] * x[State.YAW_RATE])) / max(lat, 1e-9))
         room = max(float(np.sqrt(1.0 - use * use)), self.settings.ellipse_floor)
         a_ref = uref[:1, Input.A_X]  # what the reference asks now (later steps are bounded again when they come)
