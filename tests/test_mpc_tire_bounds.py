@@ -104,3 +104,27 @@ def test_the_nominal_model_alone_while_the_envelope_is_active(circle):
     from gprace.mpc.stability import EnvelopeSettings
 
     assert EnvelopeSettings().nominal_when_active
+
+
+def test_braking_headroom_sheds_a_speed_excess():
+    """A car 2 m/s faster than its reference at the start of a braking zone planned at the limit
+    (the nominal model as the plant, so the only error is the excess): held to the plan's own
+    braking limit the MPC can never shed it (it grows as the car slows), with ``brake_headroom``
+    beyond it the car gets back towards the reference (issue 37, stop 50)."""
+    track = load_track("gprace_ring")
+    model = NominalModel(load_vehicle("bmw_320i"))
+    plan = curvature_plan(track, model, limits=(8.0, 3.5, 3.5))
+    i = int(np.argmin(plan.a_x))
+    while plan.a_x[i - 1] < -2.0:  # back to where the braking starts
+        i -= 1
+    X, U = plan.at_time(plan.time_at(np.array([plan.s[i]])))
+    excess = {}
+    for headroom in (0.0, 0.15):
+        x = X[0].copy()
+        x[State.V_X] += 2.0
+        mpc = TrackingMPC(model, track, plan, MPCSettings(brake_headroom=headroom))
+        mpc.reset(U[0][Input.DELTA], U[0][Input.A_X])
+        for _ in range(50):
+            x = model.rk4(x, mpc.step(x)[0], track.kappa, mpc.dt, 4)
+        excess[headroom] = x[State.V_X] - np.interp(x[State.S], plan.s, plan.v_x)
+    assert excess[0.0] > 1.9 and excess[0.15] < 1.2
