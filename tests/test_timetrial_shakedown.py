@@ -484,6 +484,32 @@ def test_envelope_does_not_brake_a_rear_past_its_peak():
     assert rear_use(y[None, :], m)[0] == pytest.approx(expected) and expected > 1.0
 
 
+def test_the_delay_is_read_only_where_both_tires_are_below_their_peak():
+    """``below_peak``: a sample counts when the rear slip angle (``v_y``, yaw rate) and the front
+    one (steering against the front axle's heading) are both within the nominal peaks; 1 % past
+    either peak masks it."""
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.model.dynamics import State, peak_slip
+    from gprace.timetrial.grip import below_peak, front_use
+
+    m = NominalModel(load_vehicle("audi_tt_cup"))
+    p = m.params
+    rear_peak, front_peak = peak_slip(p.br, p.cr), peak_slip(p.bf, p.cf)
+    X = np.zeros((4, 6))
+    X[:, State.V_X], X[:, State.YAW_RATE] = 20.0, 0.5
+    # v_y giving a rear slip angle of 0.99 / 1.01 of the peak: atan((v_y - lr r) / v_x) = -share peak
+    for row, share in ((0, 0.99), (1, 1.01)):
+        X[row, State.V_Y] = p.lr * 0.5 - 20.0 * np.tan(share * rear_peak)
+    # rear straight, steering 0.99 / 1.01 of the front peak past the front axle's heading
+    X[2:, State.V_Y] = p.lr * 0.5
+    U = np.zeros((4, 2))
+    heading = np.arctan((X[2:, State.V_Y] + p.lf * 0.5) / 20.0)
+    U[2:, 0] = heading + np.array([0.99, 1.01]) * front_peak
+    assert front_use(X[2:], U[2:], m) == pytest.approx([0.99, 1.01])
+    assert below_peak(X, U, m).tolist() == [True, False, True, False]
+
+
 @pytest.mark.parametrize("args", [["iterate", "--delay", "1.5"], ["iterate", "--delay", "-0.1"]])
 def test_a_delay_longer_than_the_horizon_is_bad_input(capsys, tmp_path, args):
     from gprace.cli import main

@@ -52,6 +52,12 @@ the measured period ``[t_k, t_k+1)`` (shifted by ``m``) is ``u_{k-n-1}`` for its
     prior of 80 ms), which pulled every long delay of the family down towards 80 ms: the
     shakedown of a randomized Audi with 0.15 s of delay and 1.35 m of relaxation predicted over
     0.088 s and spun under braking from 58 m/s.
+
+  The time trial reads only samples in control with both tires below their peak
+  (:func:`gprace.timetrial.grip.below_peak`): the linear model of the yaw acceleration does not
+  hold in a slide, and one slide of a shakedown lap (a randomized Audi, the rear at 2.3 times its
+  peak slip angle for 6 % of the lap) moved its estimate from 0.11 s to the grid's far corner
+  (docs/decisions.md, issue 37, stop 50).
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gprace.model.dynamics import peak_slip
+from gprace.model.dynamics import Input, State, peak_slip
 from gprace.mpc.tracking import rear_slip_rows
 
 QUANTILE = 0.99  # robust peak of a measured acceleration (one lap has about 1,100 samples)
@@ -61,6 +61,27 @@ def rear_use(X: np.ndarray, model) -> np.ndarray:
     p = model.params
     a_r, _ = rear_slip_rows(np.asarray(X, float)[:, :6], p.lr, p.vmin)
     return np.abs(a_r) / peak_slip(p.br, p.cr)
+
+
+def front_use(X: np.ndarray, U: np.ndarray, model) -> np.ndarray:
+    """``(n,)`` the front slip angle of states ``X (n, 6)`` steered by ``U (n, 2)`` over the nominal
+    front tire's peak slip angle."""
+    p = model.params
+    X, U = np.asarray(X, float), np.asarray(U, float)
+    vx = np.maximum(X[:, State.V_X], p.vmin)
+    a_f = U[:, Input.DELTA] - np.arctan((X[:, State.V_Y] + p.lf * X[:, State.YAW_RATE]) / vx)
+    return np.abs(a_f) / peak_slip(p.bf, p.cf)
+
+
+def below_peak(X: np.ndarray, U: np.ndarray, model) -> np.ndarray:
+    """Mask ``(n,)`` of the samples whose front and rear slip angles are both below the nominal
+    tires' peak: where the yaw rate answers the steering as a linear model says. Past a peak the
+    steering moves the yaw little or the wrong way, and the delay estimate (:func:`gprace.mpc.
+    delay.estimate`) read a slide's counter-steering as the response to the steering before it:
+    a randomized Audi whose shakedown slid with the rear at 2.3 times its peak was read at the
+    grid's far corner, 0.2 s for its 0.11 s, and every GP lap after it spun in a yaw oscillation
+    (docs/decisions.md, issue 37, stop 50)."""
+    return (rear_use(X, model) < 1.0) & (front_use(X, U, model) < 1.0)
 
 
 def utilisation(run, model, in_control) -> float:

@@ -53,8 +53,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from gprace.model.dynamics import State
-
 NOVEL_STD = 3.0     # predictive std over the GP's noise std above which a plan node counts as novel
 NOVEL_SHARE = 0.1   # largest share of novel nodes in a plan that is driven
 SLIP_TOLERANCE = 1e-3  # a slip angle within this share above its bound counts as at the bound (solver tolerance)
@@ -99,17 +97,12 @@ def plan_safety(plan, model, gp_plan=None, grip_share: float = 0.9, novel_std: f
     ``slip_*`` are the plan's robust peak slip angles over their bounds (1 = at the bound),
     ``novel`` the share of nodes where the planning GP extrapolates.
     """
-    from gprace.model.dynamics import peak_slip
-    from gprace.mpc.tracking import rear_slip_rows
+    from gprace.timetrial.grip import front_use, rear_use
 
-    p = model.params
     X, U = plan.states(), plan.inputs()
-    a_r, _ = rear_slip_rows(X, p.lr, p.vmin)
-    vx = np.maximum(X[:, State.V_X], p.vmin)
-    a_f = U[:, 0] - np.arctan((X[:, State.V_Y] + p.lf * X[:, State.YAW_RATE]) / vx)
     front, rear = slip_bounds(grip_share)
-    slip_rear = float(np.quantile(np.abs(a_r), 0.99) / (rear * peak_slip(p.br, p.cr)))
-    slip_front = float(np.quantile(np.abs(a_f), 0.99) / (front * peak_slip(p.bf, p.cf)))
+    slip_rear = float(np.quantile(rear_use(X, model), 0.99) / rear)
+    slip_front = float(np.quantile(front_use(X, U, model), 0.99) / front)
     novel = 0.0
     if gp_plan is not None:
         novel = float(np.mean(gp_plan.novelty(X, U) > novel_std))

@@ -188,8 +188,9 @@ class Shakedown:
         if st.estimate_delay and not self.delay_known and k >= self.next_estimate:
             self.next_estimate *= 2  # at 200, 400, 800 ... periods: each estimate takes ~0.1 s
             from gprace.mpc.delay import estimate
+            from gprace.timetrial.grip import below_peak
 
-            dead, lag = estimate(Y, U, self.dt, ok, more=self.reference)
+            dead, lag = estimate(Y, U, self.dt, ok & below_peak(Y, U, self.model), more=self.reference)
             if np.isfinite(dead):
                 self.delay = dead + lag
                 mpc.set_delay(min(self.delay, mpc.N * mpc.dt))

@@ -55,8 +55,8 @@ def _iteration_zero(c: _Chain) -> None:
             from gprace.mpc.delay import estimate
             from gprace.timetrial.learning import in_control
 
-            X = run.states()
-            dead, lag = estimate(X, run.inputs(), run.dt, in_control(X), more=reference)
+            X, U = run.states(), run.inputs()
+            dead, lag = estimate(X, U, run.dt, in_control(X) & G.below_peak(X, U, c.model), more=reference)
             extra["delay"] = float(min(dead + lag, c.mpc.N * c.mpc.dt)) if np.isfinite(dead) else start_delay
         plan.write(d0 / "plan.h5")
         write_run(run, d0 / "run.h5")
