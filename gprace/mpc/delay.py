@@ -53,11 +53,14 @@ the measured period ``[t_k, t_k+1)`` (shifted by ``m``) is ``u_{k-n-1}`` for its
     shakedown of a randomized Audi with 0.15 s of delay and 1.35 m of relaxation predicted over
     0.088 s and spun under braking from 58 m/s.
 
-  The time trial reads only samples in control with both tires below their peak
-  (:func:`gprace.timetrial.grip.below_peak`): the linear model of the yaw acceleration does not
-  hold in a slide, and one slide of a shakedown lap (a randomized Audi, the rear at 2.3 times its
-  peak slip angle for 6 % of the lap) moved its estimate from 0.11 s to the grid's far corner
-  (docs/decisions.md, issue 37, stop 50).
+  Of the loop's own laps (the shakedown's, during and after it) the time trial reads only the
+  samples in control with both tires below their peak (:func:`gprace.timetrial.grip.below_peak`):
+  the linear model of the yaw acceleration does not hold in a slide, and one slide of a shakedown
+  lap (a randomized Audi, the rear at 2.3 times its peak slip angle for 6 % of the lap) moved its
+  estimate from 0.11 s to the grid's far corner. The calibration run keeps its samples past the
+  peak: without them the estimates came nearer the physical delays on average, but a car with a
+  high CoG, predicted over 0.13 instead of 0.11 s, lost three GP laps (docs/decisions.md, issue
+  37, stop 50).
 """
 
 from __future__ import annotations

@@ -76,18 +76,17 @@ def _reference_run(settings: IterateSettings, out: Path, name: str) -> None:
 
 
 def _calibration_samples(c: _Chain) -> tuple:
-    """``((X, U, mask),)`` of the calibration run (the reference controller weaving on the same
-    car), or ``()`` without one; the held-out run stays a test set. The mask keeps the samples in
-    control with both tires below their peak (:func:`gprace.timetrial.grip.below_peak`): the delay
-    estimate reads them."""
-    from gprace.timetrial.grip import below_peak
+    """``((X, U, in-control mask),)`` of the calibration run (the reference controller weaving on
+    the same car), or ``()`` without one; the held-out run stays a test set. (Its samples past a
+    tire's peak stay: :func:`gprace.timetrial.grip.below_peak` is for the loop's own laps,
+    docs/decisions.md, issue 37, stop 50.)"""
     from gprace.timetrial.learning import in_control
 
     run = c.runs.get("calib")
     if run is None:
         return ()
-    X, U = run.states(), run.inputs()
-    return ((X, U, in_control(X) & below_peak(X, U, c.model)),)
+    X = run.states()
+    return ((X, run.inputs(), in_control(X)),)
 
 
 def _select(c: _Chain, i: int) -> None:
