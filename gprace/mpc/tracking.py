@@ -528,17 +528,18 @@ class TrackingMPC:
         has been shown to take; else the nominal model's) and the lateral acceleration the car uses
         now, ``|v_x r|``: drive and braking are held to ``sqrt(1 - (a_y / lateral)^2)`` of their
         limits, never below ``ellipse_floor`` of them nor below what the reference itself asks now.
-        The braking limit has ``brake_headroom`` on top: a plan brakes at its limit, and a tracking
-        controller held to exactly the reference's own braking can never shed a speed excess it
-        carries into the braking zone (measured on the unseen plants, four of eight lost GP laps: 1
-        to 2.5 m/s too fast from the braking point on, braking held at the plan's 3.2 to 3.8 m/s^2
-        on cars that can brake at 5, the excess carried into the corner, which the car left or
-        spun in; docs/decisions.md, issue 37, stop 50).
         The nominal model has no combined slip: to it, drive and braking cost the tires nothing
         sideways, and the QP used the whole range to make up a metre of progress while the car was
         cornering at its limit (measured: full drive, 3.5 m/s^2, at 9.1 m/s^2 lateral on a
         randomized BMW whose plan asked 0.3 there; the rear stepped out and the lap was lost;
         docs/decisions.md, issue 37, stop 44).
+
+        The braking limit has ``brake_headroom`` on top. A plan brakes at its limit, and a tracking
+        controller held to exactly the reference's own braking can never shed a speed excess it
+        carries into the braking zone. Measured on the unseen plants: cars 1 to 2.5 m/s too fast
+        from the braking point on, braking held at the plan's 3.2 to 3.8 m/s^2 on cars that can
+        brake at 5, carried the excess into the corner and left the track or spun; of the 8 GP laps
+        stop 49 lost, 7 complete with the headroom (docs/decisions.md, issue 37, stop 50).
         """
         share = self.settings.ellipse
         if share is None:

@@ -78,10 +78,9 @@ def below_peak(X: np.ndarray, U: np.ndarray, model) -> np.ndarray:
     tires' peak: where the yaw rate answers the steering as a linear model says. Past a peak the
     steering moves the yaw little or the wrong way, and the delay estimate of a shakedown lap
     (:func:`gprace.mpc.delay.estimate`) read a slide's counter-steering as the response to the
-    steering before it:
-    a randomized Audi whose shakedown slid with the rear at 2.3 times its peak was read at the
-    grid's far corner, 0.2 s for its 0.11 s, and every GP lap after it spun in a yaw oscillation
-    (docs/decisions.md, issue 37, stop 50)."""
+    steering before it: a randomized Audi whose shakedown slid with the rear at 2.3 times its
+    peak was read at the grid's far corner, 0.2 s for its 0.11 s, and every GP lap after it spun
+    in a yaw oscillation (docs/decisions.md, issue 37, stop 50)."""
     return (rear_use(X, model) < 1.0) & (front_use(X, U, model) < 1.0)
 
 
