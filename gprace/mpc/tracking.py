@@ -61,6 +61,7 @@ Beyond the paper, two run-time hooks:
 
 from __future__ import annotations
 
+from functools import cached_property
 from typing import ClassVar
 
 import numpy as np
@@ -512,14 +513,19 @@ class TrackingMPC:
 
     def plan_limits(self) -> np.ndarray:
         """The plan's limits ``(lateral, drive, brake)`` [m/s^2] (``plan.meta["limits"]``, what the
-        car has been shown to take), else the nominal model's."""
+        car has been shown to take), else the nominal model's (:attr:`nominal_limits`)."""
         lim = self.plan.meta.get("limits")
-        if lim is None or len(lim) != 3:
-            from gprace.plan.curvature import lateral_limit
+        return np.asarray(lim, dtype=float) if lim is not None and len(lim) == 3 else self.nominal_limits
 
-            v = self.model.vehicle.limits
-            lim = (lateral_limit(self.model), v.accel_max, -v.accel_min)
-        return np.asarray(lim, dtype=float)
+    @cached_property
+    def nominal_limits(self) -> np.ndarray:
+        """The nominal model's limits ``(lateral, drive, brake)`` [m/s^2], solved once per MPC: the
+        lateral one is a steady-corner solve of about 15 ms, and the drive loop and the ellipse read
+        the limits every period."""
+        from gprace.plan.curvature import lateral_limit
+
+        v = self.model.vehicle.limits
+        return np.array([lateral_limit(self.model), v.accel_max, -v.accel_min])
 
     def ellipse_bounds(self, x: np.ndarray, uref: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The longitudinal range left by the friction ellipse of the plan's limits (``settings.ellipse``).

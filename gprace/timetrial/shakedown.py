@@ -117,17 +117,12 @@ def axle_grip(X: np.ndarray, U: np.ndarray, dt: float, model, ok: np.ndarray) ->
 
 def slip_use(X: np.ndarray, U: np.ndarray, model, ok: np.ndarray, quantile: float = 0.99) -> float:
     """Robust peak slip angle of the more used axle over the nominal tire's peak slip angle."""
-    from gprace.model.dynamics import peak_slip
+    from gprace.timetrial.grip import front_use, rear_use
 
     if ok.sum() < 10:
         return float("nan")
-    p = model.params
-    vx, vy, r = X[ok, State.V_X], X[ok, State.V_Y], X[ok, State.YAW_RATE]
-    vxs = np.maximum(vx, p.vmin)
-    a_f = U[ok, Input.DELTA] - np.arctan((vy + p.lf * r) / vxs)
-    a_r = -np.arctan((vy - p.lr * r) / vxs)
-    return float(max(np.quantile(np.abs(a_f), quantile) / peak_slip(p.bf, p.cf),
-                     np.quantile(np.abs(a_r), quantile) / peak_slip(p.br, p.cr)))
+    return float(max(np.quantile(front_use(X[ok], U[ok], model), quantile),
+                     np.quantile(rear_use(X[ok], model), quantile)))
 
 
 class Shakedown:
