@@ -382,11 +382,13 @@ def test_first_limits_follow_iterates_rule_from_the_driven_plan(tmp_path, audi, 
     if driven is None:
         expect = np.minimum(measured, cap)
     else:
-        expect = G.next_limits(driven, measured, completed, util, cap, 0.05, widen_max=0.15)
-        step = G.widening(util, 0.05, 0.15)
+        shape = model.params.cr
+        expect = G.next_limits(driven, measured, completed, util, cap, 0.05, widen_max=0.15, shape=shape)
+        step = G.widening(util, 0.05, 0.15, shape=shape)
         if completed:  # the plan's own limits (below what was measured) widened by the step
             np.testing.assert_allclose(expect, np.minimum(np.minimum(measured, driven) * (1 + step), cap))
-            assert step == pytest.approx(0.15 if util <= 0.3 else 0.05 + 0.1 * (0.8 - util) / 0.5)
+            linear = 0.15 if util <= 0.3 else 0.05 + 0.1 * (0.8 - util) / 0.5
+            assert step == pytest.approx(min(linear, G.force_headroom(util, shape)))
         else:
             np.testing.assert_allclose(expect, np.minimum(np.array(driven) * 0.9, cap))
     np.testing.assert_allclose(lim["limits"], expect, rtol=1e-12)

@@ -160,6 +160,26 @@ def test_grip_limits_widen_hold_and_back_off():
     np.testing.assert_allclose(next_limits(prev, prev, True, 0.4, cap, 0.05, failed=[1.04 * prev]), 1.04 * 0.95 * prev)
 
 
+def test_the_widening_asks_the_rear_tire_for_no_more_than_the_force_it_has_left():
+    """``force_headroom``: at ``util`` of the peak slip angle a tire ``sin(C atan(B alpha))`` gives
+    ``1 / (1 + headroom)`` of its peak force (analytic), none left at the peak, more far below it;
+    ``next_limits`` with the tire's shape widens by at most that (issue 37, stop 51)."""
+    from gprace.model.dynamics import peak_slip
+    from gprace.timetrial.grip import force_headroom, next_limits
+
+    B, C = 10.0, 1.35
+    for util in (0.2, 0.5, 0.7, 0.95):
+        force = np.sin(C * np.arctan(B * util * peak_slip(B, C)))
+        assert force * (1.0 + force_headroom(util, C)) == pytest.approx(1.0)
+    h = [force_headroom(u, C) for u in (0.3, 0.5, 0.7, 0.9)]
+    assert all(np.diff(h) < 0) and force_headroom(1.0, C) == 0.0 and force_headroom(1.2, C) == 0.0
+    assert force_headroom(0.7, C) < 0.02 < 0.05 < force_headroom(0.4, C)
+    prev, cap = np.array([10.0, 4.0, 9.0]), np.full(3, 99.0)
+    np.testing.assert_allclose(next_limits(prev, prev, True, 0.4, cap, 0.05, shape=C), 1.05 * prev)  # room left
+    np.testing.assert_allclose(next_limits(prev, prev, True, 0.7, cap, 0.05, shape=C),
+                               (1.0 + force_headroom(0.7, C)) * prev)
+
+
 def test_grip_rows_agree_across_backends_and_bind():
     """An active rear-slip row: every backend returns the same solution, within its bound."""
     from gprace.backends import solvers

@@ -616,7 +616,7 @@ def next_plan_limits(c: Iteration, facts: list[dict]) -> dict:
         widen = st.widen if last["known"] or not completed else 0.0
         limits = G.next_limits(previous, measured, completed, util, cap, widen, failed=failed, border_hits=hits,
                                interventions=inter if c.k > 1 else 0,
-                               widen_max=st.widen_max if last["known"] else widen)
+                               widen_max=st.widen_max if last["known"] else widen, shape=c.model.params.cr)
         source = "replan"
         shown = grip_shown(c, completed)
         if shown is not None:  # never plan corners faster than the grip the car has shown (as iterate)

@@ -101,18 +101,37 @@ def nominal_cap(model, share: float) -> np.ndarray:
     return share * np.array([lateral_limit(model), lim.accel_max, -lim.accel_min])
 
 
-def widening(util: float, widen: float, widen_max: float, hold: float = 0.8, low: float = 0.3) -> float:
+def widening(util: float, widen: float, widen_max: float, hold: float = 0.8, low: float = 0.3,
+             shape: float | None = None) -> float:
     """Step of the next widening: ``widen_max`` while the rear slip used stays below ``low`` of the
-    peak, falling linearly to ``widen`` at ``hold`` (a car far from its limit widens faster)."""
+    peak, falling linearly to ``widen`` at ``hold`` (a car far from its limit widens faster); with
+    the nominal rear tire's shape factor ``shape`` never more than the force it has left at that
+    slip (:func:`force_headroom`)."""
     if not np.isfinite(util):
         return widen
     room = float(np.clip((hold - util) / max(hold - low, 1e-9), 0.0, 1.0))
-    return widen + (max(widen_max, widen) - widen) * room
+    step = widen + (max(widen_max, widen) - widen) * room
+    return step if shape is None else min(step, force_headroom(util, shape))
+
+
+def force_headroom(util: float, shape: float) -> float:
+    """Lateral force a tire ``sin(C atan(B alpha))`` (``C = shape``) has left at ``util`` of its
+    peak slip angle, as a share of the force it gives there: ``1 / sin(C atan(tan(pi / 2C) util)) - 1``
+    (0 at and past the peak). The curve is flat near its peak: at 0.7 of the peak slip angle a
+    C = 1.35 tire already gives 98 % of its peak force. Measured on the unseen plants (docs/
+    decisions.md, issue 37, stop 51): after laps at 0.5 to 0.7 of the peak slip, limits widened by
+    5 to 9 % (the headroom there: 2 to 8 %) sent two cars past the peak and lost them."""
+    if not np.isfinite(util) or util >= 1.0:
+        return 0.0
+    if util <= 0.0:
+        return np.inf
+    c = max(float(shape), 1.0 + 1e-6)
+    return float(1.0 / np.sin(c * np.arctan(np.tan(np.pi / (2.0 * c)) * util)) - 1.0)
 
 
 def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, util: float, cap: np.ndarray,
                 widen: float = 0.05, hold: float = 0.8, failed=(), border_hits: int = 0, interventions: int = 0,
-                widen_max: float | None = None) -> np.ndarray:
+                widen_max: float | None = None, shape: float | None = None) -> np.ndarray:
     """Limits of the next plan from the last plan's ``previous`` limits and the lap it gave.
 
     A completed lap widens them by ``widen`` (up to ``widen_max`` when the rear slip used was far
@@ -121,7 +140,9 @@ def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, uti
     Measured on bmw_commonroad (2026-11-24): a lap that completes with border hits is the last
     warning; one Double-GP trial widened past two such laps and lost the car in the hairpin at
     s = 1607 m. ``failed`` are the limits of earlier plans whose laps failed: the next limits stay
-    below each of them by ``widen`` (a level that lost the car is not tried again).
+    below each of them by ``widen`` (a level that lost the car is not tried again). ``shape``, the
+    nominal rear tire's shape factor, caps the widening at the force the rear has left
+    (:func:`force_headroom`).
     """
     previous, measured, cap = (np.asarray(a, dtype=float) for a in (previous, measured, cap))
     if not completed or not np.all(np.isfinite(measured)):
@@ -132,7 +153,7 @@ def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, uti
         # an axis the lap hardly used (a partial lap that never braked) tells nothing: keep its limit
         base = np.where(measured >= 0.5 * previous, np.minimum(measured, previous), previous)
         held = (np.isfinite(util) and util >= hold) or border_hits > 0 or interventions > 0
-        step = widening(util, widen, widen_max if widen_max is not None else widen, hold)
+        step = widening(util, widen, widen_max if widen_max is not None else widen, hold, shape=shape)
         out = base if held else base * (1.0 + step)
     return np.minimum(below_failed(out, failed, widen), cap)
 
