@@ -458,6 +458,29 @@ def test_envelope_braking_follows_the_friction_circle():
     assert env.input_bounds(lo, hi, 0.0, 14.0, 14.7)[1][1] == pytest.approx(st.gentle_drive * 6.0)
 
 
+def test_an_eased_car_may_always_brake_for_the_plans_corners_ahead():
+    """``braking_needed`` is the constant deceleration that brings the car down to the plan's
+    speed in the corners ahead (analytic: a step from 40 to 20 m/s 60 m ahead needs (40^2 - 20^2)
+    / (2 x 60) = 10 m/s^2), and the active envelope always allows it, beyond the plan's braking
+    share and the friction circle (issue 37, stop 51)."""
+    from gprace.mpc.stability import Envelope, EnvelopeSettings, braking_needed
+
+    s_plan = np.arange(0.0, 1000.0, 0.5)
+    v_plan = np.where((s_plan > 160.0) & (s_plan < 300.0), 20.0, 40.0)
+    assert braking_needed(s_plan, v_plan, 1000.0, 100.0, 40.0, 300.0) == pytest.approx(10.0, rel=0.02)
+    assert braking_needed(s_plan, v_plan, 1000.0, 100.0, 40.0, 50.0) == 0.0  # not within reach
+    assert braking_needed(s_plan, v_plan, 1000.0, 100.0, 40.0, 300.0, near=61.0) == 0.0  # already turning in
+    assert braking_needed(s_plan, v_plan, 1000.0, 100.0, 38.0, 300.0) < 10.0
+    # a car 1 m/s faster than the plan on a straight: only the corner counts, 210 m ahead
+    assert braking_needed(s_plan, v_plan, 1000.0, 950.0, 41.0, 300.0) == pytest.approx((41**2 - 20**2) / (2 * 210.5))
+    env = Envelope(EnvelopeSettings(), 0.05)
+    env.active = True
+    lo, hi = np.array([-0.35, -14.0]), np.array([0.35, 6.0])
+    assert env.input_bounds(lo, hi, -6.0, 14.0, 14.7)[0][1] == pytest.approx(-5.6)  # at the limit of grip
+    assert env.input_bounds(lo, hi, -6.0, 14.0, 14.7, needed=10.0)[0][1] == pytest.approx(-10.0)
+    assert env.input_bounds(lo, hi, -6.0, 14.0, 14.7, needed=20.0)[0][1] == pytest.approx(-14.0)  # inside the limit
+
+
 def test_envelope_does_not_brake_a_rear_past_its_peak():
     """A slide whose speed falls uses less ``|v_x r|``, so the friction circle alone would allow
     more braking; with the rear slip angle past the nominal peak the braking stays gentle, a share

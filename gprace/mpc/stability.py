@@ -26,7 +26,8 @@ the MPC falls by ``ease`` per period (down to ``rho_min``) and the longitudinal 
 inside a gentle range (neither hard braking nor full drive: a sliding rear needs its grip for
 cornering, and in the braking instability of a car with load transfer it is the braking that takes
 it away), with at least ``plan_brake_share`` of the braking the plan itself asks for there (an
-eased car must still make the corner). Once the signals have been back inside the band for
+eased car must still make the corner), and the braking the corners ahead need from the speed the
+car has (:func:`braking_needed`). Once the signals have been back inside the band for
 ``hold`` seconds, ``rho`` recovers by ``recover`` per period. The envelope never changes the model:
 it catches what the model has not learned yet. While it is active the tracking MPC predicts with
 the nominal model alone where the tracking GP extrapolates (``nominal_when_active``; the test is
@@ -156,7 +157,7 @@ class Envelope:
 
     def input_bounds(self, u_lo: np.ndarray, u_hi: np.ndarray, plan_brake: float = 0.0,
                      lateral: float = 0.0, grip: float = np.inf, rear: float = 0.0,
-                     brake_limit: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+                     brake_limit: float | None = None, needed: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """The MPC's input bounds for the next period: the longitudinal range narrowed while active.
 
         Braking follows the friction circle (:func:`brake_share`): ``lateral`` is the lateral
@@ -164,8 +165,12 @@ class Envelope:
         (the nominal ``mu g``); the braking left by cornering stays allowed, never less than
         ``gentle_brake`` of the limit, and ``plan_brake_share`` of the hardest braking the plan
         asks for over the horizon (before any easing) always, so an eased car still makes the
-        corner. Measured: with braking held to half the limit the oracle lap of audi_hidden ran
-        off at the hairpin (s = 450 m); with no limit a worn-rear BMW sliding out of a corner
+        corner; and the braking ``needed`` for the plan's corners ahead from the speed the car has
+        (:func:`braking_needed`) always: the plan's share assumes a car at the plan's speed.
+        Measured on a randomized BMW (CoG 0.54 m) eased after a 57 m/s flick: held to 0.8 of the
+        plan's braking it reached the hairpin 6 m/s faster than the plan and left the track
+        (docs/decisions.md, issue 37, stop 51). Measured: with braking held to half the limit the
+        oracle lap of audi_hidden ran off at the hairpin (s = 450 m); with no limit a worn-rear BMW sliding out of a corner
         braked at full force for the eased speed and spun (s = 1562 m); with braking held to 0.4
         of the limit whatever the car did, audi_hidden on the circle_100 plan could not slow to
         the eased speed on the straight-running moments and left the track (docs/decisions.md,
@@ -191,7 +196,7 @@ class Envelope:
             lo[Input.A_X] = -st.gentle_brake * limit
         else:
             share = brake_share(lateral, grip, st.gentle_brake)
-            lo[Input.A_X] = max(u_lo[Input.A_X], min(share * u_lo[Input.A_X], st.plan_brake_share * plan_brake))
+            lo[Input.A_X] = max(u_lo[Input.A_X], min(share * u_lo[Input.A_X], st.plan_brake_share * plan_brake, -needed))
         hi[Input.A_X] = st.gentle_drive * u_hi[Input.A_X]
         return lo, hi
 
@@ -202,3 +207,23 @@ def brake_share(lateral: float, grip: float, gentle: float) -> float:
     straight may brake fully; one at the limit of grip (a slide) only gently."""
     use = min(1.0, abs(float(lateral)) / float(grip)) if grip > 0 else 1.0
     return max(float(gentle), float(np.sqrt(1.0 - use * use)))
+
+
+def braking_needed(s_plan: np.ndarray, v_plan: np.ndarray, length: float, s: float, v: float, reach: float,
+                   near: float = 0.0) -> float:
+    """Constant deceleration [m/s^2, >= 0] that brings a car at ``s`` with speed ``v`` down to the
+    plan's corner speeds between ``near`` and ``reach`` metres ahead (the track closes after
+    ``length``): the largest ``(v^2 - v_c^2) / (2 d)`` over the plan's corners, the local minima of
+    ``v_plan(s_plan)`` (a run of equal speeds counts from its first sample). Only the corners count:
+    a car slightly faster than the plan right now need not match it metre by metre (that would ask
+    for any braking at all); nor a corner closer than ``near``, which the car is already turning
+    into (braking for it there takes the grip the corner needs)."""
+    v_plan = np.asarray(v_plan, float)
+    start = np.r_[0, np.flatnonzero(np.diff(v_plan)) + 1]  # first sample of each run of equal speeds
+    vals = v_plan[start]
+    corner = start[(vals < np.roll(vals, 1)) & (vals < np.roll(vals, -1))]
+    d = np.mod(np.asarray(s_plan, float)[corner] - s, length)
+    ahead = (d > max(near, 0.0)) & (d <= reach)
+    if not ahead.any():
+        return 0.0
+    return float(max(0.0, np.max((v * v - v_plan[corner][ahead] ** 2) / (2.0 * d[ahead]))))

@@ -25,7 +25,7 @@ from gprace.config import G, CommandSettings
 from gprace.errors import InputError
 from gprace.io.runs import OWN_RUN, Run
 from gprace.model.dynamics import Input, State
-from gprace.mpc.stability import SIGNALS, Envelope, EnvelopeSettings, signals
+from gprace.mpc.stability import SIGNALS, Envelope, EnvelopeSettings, braking_needed, signals
 from gprace.mpc.tracking import MPCSettings, TrackingMPC
 from gprace.sim.stop import run_end, step_plant
 from gprace.timetrial.grip import rear_use
@@ -90,7 +90,14 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         mpc.use_gp = not (settings.envelope.nominal_when_active and env.active and _novel(gp, y, u_prev))
         lateral = float(y[State.V_X] * y[State.YAW_RATE])
         rear = float(rear_use(y[None, :], model)[0])
-        mpc.bounds = env.input_bounds(mpc.u_lo, mpc.u_hi, plan_brake, lateral, grip, rear, mpc.plan_limits()[2])
+        brake_limit = mpc.plan_limits()[2]
+        needed = 0.0
+        if env.active:  # the braking that makes the plan's corners from half a second to a gentle stop ahead
+            v = float(y[State.V_X])
+            reach = v * v / (2.0 * settings.envelope.gentle_brake * brake_limit)
+            needed = braking_needed(mpc.plan.s, mpc.plan.v_x, track.length, float(y[State.S]), v, reach,
+                                    near=v * settings.envelope.hold)
+        mpc.bounds = env.input_bounds(mpc.u_lo, mpc.u_hi, plan_brake, lateral, grip, rear, brake_limit, needed)
         u, info = mpc.step(y)
         u_prev = u
         plan_brake = float(info["uref"][:, Input.A_X].min()) / mpc.speed_factor**2
