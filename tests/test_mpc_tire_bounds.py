@@ -128,3 +128,31 @@ def test_braking_headroom_sheds_a_speed_excess():
             x = model.rk4(x, mpc.step(x)[0], track.kappa, mpc.dt, 4)
         excess[headroom] = x[State.V_X] - np.interp(x[State.S], plan.s, plan.v_x)
     assert excess[0.0] > 1.9 and excess[0.15] < 1.2
+
+
+def test_an_uncertain_gp_never_tightens_the_rear_slip_bound_below_the_reference(circle):
+    """A tracking GP far from its data (a large variance) tightens the rear-slip rows; they are
+    never tightened below the reference's own rear slip. Below it the rows break the reference
+    and the QP turns the car off the line to meet them (issue 37, stop 51: a randomized BMW left
+    the track on the inside of a 40 m/s corner). On the nominal plant with such a GP the car
+    holds the circle at 0.95 of its lateral limit within 0.15 m."""
+    from gprace.mpc.tracking import rear_slip_rows
+
+    track, model, plan, x, u = circle
+
+    def unsure(Z):  # no correction, and unsure of it
+        return np.zeros((len(Z), 2)), np.full((len(Z), 2), 0.05)
+
+    mpc = TrackingMPC(model, track, plan, MPCSettings(), gp=unsure)
+    pb, info = mpc.build(x)
+    G, lo, hi = pb.grip()
+    at_ref = np.einsum("ki,ki->k", G, info["xref"])
+    assert np.all(at_ref >= lo - 1e-9) and np.all(at_ref <= hi + 1e-9)
+    a_ref = np.abs(rear_slip_rows(info["xref"], model.params.lr, model.params.vmin)[0])
+    assert np.isclose(0.5 * (hi - lo).min(), a_ref.min(), rtol=0.05)  # tightened right down to the reference
+    mpc.reset(u[Input.DELTA], u[Input.A_X])
+    dev = []
+    for _ in range(60):
+        x = model.rk4(x, mpc.step(x)[0], track.kappa, mpc.dt, 4)
+        dev.append(abs(x[State.E_Y] - np.interp(x[State.S] % track.length, plan.s, plan.e_y)))
+    assert max(dev) < 0.15  # 0.32 m with the rows tightened to 0.3 of the bound, below the reference's 0.68
