@@ -170,8 +170,9 @@ class Envelope:
         Measured on a randomized BMW (CoG 0.54 m) eased after a 57 m/s flick: held to 0.8 of the
         plan's braking it reached the hairpin 6 m/s faster than the plan and left the track
         (docs/decisions.md, issue 37, stop 51). Measured: with braking held to half the limit the
-        oracle lap of audi_hidden ran off at the hairpin (s = 450 m); with no limit a worn-rear BMW sliding out of a corner
-        braked at full force for the eased speed and spun (s = 1562 m); with braking held to 0.4
+        oracle lap of audi_hidden ran off at the hairpin (s = 450 m); with no limit a worn-rear BMW
+        sliding out of a corner braked at full force for the eased speed and spun (s = 1562 m);
+        with braking held to 0.4
         of the limit whatever the car did, audi_hidden on the circle_100 plan could not slow to
         the eased speed on the straight-running moments and left the track (docs/decisions.md,
         issue 37, tt3).
@@ -179,9 +180,10 @@ class Envelope:
         A rear axle past its peak (``rear``, the rear slip angle over the nominal tire's peak slip
         angle, at least 1) is an exception: it has no grip left for braking, and braking moves load
         off it. Braking is then held to ``gentle_brake`` of ``brake_limit`` (the plan's braking
-        limit, what the car has been shown to take; else the command's), and the plan's own braking
-        is not kept. ``|v_x r|`` cannot see this: in a slide the car's speed falls, ``|v_x r|``
-        falls with it and the friction circle widened the braking while the rear stayed saturated.
+        limit, what the car has been shown to take; else the command's), and neither the plan's own
+        braking nor the braking ``needed`` is kept. ``|v_x r|`` cannot see this: in a slide the
+        car's speed falls, ``|v_x r|`` falls with it and the friction circle widened the braking
+        while the rear stayed saturated.
         Measured on the shakedown of a randomized Audi with a light rear (grip 0.85 of the front's
         1.04) entering the 18 m hairpin of gprace_ring: with the circle the eased MPC braked at 5 to
         6.4 m/s^2 through a slide of v_y = -4.7 m/s and spun the car; held to 0.4 of the plan's 6.1

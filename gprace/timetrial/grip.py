@@ -120,12 +120,13 @@ def force_headroom(util: float, shape: float) -> float:
     (0 at and past the peak). The curve is flat near its peak: at 0.7 of the peak slip angle a
     C = 1.35 tire already gives 98 % of its peak force. Measured on the unseen plants (docs/
     decisions.md, issue 37, stop 51): after laps at 0.5 to 0.7 of the peak slip, limits widened by
-    5 to 9 % (the headroom there: 2 to 8 %) sent two cars past the peak and lost them."""
+    5 to 9 % (the headroom there: 2 to 8 %) sent two cars past the peak and lost them. A curve
+    without a peak (``C <= 1``) sets no cap (inf)."""
     if not np.isfinite(util) or util >= 1.0:
         return 0.0
-    if util <= 0.0:
+    c = float(shape)
+    if util <= 0.0 or c <= 1.0:
         return np.inf
-    c = max(float(shape), 1.0 + 1e-6)
     return float(1.0 / np.sin(c * np.arctan(np.tan(np.pi / (2.0 * c)) * util)) - 1.0)
 
 
