@@ -463,16 +463,18 @@ def test_an_eased_car_may_always_brake_for_the_plans_corners_ahead():
     speed in the corners ahead (analytic: a step from 40 to 20 m/s 60 m ahead needs (40^2 - 20^2)
     / (2 x 60) = 10 m/s^2), and the active envelope always allows it, beyond the plan's braking
     share and the friction circle (issue 37, stop 51)."""
-    from gprace.mpc.stability import Envelope, EnvelopeSettings, braking_needed
+    from gprace.mpc.stability import Envelope, EnvelopeSettings, braking_needed, corners
 
     s_plan = np.arange(0.0, 1000.0, 0.5)
     v_plan = np.where((s_plan > 160.0) & (s_plan < 300.0), 20.0, 40.0)
-    assert braking_needed(s_plan, v_plan, 1000.0, 100.0, 40.0, 300.0) == pytest.approx(10.0, rel=0.02)
-    assert braking_needed(s_plan, v_plan, 1000.0, 100.0, 40.0, 50.0) == 0.0  # not within reach
-    assert braking_needed(s_plan, v_plan, 1000.0, 100.0, 40.0, 300.0, near=61.0) == 0.0  # already turning in
-    assert braking_needed(s_plan, v_plan, 1000.0, 100.0, 38.0, 300.0) < 10.0
+    plan = corners(s_plan, v_plan)
+    assert np.allclose(plan, ([160.5], [20.0]))  # the slow run, from its first sample
+    assert braking_needed(plan, 1000.0, 100.0, 40.0, 300.0) == pytest.approx(10.0, rel=0.02)
+    assert braking_needed(plan, 1000.0, 100.0, 40.0, 50.0) == 0.0  # not within reach
+    assert braking_needed(plan, 1000.0, 100.0, 40.0, 300.0, near=61.0) == 0.0  # already turning in
+    assert braking_needed(plan, 1000.0, 100.0, 38.0, 300.0) == pytest.approx((38**2 - 20**2) / (2 * 60.5))
     # a car 1 m/s faster than the plan on a straight: only the corner counts, 210 m ahead
-    assert braking_needed(s_plan, v_plan, 1000.0, 950.0, 41.0, 300.0) == pytest.approx((41**2 - 20**2) / (2 * 210.5))
+    assert braking_needed(plan, 1000.0, 950.0, 41.0, 300.0) == pytest.approx((41**2 - 20**2) / (2 * 210.5))
     env = Envelope(EnvelopeSettings(), 0.05)
     env.active = True
     lo, hi = np.array([-0.35, -14.0]), np.array([0.35, 6.0])

@@ -211,21 +211,27 @@ def brake_share(lateral: float, grip: float, gentle: float) -> float:
     return max(float(gentle), float(np.sqrt(1.0 - use * use)))
 
 
-def braking_needed(s_plan: np.ndarray, v_plan: np.ndarray, length: float, s: float, v: float, reach: float,
-                   near: float = 0.0) -> float:
-    """Constant deceleration [m/s^2, >= 0] that brings a car at ``s`` with speed ``v`` down to the
-    plan's corner speeds between ``near`` and ``reach`` metres ahead (the track closes after
-    ``length``): the largest ``(v^2 - v_c^2) / (2 d)`` over the plan's corners, the local minima of
-    ``v_plan(s_plan)`` (a run of equal speeds counts from its first sample). Only the corners count:
-    a car slightly faster than the plan right now need not match it metre by metre (that would ask
-    for any braking at all); nor a corner closer than ``near``, which the car is already turning
-    into (braking for it there takes the grip the corner needs)."""
+def corners(s_plan: np.ndarray, v_plan: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(s, v)`` of a plan's corners: the local minima of its speed ``v_plan(s_plan)`` (a run of
+    equal speeds counts from its first sample)."""
     v_plan = np.asarray(v_plan, float)
     start = np.r_[0, np.flatnonzero(np.diff(v_plan)) + 1]  # first sample of each run of equal speeds
     vals = v_plan[start]
     corner = start[(vals < np.roll(vals, 1)) & (vals < np.roll(vals, -1))]
-    d = np.mod(np.asarray(s_plan, float)[corner] - s, length)
+    return np.asarray(s_plan, float)[corner], v_plan[corner]
+
+
+def braking_needed(plan_corners: tuple[np.ndarray, np.ndarray], length: float, s: float, v: float, reach: float,
+                   near: float = 0.0) -> float:
+    """Constant deceleration [m/s^2, >= 0] that brings a car at ``s`` with speed ``v`` down to the
+    speed of each of the plan's corners (:func:`corners`) between ``near`` and ``reach`` metres
+    ahead (the track closes after ``length``): the largest ``(v^2 - v_c^2) / (2 d)``. Only the
+    corners count: a car slightly faster than the plan right now need not match it metre by metre
+    (that would ask for any braking at all); nor a corner closer than ``near``, which the car is
+    already turning into (braking for it there takes the grip the corner needs)."""
+    s_c, v_c = plan_corners
+    d = np.mod(s_c - s, length)
     ahead = (d > max(near, 0.0)) & (d <= reach)
     if not ahead.any():
         return 0.0
-    return float(max(0.0, np.max((v * v - v_plan[corner][ahead] ** 2) / (2.0 * d[ahead]))))
+    return float(max(0.0, np.max((v * v - v_c[ahead] ** 2) / (2.0 * d[ahead]))))

@@ -25,7 +25,7 @@ from gprace.config import G, CommandSettings
 from gprace.errors import InputError
 from gprace.io.runs import OWN_RUN, Run
 from gprace.model.dynamics import Input, State
-from gprace.mpc.stability import SIGNALS, Envelope, EnvelopeSettings, braking_needed, signals
+from gprace.mpc.stability import SIGNALS, Envelope, EnvelopeSettings, braking_needed, corners, signals
 from gprace.mpc.tracking import MPCSettings, TrackingMPC
 from gprace.sim.stop import run_end, step_plant
 from gprace.timetrial.grip import rear_use
@@ -83,6 +83,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     before = None  # the state the last solution predicted for this period
     plan_brake = 0.0  # the hardest braking the plan asks for over the horizon (before easing)
     grip = vehicle.mu * G  # the friction circle's radius for the envelope's braking
+    ahead = (None, None)  # (plan, its corners): found again only when the shakedown swaps the plan
     k = 0
     wall = time.perf_counter()
     while True:
@@ -95,8 +96,9 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         if env.active:  # the braking that makes the plan's corners from half a second to a gentle stop ahead
             v = float(y[State.V_X])
             reach = v * v / (2.0 * settings.envelope.gentle_brake * brake_limit)
-            needed = braking_needed(mpc.plan.s, mpc.plan.v_x, track.length, float(y[State.S]), v, reach,
-                                    near=v * settings.envelope.hold)
+            if ahead[0] is not mpc.plan:
+                ahead = (mpc.plan, corners(mpc.plan.s, mpc.plan.v_x))
+            needed = braking_needed(ahead[1], track.length, float(y[State.S]), v, reach, near=v * settings.envelope.hold)
         mpc.bounds = env.input_bounds(mpc.u_lo, mpc.u_hi, plan_brake, lateral, grip, rear, brake_limit, needed)
         u, info = mpc.step(y)
         u_prev = u

@@ -127,7 +127,7 @@ def force_headroom(util: float, shape: float) -> float:
     c = float(shape)
     if util <= 0.0 or c <= 1.0:
         return np.inf
-    return float(1.0 / np.sin(c * np.arctan(np.tan(np.pi / (2.0 * c)) * util)) - 1.0)
+    return float(1.0 / np.sin(c * np.arctan(peak_slip(1.0, c) * util)) - 1.0)  # B alpha = B alpha_peak util
 
 
 def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, util: float, cap: np.ndarray,
