@@ -61,6 +61,9 @@ class PlanSettings(CommandSettings):
     slip_max: tuple[float, float] | None = Field(None, description="if set: (front, rear) largest slip angles as "
                                                  "shares of the nominal tire's peak slip angle (the time trial's GP "
                                                  "plans: the bounds its safety check holds them to)")
+    steer_rate: float | None = Field(0.8, gt=0, le=1, description="if set: the steering changes between nodes no "
+                                     "faster than this share of the vehicle's steering_rate_max (the tracking MPC's "
+                                     "actuator bound; the rest is its room to correct)")
     barrier: Literal["monotone", "adaptive"] = Field(
         "monotone", description="IPOPT barrier strategy tried first (the other is the second try); 'adaptive' for "
         "re-plans warm-started from a nearby plan (docs/decisions.md, issue 37 stop 48)")
@@ -175,6 +178,18 @@ def _nlp(model, settings: PlanSettings, n: int, h: float, ellipse: bool) -> tupl
             g_all.append(ca.vec(alpha))
             lbg.append(np.full(n, -share * peak_slip(b, c)))
             ubg.append(np.full(n, share * peak_slip(b, c)))
+    if settings.steer_rate is not None:
+        # the steering between nodes within the actuator's rate over the time between them: the
+        # tracking MPC holds |d delta / dt| to steering_rate_max, so a faster plan cannot be
+        # followed. Measured on a randomized BMW's GP plans (docs/decisions.md, issue 37, stop
+        # 52): a V-line through the 18 m hairpin of gprace_ring reversed the steering at 0.6
+        # rad/s (the BMW's bound: 0.4); the car spun there on both plans that did
+        # (the time between nodes taken as h over the mean v_x: IPOPT failed to converge with the
+        # exact h (1/s_dot_k + 1/s_dot_k+1) / 2 on the circle test, see docs/decisions.md)
+        step = settings.steer_rate * lim.steering_rate_max * h
+        g_all.append(ca.vec(dU[0, :] * 0.5 * (X[VX, :] + Xn[VX, :])))
+        lbg.append(np.full(n, -step))
+        ubg.append(np.full(n, step))
     if ellipse:
         a_lat, a_drive, a_brake = pv[3 * n], pv[3 * n + 1], pv[3 * n + 2]
         a_lon = ca.if_else(U[1, :] >= 0, U[1, :] / a_drive, -U[1, :] / a_brake)
@@ -250,7 +265,7 @@ def _solver(model, settings: PlanSettings, n: int, h: float, ellipse: bool, opts
     physics = (repr(getattr(model, "params", None)), repr(model.vehicle.limits),
                tuple(repr(vars(e)) for e in getattr(model, "effects", ())))
     key = (n, float(h), ellipse, float(settings.w_steer), float(settings.w_accel), settings.slip_max,
-           repr(sorted(opts.items())), physics)
+           settings.steer_rate, repr(sorted(opts.items())), physics)
     ref, kept = _SOLVERS.get(id(model), (None, None))
     if ref is None or ref() is not model:
         kept = {}
