@@ -22,8 +22,7 @@ samples so far inside the band, starting from the caps). The cap matters on a ca
 driving already has large errors (a lag the model does not know, low grip): a band learned from
 its oscillations alone would never trigger. When the largest ``|signal| / band`` exceeds 1 in two
 periods in a row (or 2 in one) the envelope **intervenes**: the reference speed factor ``rho`` of
-the MPC falls by ``ease`` per period, no faster than the gentle braking slows the car
-(:func:`ease_step`), down to ``rho_min``, and the longitudinal command is held
+the MPC falls by ``ease`` per period (down to ``rho_min``) and the longitudinal command is held
 inside a gentle range (neither hard braking nor full drive: a sliding rear needs its grip for
 cornering, and in the braking instability of a car with load transfer it is the braking that takes
 it away), with at least ``plan_brake_share`` of the braking the plan itself asks for there (an
@@ -62,8 +61,7 @@ class EnvelopeSettings(Frozen):
                                                       "e_r [rad/s], e_beta [rad], d_r [rad/s], d_beta [rad]")
     caps: tuple[float, float, float, float] = Field((0.15, 0.015, 0.3, 0.06), description="widest bands (also the "
                                                     "bands before any lap), same order")
-    ease: float = Field(0.02, gt=0, lt=1, description="largest fall of the speed factor per period while outside "
-                       "the band (less at speed: ease_step)")
+    ease: float = Field(0.02, gt=0, lt=1, description="fall of the speed factor per period while outside the band")
     rho_min: float = Field(0.75, gt=0, le=1, description="lowest speed factor")
     recover: float = Field(0.01, gt=0, description="rise of the speed factor per period once back inside")
     hold: float = Field(0.5, ge=0, description="seconds inside the band before the speed factor recovers [s]")
@@ -119,13 +117,8 @@ class Envelope:
         self.onsets: list[int] = []  # period of each intervention's onset
         self.scores: list[float] = []  # score of every period (the shakedown reads how calm the car was)
 
-    def update(self, sig: np.ndarray, in_control: bool = True, speed: float | None = None,
-               brake: float | None = None) -> float:
-        """Score of this period (``max |signal| / band``); moves ``rho`` and counts onsets.
-
-        Given the car's ``speed`` [m/s] and its braking limit ``brake`` [m/s^2], ``rho`` falls no
-        faster than :func:`ease_step` allows: the eased reference asks for at most the gentle
-        braking on top of the plan's own."""
+    def update(self, sig: np.ndarray, in_control: bool = True) -> float:
+        """Score of this period (``max |signal| / band``); moves ``rho`` and counts onsets."""
         st = self.settings
         self.period += 1
         score = float(np.max(np.abs(sig) / self.band))
@@ -143,8 +136,7 @@ class Envelope:
                 self.onsets.append(self.period)
             self.active = True
             self.inside_for = 0.0
-            step = st.ease if speed is None or brake is None else ease_step(st, self.dt, speed, brake)
-            self.rho = max(st.rho_min, self.rho - step)
+            self.rho = max(st.rho_min, self.rho - st.ease)
         else:
             self.inside_for += self.dt
             if self.inside_for >= st.hold:
@@ -209,20 +201,6 @@ class Envelope:
             lo[Input.A_X] = max(u_lo[Input.A_X], min(share * u_lo[Input.A_X], st.plan_brake_share * plan_brake, -needed))
         hi[Input.A_X] = st.gentle_drive * u_hi[Input.A_X]
         return lo, hi
-
-
-def ease_step(settings: EnvelopeSettings, dt: float, speed: float, brake: float) -> float:
-    """Fall of the speed factor in one period of ``dt`` s for a car at ``speed`` m/s: ``ease``, or
-    less, so that the eased reference slows at most at ``gentle_brake`` of the braking limit
-    ``brake`` beyond the plan: ``gentle_brake * brake * dt / speed`` (speed at least 1 m/s).
-
-    A fixed ``ease`` of 0.02 per 50 ms period asks a car at 57 m/s to lose 23 m/s in a second,
-    more than any car brakes; the MPC then braked at 8.6 m/s^2 (the plan: 5.0) through a 57 m/s
-    chicane, the load left the rear of a randomized Audi with its CoG at 0.54 m, and the car
-    weaved until it left the track. With the step from the gentle braking it completed on 3 of 3
-    noise seeds, and a rate-limited BMW's growing weave at 23 m/s on 1 of 1 (docs/decisions.md,
-    issue 37, stop 52)."""
-    return min(float(settings.ease), settings.gentle_brake * float(brake) * float(dt) / max(float(speed), 1.0))
 
 
 def brake_share(lateral: float, grip: float, gentle: float) -> float:

@@ -108,7 +108,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         sig = signals(mpc.predicted, before, info["xref"][0])
         before = mpc.prev_x[0]
         _log(cols, k, plant.lap, info, mpc, sig, env.rho)
-        cols["envelope"][k] = env.update(sig, bool(in_control(y[None, :])[0]), float(y[State.V_X]), brake_limit)
+        cols["envelope"][k] = env.update(sig, bool(in_control(y[None, :])[0]))
         k += 1
         if (reason := run_end(track, plant, vehicle.width, v_stall, goal, k, n_max, "no lap")) is not None:
             break
