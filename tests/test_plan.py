@@ -167,3 +167,31 @@ def test_slip_bounds_hold_the_plan_below_the_tire_peak(setup, circle_plan):
         assert np.isclose(shares, bound, atol=1e-3).any()
         laps.append(plan.lap_time)
     assert circle_plan.lap_time < laps[0] < laps[1]
+
+
+def test_the_plan_steers_no_faster_than_the_actuator_allows():
+    """Issue 37, stop 52: the tracking MPC holds ``|d delta/dt|`` to the vehicle's
+    ``steering_rate_max``, so the planner keeps its steering changes between nodes within
+    ``steer_rate`` of it (the time between nodes taken as ``ds`` over the mean ``v_x``). On a
+    BMW whose actuator turns at 0.15 rad/s the unconstrained plan of gprace_ring steers at 0.23
+    rad/s; with the rows at 0.8 it binds at 0.12 in the NLP's terms, stays below the actuator's
+    0.15 in the plan's own time, and costs well under 1 % of the lap."""
+    v = load_vehicle("bmw_320i")
+    slow = v.model_copy(update={"limits": v.limits.model_copy(update={"steering_rate_max": 0.15})})
+    m = NominalModel(slow)
+    tr = load_track("gprace_ring")
+    warm = curvature_plan(tr, NominalModel(v), ds=12.0, speed_scale=0.7)
+
+    def rates(p):
+        d_delta = np.abs(np.diff(np.r_[p.delta, p.delta[0]]))
+        in_time = d_delta / np.diff(np.r_[p.t, p.lap_time])
+        in_nlp = d_delta * 0.5 * (p.v_x + np.roll(p.v_x, -1)) / 12.0
+        return in_time.max(), in_nlp.max()
+
+    free = plan_min_time(tr, m, PlanSettings(ds=12.0, grip=0.7, steer_rate=None), warm=warm)
+    held = plan_min_time(tr, m, PlanSettings(ds=12.0, grip=0.7, steer_rate=0.8), warm=warm)
+    assert rates(free)[0] > 0.2
+    in_time, in_nlp = rates(held)
+    assert in_nlp == pytest.approx(0.8 * 0.15, rel=2e-3)  # the rows bind (to IPOPT's tolerance)
+    assert in_time < 0.15
+    assert held.lap_time == pytest.approx(free.lap_time, rel=0.01)

@@ -483,31 +483,6 @@ def test_an_eased_car_may_always_brake_for_the_plans_corners_ahead():
     assert env.input_bounds(lo, hi, -6.0, 14.0, 14.7, needed=20.0)[0][1] == pytest.approx(-14.0)  # inside the limit
 
 
-def test_the_eased_reference_slows_no_faster_than_the_gentle_braking():
-    """Outside the band the speed factor falls by ``ease`` per period, but at speed no faster than
-    the gentle braking slows the car: the eased reference ``rho v`` of a car held at 57 m/s then
-    asks for at most ``gentle_brake`` of the braking limit beyond the plan (analytic: 0.4 x 7.8 =
-    3.12 m/s^2, against 0.02 x 57 / 0.05 = 22.8 m/s^2 with the fixed step), while a car at 5 m/s
-    eases at the full step (issue 37, stop 52)."""
-    from gprace.mpc.stability import Envelope, EnvelopeSettings, ease_step
-
-    st, dt, brake = EnvelopeSettings(), 0.05, 7.8
-    outside = np.full(4, 10.0)  # every signal ten bands out
-    for v in (57.0, 20.0, 5.0):
-        env, fixed = Envelope(st, dt), Envelope(st, dt)
-        rho = [1.0]
-        for _ in range(8):
-            env.update(outside, speed=v, brake=brake)
-            fixed.update(outside)
-            rho.append(env.rho)
-        decel = -np.diff(rho) * v / dt  # the reference's deceleration beyond the plan's
-        assert decel.max() == pytest.approx(min(st.gentle_brake * brake, st.ease * v / dt))
-        assert env.rho == pytest.approx(1.0 - 8 * ease_step(st, dt, v, brake)) and env.rho >= fixed.rho
-    assert ease_step(st, dt, 57.0, brake) == pytest.approx(0.4 * 7.8 * 0.05 / 57.0)
-    assert ease_step(st, dt, 5.0, brake) == st.ease  # slow: the full step
-    assert ease_step(st, dt, 0.0, brake) == st.ease  # standing: no division by zero
-
-
 def test_envelope_does_not_brake_a_rear_past_its_peak():
     """A slide whose speed falls uses less ``|v_x r|``, so the friction circle alone would allow
     more braking; with the rear slip angle past the nominal peak the braking stays gentle, a share

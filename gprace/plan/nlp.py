@@ -20,6 +20,8 @@ data (a parameter), never as a function of the decision variables (paper appendi
 
 Bounds: ``-w_r + b/2 + margin <= e_y <= w_l - b/2 - margin`` (b the car width), steering and
 acceleration limits, optionally a friction ellipse at a share ``grip`` of the model's limits, ``v_x >= v_low`` and the speed over ground ``|(v_x, v_y)| <= speed_max``, ``|e_psi| <= 1`` rad.
+The steering changes between nodes within ``steer_rate`` (0.8) of the vehicle's
+``steering_rate_max``, the bound the tracking MPC holds (beyond the paper, issue 37 stop 52).
 Solved with IPOPT, exact Hessian, MUMPS.
 
 The ellipse's three limits are NLP parameters, not constants, so one built solver serves every
