@@ -183,11 +183,11 @@ def _nlp(model, settings: PlanSettings, n: int, h: float, ellipse: bool) -> tupl
     if settings.steer_rate is not None:
         # the steering between nodes within the actuator's rate over the time between them: the
         # tracking MPC holds |d delta / dt| to steering_rate_max, so a faster plan cannot be
-        # followed. Measured on a randomized BMW's GP plans (docs/decisions.md, issue 37, stop
-        # 52): a V-line through the 18 m hairpin of gprace_ring reversed the steering at 0.6
-        # rad/s (the BMW's bound: 0.4); the car spun there on both plans that did
-        # (the time between nodes taken as h over the mean v_x: IPOPT failed to converge with the
-        # exact h (1/s_dot_k + 1/s_dot_k+1) / 2 on the circle test, see docs/decisions.md)
+        # followed, and the share left is its room to correct (docs/decisions.md, issue 37, stop
+        # 52). The time between nodes is taken as h over the mean v_x: with the exact
+        # h (1/s_dot_k + 1/s_dot_k+1) / 2 IPOPT stopped at a point of local infeasibility on the
+        # circle tests; on the inside of a tight corner the plan's own rate is then up to
+        # 1 / (1 - kappa e_y) higher (0.126 against 0.12 rad/s in the test)
         step = settings.steer_rate * lim.steering_rate_max * h
         g_all.append(ca.vec(dU[0, :] * 0.5 * (X[VX, :] + Xn[VX, :])))
         lbg.append(np.full(n, -step))
