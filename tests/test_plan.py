@@ -185,7 +185,7 @@ def test_the_plan_steers_no_faster_than_the_actuator_allows():
     def rates(p):
         d_delta = np.abs(np.diff(np.r_[p.delta, p.delta[0]]))
         in_time = d_delta / np.diff(np.r_[p.t, p.lap_time])
-        in_nlp = d_delta * 0.5 * (p.v_x + np.roll(p.v_x, -1)) / 12.0
+        in_nlp = d_delta * 0.5 * (p.v_x + np.roll(p.v_x, -1)) / (p.s[1] - p.s[0])  # the NLP's node spacing
         return in_time.max(), in_nlp.max()
 
     free = plan_min_time(tr, m, PlanSettings(ds=12.0, grip=0.7, steer_rate=None), warm=warm)
