@@ -167,15 +167,14 @@ class Envelope:
         asks for over the horizon (before any easing) always, so an eased car still makes the
         corner; and the braking ``needed`` for the plan's corners ahead from the speed the car has
         (:func:`braking_needed`) always: the plan's share assumes a car at the plan's speed.
-        Measured on a randomized BMW (CoG 0.54 m) eased after a 57 m/s flick: held to 0.8 of the
-        plan's braking it reached the hairpin 6 m/s faster than the plan and left the track
-        (docs/decisions.md, issue 37, stop 51). Measured: with braking held to half the limit the
-        oracle lap of audi_hidden ran off at the hairpin (s = 450 m); with no limit a worn-rear BMW
-        sliding out of a corner braked at full force for the eased speed and spun (s = 1562 m);
-        with braking held to 0.4
-        of the limit whatever the car did, audi_hidden on the circle_100 plan could not slow to
-        the eased speed on the straight-running moments and left the track (docs/decisions.md,
-        issue 37, tt3).
+        Measured on a randomized Audi (randomized_26, CoG 0.54 m) eased after a 57 m/s flick: held
+        to 0.8 of the plan's braking it reached the hairpin 6 m/s faster than the plan and left the
+        track (docs/decisions.md, issue 37, stop 51). Measured: with braking held to half the limit
+        the oracle lap of audi_hidden ran off at the hairpin (s = 450 m); with no limit a worn-rear
+        BMW sliding out of a corner braked at full force for the eased speed and spun (s = 1562 m);
+        with braking held to 0.4 of the limit whatever the car did, audi_hidden on the circle_100
+        plan could not slow to the eased speed on the straight-running moments and left the track
+        (docs/decisions.md, issue 37, tt3).
 
         A rear axle past its peak (``rear``, the rear slip angle over the nominal tire's peak slip
         angle, at least 1) is an exception: it has no grip left for braking, and braking moves load
