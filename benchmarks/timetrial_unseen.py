@@ -20,7 +20,7 @@ acceptance checks (0 lost laps on every plant; best alpha-0 lap faster than iter
 of the plants; median share of the gap closed >= 60 % where the oracle is known).
 
 Usage: ``nice python benchmarks/timetrial_unseen.py [--only NAME,NAME] [--plants N] [--standins] [--trials T]
-[--iterations I] [--workers W] [--chunk C] [--executor dask --scheduler ADDR] [--out DIR] [--table] [--markdown]``
+[--iterations I] [--seed S] [--workers W] [--chunk C] [--executor dask --scheduler ADDR] [--out DIR] [--table] [--markdown]``
 (``--table``: print the table, run nothing; its acceptance counts the finished plants only).
 Long: about 2 minutes of CPU per trial and plant.
 """
@@ -155,6 +155,8 @@ def main(argv=None) -> None:
     ap.add_argument("--standins", action="store_true", help="frenet stand-ins instead of the randomized plants")
     ap.add_argument("--trials", type=int, default=2)
     ap.add_argument("--iterations", type=int, default=5)
+    ap.add_argument("--seed", type=int, default=0, help="iterate's seed (trial t: seed + t): sensor noise, GP fits "
+                    "and the dictionary's selection; another seed repeats the benchmark on new draws")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--chunk", type=int, default=0, help="plants per batch, batches in turn (0: all in one batch)")
     ap.add_argument("--executor", default="local")
@@ -171,7 +173,8 @@ def main(argv=None) -> None:
         if unknown:
             ap.error(f"--only: unknown plant(s) {', '.join(unknown)}; known: {', '.join(family)}")
         family = {k: family[k] for k in keep}
-    experiments = [(IterateSettings(trials=a.trials, iterations=a.iterations, plant=plant, vehicle=vehicle),
+    experiments = [(IterateSettings(trials=a.trials, iterations=a.iterations, seed=a.seed, plant=plant,
+                                    vehicle=vehicle),
                     a.out / name) for name, (plant, vehicle) in family.items()]
     # batches of --chunk plants, one after the other: a plant's oracle lap runs at the end of its
     # batch, so on a loaded machine the first plants finish whole (oracle included) first
