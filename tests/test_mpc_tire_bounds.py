@@ -156,3 +156,33 @@ def test_an_uncertain_gp_never_tightens_the_rear_slip_bound_below_the_reference(
         x = model.rk4(x, mpc.step(x)[0], track.kappa, mpc.dt, 4)
         dev.append(abs(x[State.E_Y] - np.interp(x[State.S] % track.length, plan.s, plan.e_y)))
     assert max(dev) < 0.15  # 0.32 m with the rows tightened to 0.3 of the bound, below the reference's 0.68
+
+
+def test_the_linearisation_keeps_the_steering_gain_positive_past_the_front_peak(circle):
+    """Along a warm start that steers past the nominal front tire's peak, the tangent of the tire
+    says that more steering turns the car less (``B[r, delta] < 0``) and the QP then steers in to
+    stop an over-rotation. The linearisation point's steering is held within ``LINEARISE_FRONT``
+    of the peak slip, where the gain is positive (issue 37, stop 51: randomized_07's lap, with
+    ``B[r, delta]`` from +0.62 to -0.08 along its warm start)."""
+    from gprace.mpc.tracking import LINEARISE_FRONT, front_heading
+
+    track, model, plan, x, u = circle
+    p = model.params
+    mpc = TrackingMPC(model, track, plan, MPCSettings())
+    pb, info = mpc.build(x)
+    assert np.all(pb.B[:, State.YAW_RATE, Input.DELTA] > 0)
+    kin = front_heading(info["xref"], p.lf, p.vmin)
+    mpc.prev_x = np.vstack([x, _at_s_abs(info["xref"][:-1], x[State.S])])
+    mpc.prev_u = np.column_stack([kin + 2.0 * peak_slip(p.bf, p.cf), np.zeros(mpc.N)])
+    pb, _ = mpc.build(x)
+    assert np.all(pb.B[:, State.YAW_RATE, Input.DELTA] > 0) and LINEARISE_FRONT < 1.0
+    # the tangent there: the nominal model linearised at that steering turns the other way
+    k0 = float(front_heading(x, p.lf, p.vmin)[0])
+    B = model.jacobians(x, np.array([k0 + 2.0 * peak_slip(p.bf, p.cf), 0.0]), float(track.kappa(x[State.S])), mpc.dt)[1]
+    assert B[State.YAW_RATE, Input.DELTA] < 0
+
+
+def _at_s_abs(X, s0):
+    X = X.copy()
+    X[:, State.S] += s0
+    return X

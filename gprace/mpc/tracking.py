@@ -46,6 +46,9 @@ Each control period:
    of the plan's limits at the lateral acceleration the car uses (:meth:`TrackingMPC.ellipse_bounds`).
    The nominal model knows neither a tire past its peak nor combined slip; without these bounds
    the QP steered a sliding car to full lock and asked for full drive at the lateral limit.
+   With that bound, the **linearisation point** keeps its steering within ``LINEARISE_FRONT`` of
+   the peak slip: past the peak the tangent says that more steering turns the car less, and the
+   QP steered in to stop an over-rotation.
 
 Beyond the paper, two run-time hooks:
 
@@ -77,6 +80,7 @@ from gprace.mpc.qp import EY, LtvProblem, Weights
 FEATURES = DYN_INPUTS
 EXPLORED = ("v_y", "yaw_rate", "delta")  # features Algorithm 1 may move the reference to
 FRONT_SHARE = 1.25  # default front slip bound: share of the nominal front tire's peak slip angle
+LINEARISE_FRONT = 0.8  # front slip of the linearisation point: share of the nominal front peak slip angle
 ELLIPSE = 1.0  # default friction ellipse of the longitudinal command: share of the plan's limits
 BRAKE_HEADROOM = 0.15  # braking beyond the plan's limit the ellipse leaves for tracking (MPCSettings.brake_headroom)
 RECOVER_STEPS = 10  # periods over which a rear slip beyond its bound is brought back
@@ -179,6 +183,13 @@ def rear_slip_rows(X: np.ndarray, lr: float, v_min: float) -> tuple[np.ndarray, 
     G[:, State.V_Y] = -vx / den
     G[:, State.YAW_RATE] = lr * vx / den
     return -np.arctan(w / vx), G
+
+
+def front_heading(X: np.ndarray, lf: float, v_min: float) -> np.ndarray:
+    """Heading ``atan((v_y + l_f r) / v_x) (n,)`` of the front axle's velocity at states ``X (n, 6)``
+    (``v_x`` floored at ``v_min``, as the model): the steering angle at which the front slip is 0."""
+    X = np.atleast_2d(X)
+    return np.arctan((X[:, State.V_Y] + lf * X[:, State.YAW_RATE]) / np.maximum(X[:, State.V_X], v_min))
 
 
 def spectral_radius2(M: np.ndarray) -> np.ndarray:
@@ -407,6 +418,18 @@ class TrackingMPC:
             Xb = np.vstack([x_meas, self.prev_x[1:]])
             Ub = np.vstack([self.prev_u[1:], self.prev_u[-1:]])
         Xb[:, State.S] = np.maximum.accumulate(Xb[:, State.S])  # progress along the nominal cannot go back
+        if self.front_max is not None:
+            # linearise where the front tire still answers the steering: past its peak the tangent
+            # says that more steering turns the car less, and the QP steers in to stop an
+            # over-rotation. Measured on a randomized BMW's GP lap (docs/decisions.md, issue 37,
+            # stop 51): along a warm start steered to 1.2 times the front peak, B[r, delta] fell
+            # from +0.62 to -0.08 and the car left the track on the inside of a 40 m/s corner.
+            # Stop 53: that lap re-driven completes on 4 of 4 noise seeds with this, 0 of 4 without
+            p = self.model.params
+            kin = front_heading(Xb, p.lf, p.vmin)
+            lin_max = LINEARISE_FRONT * peak_slip(p.bf, p.cf)
+            Ub = Ub.copy()
+            Ub[:, Input.DELTA] = np.clip(Ub[:, Input.DELTA], kin - lin_max, kin + lin_max)
         sb = Xb[:, State.S]
         kap, k_up, k_dn = self.track.kappa(np.concatenate([sb, sb + KAPPA_DS, sb - KAPPA_DS])).reshape(3, -1)
         slope = (k_up - k_dn) / (2 * KAPPA_DS)
@@ -508,7 +531,7 @@ class TrackingMPC:
         if self.front_max is None:
             return lo, hi
         p = self.model.params
-        kin = float(np.arctan((x[State.V_Y] + p.lf * x[State.YAW_RATE]) / max(float(x[State.V_X]), p.vmin)))
+        kin = float(front_heading(x, p.lf, p.vmin)[0])
         reach_lo, reach_hi = self.delta_prev - self.steer_step, self.delta_prev + self.steer_step
         b_lo = max(lo[Input.DELTA], min(kin - self.front_max, reach_hi))
         b_hi = min(hi[Input.DELTA], max(kin + self.front_max, reach_lo))

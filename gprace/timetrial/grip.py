@@ -29,8 +29,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gprace.model.dynamics import Input, State, peak_slip
-from gprace.mpc.tracking import rear_slip_rows
+from gprace.model.dynamics import Input, peak_slip
+from gprace.mpc.tracking import front_heading, rear_slip_rows
 
 QUANTILE = 0.99  # robust peak of a measured acceleration (one lap has about 1,100 samples)
 
@@ -68,8 +68,7 @@ def front_use(X: np.ndarray, U: np.ndarray, model) -> np.ndarray:
     front tire's peak slip angle."""
     p = model.params
     X, U = np.asarray(X, float), np.asarray(U, float)
-    vx = np.maximum(X[:, State.V_X], p.vmin)
-    a_f = U[:, Input.DELTA] - np.arctan((X[:, State.V_Y] + p.lf * X[:, State.YAW_RATE]) / vx)
+    a_f = U[:, Input.DELTA] - front_heading(X, p.lf, p.vmin)
     return np.abs(a_f) / peak_slip(p.bf, p.cf)
 
 
