@@ -164,7 +164,7 @@ def test_the_linearisation_keeps_the_steering_gain_positive_past_the_front_peak(
     stop an over-rotation. The linearisation point's steering is held within ``LINEARISE_FRONT``
     of the peak slip, where the gain is positive (issue 37, stop 51: randomized_07's lap, with
     ``B[r, delta]`` from +0.62 to -0.08 along its warm start)."""
-    from gprace.mpc.tracking import front_heading
+    from gprace.mpc.tracking import _at_s, front_heading
 
     track, model, plan, x, u = circle
     p = model.params
@@ -172,7 +172,7 @@ def test_the_linearisation_keeps_the_steering_gain_positive_past_the_front_peak(
     pb, info = mpc.build(x)
     assert np.all(pb.B[:, State.YAW_RATE, Input.DELTA] > 0)
     kin = front_heading(info["xref"], p.lf, p.vmin)
-    mpc.prev_x = np.vstack([x, _at_s_abs(info["xref"][:-1], x[State.S])])
+    mpc.prev_x = np.vstack([x, _at_s(info["xref"][:-1], x[State.S])])
     mpc.prev_u = np.column_stack([kin + 2.0 * peak_slip(p.bf, p.cf), np.zeros(mpc.N)])
     pb, _ = mpc.build(x)
     assert np.all(pb.B[:, State.YAW_RATE, Input.DELTA] > 0)
@@ -180,9 +180,3 @@ def test_the_linearisation_keeps_the_steering_gain_positive_past_the_front_peak(
     k0 = float(front_heading(x, p.lf, p.vmin)[0])
     B = model.jacobians(x, np.array([k0 + 2.0 * peak_slip(p.bf, p.cf), 0.0]), float(track.kappa(x[State.S])), mpc.dt)[1]
     assert B[State.YAW_RATE, Input.DELTA] < 0
-
-
-def _at_s_abs(X, s0):
-    X = X.copy()
-    X[:, State.S] += s0
-    return X

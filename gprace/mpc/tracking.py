@@ -428,7 +428,6 @@ class TrackingMPC:
             p = self.model.params
             kin = front_heading(Xb, p.lf, p.vmin)
             lin_max = LINEARISE_FRONT * peak_slip(p.bf, p.cf)
-            Ub = Ub.copy()
             Ub[:, Input.DELTA] = np.clip(Ub[:, Input.DELTA], kin - lin_max, kin + lin_max)
         sb = Xb[:, State.S]
         kap, k_up, k_dn = self.track.kappa(np.concatenate([sb, sb + KAPPA_DS, sb - KAPPA_DS])).reshape(3, -1)
