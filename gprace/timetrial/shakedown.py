@@ -89,6 +89,7 @@ def axle_grip(X: np.ndarray, U: np.ndarray, dt: float, model, ok: np.ndarray) ->
     within +-1, above 1); a phase with fewer than ``MIN_SLIP_SAMPLES`` samples is left out.
     """
     from gprace.model.dynamics import peak_slip
+    from gprace.mpc.tracking import front_heading, rear_slip_rows
 
     p = model.params
     vx, vy, r = X[:, State.V_X], X[:, State.V_Y], X[:, State.YAW_RATE]
@@ -98,8 +99,7 @@ def axle_grip(X: np.ndarray, U: np.ndarray, dt: float, model, ok: np.ndarray) ->
     L = p.lf + p.lr
     force = {"rear": (p.lf * p.m * a_y - p.iz * r_dot) / L,
              "front": (p.lr * p.m * a_y + p.iz * r_dot) / L / np.cos(delta)}
-    vxs = np.maximum(vx, p.vmin)
-    slip = {"front": delta - np.arctan((vy + p.lf * r) / vxs), "rear": -np.arctan((vy - p.lr * r) / vxs)}
+    slip = {"front": delta - front_heading(X, p.lf, p.vmin), "rear": rear_slip_rows(X, p.lr, p.vmin)[0]}
     tire = {"front": (p.fz_front, p.bf, p.cf), "rear": (p.fz_rear, p.br, p.cr)}
     phases = {"brake": ax < -1.0, "coast": np.abs(ax) <= 1.0, "drive": ax > 1.0}
     out = {}
