@@ -195,3 +195,21 @@ def test_the_plan_steers_no_faster_than_the_actuator_allows():
     assert in_nlp == pytest.approx(0.8 * 0.15, rel=2e-3)  # the rows bind (to IPOPT's tolerance)
     assert in_time < 0.15
     assert held.lap_time == pytest.approx(free.lap_time, rel=0.01)
+
+
+def test_the_corner_speed_of_a_car_whose_loads_move_with_a_x_is_a_steady_state():
+    """The true physics of the benchmark's randomized_23 (load transfer, combined slip, downforce,
+    load sensitivity): from the first start IPOPT called the steady-corner NLP infeasible, and the
+    plant had no oracle lap. From a slower start with a_x in the car's range it solves, and the
+    solution is a steady state of the model at the friction limit's order of magnitude."""
+    from gprace.config import PlantConfig, load_vehicle
+    from gprace.model.effects import make_effect
+    from gprace.plants.base import approximate
+
+    approx = approximate(PlantConfig(kind="randomized", vehicle=load_vehicle("bmw_320i"), options={"seed": 23}))
+    m = NominalModel(approx.vehicle or load_vehicle("bmw_320i"), [e for e in approx.effects if make_effect(e).n_states == 0])
+    ss = max_corner_speed(m, 103.15651199999999)
+    x = np.array([ss["v_x"], ss["v_y"], ss["yaw_rate"], ss["e_psi"], 0.0, 0.0])
+    xdot = m.f(x, np.array([ss["delta"], ss["a_x"]]), 1 / 103.15651199999999)
+    np.testing.assert_allclose(xdot[:5], 0.0, atol=1e-6)
+    assert 5.0 < ss["a_lat"] < 15.0
