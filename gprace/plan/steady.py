@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from gprace.errors import SolverError
-from gprace.solvers import ipopt_status
+from gprace.solvers import SolveStatus, ipopt_status
 
 
 def steady_state_inputs(model, v: np.ndarray, kappa_p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -73,9 +73,10 @@ def max_corner_speed(model, radius: float, e_y: float = 0.0, steering_max: float
         vy0, r0, d0 = steady_state_inputs(model, np.array([v0]), np.array([kappa / (1 - kappa * e_y)]))
         sol = solver(x0=[v0, vy0[0], r0[0], 0.0, d0[0], 0.0], lbx=[0.5, -50, -10, -1.0, -dmax, a_lo],
                      ubx=[400, 50, 10, 1.0, dmax, a_hi], lbg=0, ubg=0)
-        if ipopt_status(solver.stats()).usable:
+        status = ipopt_status(solver.stats())
+        if status.usable or status is not SolveStatus.INFEASIBLE:  # only a start called infeasible is retried
             break
-    else:
+    if not status.usable:
         raise SolverError(f"max_corner_speed: IPOPT failed ({solver.stats()['return_status']}) for radius {radius}")
     z = np.asarray(sol["x"]).ravel()
     vx, vy, r, epsi, delta, a = z
