@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from gprace.errors import SolverError
+from gprace.interrupt import requested
 from gprace.solvers import SolveStatus, ipopt_status
 
 
@@ -44,8 +45,10 @@ def max_corner_speed(model, radius: float, e_y: float = 0.0, steering_max: float
 
     Solved numerically on the model's own equations (CasADi + IPOPT): maximise the progress rate ``s_dot`` subject to
     ``xdot[0:5] = 0`` (speed, lateral velocity, yaw rate, heading error and lateral offset constant)
-    with the drive input ``a_x`` free and ``|delta| <= steering_max``. Returns the steady state,
-    the inputs and ``a_lat = s_dot^2 * kappa_path`` at the car.
+    with the drive input ``a_x`` free and ``|delta| <= steering_max``, from 0.8 of the friction-circle
+    speed; when IPOPT calls that start infeasible, from the fastest steady corner found by following
+    it up in speed (:func:`_fastest_steady`). Returns the steady state, the inputs and
+    ``a_lat = s_dot^2 * kappa_path`` at the car.
     """
     import casadi as ca
 
@@ -63,21 +66,24 @@ def max_corner_speed(model, radius: float, e_y: float = 0.0, steering_max: float
     nlp = {"x": ca.vertcat(x, ax), "f": -progress, "g": g}
     solver = ca.nlpsol("ss", "ipopt", nlp, {"ipopt.print_level": 0, "print_time": 0, "ipopt.tol": 1e-10, "ipopt.sb": "yes"})
     lim = model.vehicle.limits
-    # from 0.8 of the friction-circle speed with a_x free, then from slower starts with a_x in the
-    # car's range: with a load transfer in the model (the oracle's true physics) a free a_x can
-    # take the rear's whole load, and IPOPT called the first start infeasible (randomized_18, 23
-    # and 25 of the issue-37 benchmark had no oracle lap for it; docs/decisions.md, stop 54)
-    for share, (a_lo, a_hi) in ((0.8, (-100.0, 100.0)), (0.5, (lim.accel_min, lim.accel_max)),
-                                (0.3, (lim.accel_min, lim.accel_max))):
-        v0 = np.sqrt(share * model.params.mu * model.params.g * radius)
-        vy0, r0, d0 = steady_state_inputs(model, np.array([v0]), np.array([kappa / (1 - kappa * e_y)]))
-        sol = solver(x0=[v0, vy0[0], r0[0], 0.0, d0[0], 0.0], lbx=[0.5, -50, -10, -1.0, -dmax, a_lo],
-                     ubx=[400, 50, 10, 1.0, dmax, a_hi], lbg=0, ubg=0)
-        status = ipopt_status(solver.stats())
-        if status.usable or status is not SolveStatus.INFEASIBLE:  # only a start called infeasible is retried
-            break
-    if not status.usable:
-        raise SolverError(f"max_corner_speed: IPOPT failed ({solver.stats()['return_status']}) for radius {radius}")
+    v0 = np.sqrt(0.8 * model.params.mu * model.params.g * radius)
+    vy0, r0, d0 = steady_state_inputs(model, np.array([v0]), np.array([kappa / (1 - kappa * e_y)]))
+    lbx, ubx = [0.5, -50, -10, -1.0, -dmax, -100.0], [400, 50, 10, 1.0, dmax, 100.0]
+    sol = solver(x0=[v0, vy0[0], r0[0], 0.0, d0[0], 0.0], lbx=lbx, ubx=ubx, lbg=0, ubg=0)
+    status = ipopt_status(solver.stats())
+    if status is SolveStatus.INFEASIBLE:  # only a start called infeasible is retried (never an interrupted solve)
+        # with a load transfer in the model (an oracle's true physics) a free a_x can take the
+        # rear's whole load, and IPOPT called the start infeasible (randomized_18, 23 and 25 of the
+        # issue-37 benchmark had no oracle lap); slower starts did not help 18 and 25 (stop 54).
+        # The steady corner is followed up in speed instead, a_x in the car's range, and the
+        # maximisation starts from the fastest one found (docs/decisions.md, issue 37, stop 55)
+        lbx[5], ubx[5] = lim.accel_min, lim.accel_max
+        edge = _fastest_steady(model, ca.vertcat(x, ax), g, kappa / (1 - kappa * e_y), 0.6 * v0, lbx, ubx)
+        if edge is not None:
+            sol = solver(x0=edge, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
+            status = ipopt_status(solver.stats())
+            if not status.usable and not requested():
+                sol, status = {"x": edge}, SolveStatus.SOLVED  # the edge itself, to the march's tolerance
     z = np.asarray(sol["x"]).ravel()
     vx, vy, r, epsi, delta, a = z
     sdot = (vx * np.cos(epsi) - vy * np.sin(epsi)) / (1 - kappa * e_y)
@@ -88,3 +94,39 @@ def max_corner_speed(model, radius: float, e_y: float = 0.0, steering_max: float
         "speed": speed, "s_dot": float(sdot), "path_radius": path_radius, "a_lat": speed**2 / path_radius,
         "lap_time": float(2 * np.pi * radius / sdot),
     }
+
+
+def _fastest_steady(model, z, g, kappa_p: float, v_start: float, lbx: list, ubx: list, step: float = 0.05,
+                    tol: float = 1e-3) -> list | None:
+    """The fastest steady corner ``(v_x, v_y, r, e_psi, delta, a_x)`` of the residuals ``g(z)`` found
+    by following it up in speed from ``v_start`` (steps of ``step``, then bisection to ``tol``, both
+    relative), each at a fixed speed from the last one's solution; None if none holds at ``v_start``."""
+    import casadi as ca
+
+    solve = ca.nlpsol("ss_fixed", "ipopt", {"x": z, "f": 0, "g": g},
+                      {"ipopt.print_level": 0, "print_time": 0, "ipopt.tol": 1e-10, "ipopt.sb": "yes"})
+
+    def at(v: float, start: list) -> list | None:
+        lo, hi = list(lbx), list(ubx)
+        lo[0] = hi[0] = v
+        sol = solve(x0=[v, *start[1:]], lbx=lo, ubx=hi, lbg=0, ubg=0)
+        return np.asarray(sol["x"]).ravel().tolist() if ipopt_status(solve.stats()).usable else None
+
+    vy, r, delta = steady_state_inputs(model, np.array([v_start]), np.array([kappa_p]))
+    best = at(v_start, [v_start, vy[0], r[0], 0.0, delta[0], 0.0])
+    if best is None:
+        return None
+    hi = None
+    while hi is None and not requested():
+        nxt = at(best[0] * (1 + step), best)
+        if nxt is None:
+            hi = best[0] * (1 + step)
+        else:
+            best = nxt
+    while hi is not None and hi - best[0] > tol * best[0] and not requested():
+        nxt = at(0.5 * (best[0] + hi), best)
+        if nxt is None:
+            hi = 0.5 * (best[0] + hi)
+        else:
+            best = nxt
+    return best
