@@ -5,8 +5,9 @@ from __future__ import annotations
 import os
 
 # one BLAS thread per test process, pytest-xdist running one process per core, as gprace's batch
-# tasks run (gprace.executor.single_thread_blas): also for the BLAS libraries loaded later, which a
-# limit set at run time does not reach (CasADi loads its own OpenBLAS with IPOPT). With threaded
+# tasks run (gprace.executor.single_thread_blas), set before any BLAS is loaded (no plugin loads
+# numpy before this file) so that it also holds for the libraries loaded later, which a limit set
+# at run time does not reach (CasADi loads its own OpenBLAS with IPOPT). With threaded
 # BLAS the rounding depends on the machine's load: on a busy machine (issue 37, stop 55) IPOPT
 # called the bounded circle plan of test_slip_bounds_hold_the_plan_below_the_tire_peak infeasible;
 # idle or single-threaded it solves.
@@ -21,16 +22,6 @@ from gprace.config import load_vehicle  # noqa: E402
 from shared_data import TUM_TRACKS as _TUM  # noqa: E402
 
 TUM_TRACKS = str(_TUM)
-
-
-@pytest.fixture(scope="session", autouse=True)
-def _one_blas_thread():
-    """One BLAS thread also in the libraries a plugin loaded before this file (see the top)."""
-    import scipy.linalg  # noqa: F401 -- SciPy's own BLAS, loaded before the limit (as the executor does)
-    from threadpoolctl import threadpool_limits
-
-    with threadpool_limits(limits=1):
-        yield
 
 
 @pytest.fixture(scope="session")

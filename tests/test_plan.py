@@ -231,3 +231,12 @@ def test_the_corner_speed_of_a_car_whose_loads_move_with_a_x_is_the_edge_of_its_
     assert residual_at(0.99 * ss["v_x"]) < 1e-10
     assert residual_at(1.02 * ss["v_x"]) > 1e-6
     assert 5.0 < ss["a_lat"] < 15.0
+
+
+def test_a_corner_the_car_cannot_hold_is_an_error_not_a_speed():
+    """A 10 m radius with the steering held to 1 mrad has no steady corner: IPOPT calls it
+    infeasible and the speed march finds none either. That is a SolverError; the first version of
+    the march returned IPOPT's last iterate instead, a 'corner' at the 0.5 m/s bound."""
+    m = NominalModel(load_vehicle("bmw_320i"))
+    with pytest.raises(SolverError, match="max_corner_speed"):
+        max_corner_speed(m, 10.0, steering_max=1e-3)

@@ -10,8 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from gprace.errors import SolverError
-from gprace.interrupt import requested
+from gprace.interrupt import check as check_interrupt
 from gprace.solvers import SolveStatus, ipopt_status
+
+_IPOPT = {"ipopt.print_level": 0, "print_time": 0, "ipopt.tol": 1e-10, "ipopt.sb": "yes"}
 
 
 def steady_state_inputs(model, v: np.ndarray, kappa_p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -64,26 +66,30 @@ def max_corner_speed(model, radius: float, e_y: float = 0.0, steering_max: float
     dmax = steering_max if steering_max is not None else model.vehicle.limits.steering_max
     progress = (x[0] * ca.cos(x[3]) - x[1] * ca.sin(x[3])) / (1 - kappa * e_y)
     nlp = {"x": ca.vertcat(x, ax), "f": -progress, "g": g}
-    solver = ca.nlpsol("ss", "ipopt", nlp, {"ipopt.print_level": 0, "print_time": 0, "ipopt.tol": 1e-10, "ipopt.sb": "yes"})
-    lim = model.vehicle.limits
+    solver = ca.nlpsol("ss", "ipopt", nlp, _IPOPT)
+    kappa_p = kappa / (1 - kappa * e_y)  # the path's curvature at the car
     v0 = np.sqrt(0.8 * model.params.mu * model.params.g * radius)
-    vy0, r0, d0 = steady_state_inputs(model, np.array([v0]), np.array([kappa / (1 - kappa * e_y)]))
+    vy0, r0, d0 = steady_state_inputs(model, np.array([v0]), np.array([kappa_p]))
     lbx, ubx = [0.5, -50, -10, -1.0, -dmax, -100.0], [400, 50, 10, 1.0, dmax, 100.0]
     sol = solver(x0=[v0, vy0[0], r0[0], 0.0, d0[0], 0.0], lbx=lbx, ubx=ubx, lbg=0, ubg=0)
+    check_interrupt()  # IPOPT stops at Ctrl-C as if it had failed: that is no reason for another try
     status = ipopt_status(solver.stats())
-    if status is SolveStatus.INFEASIBLE:  # only a start called infeasible is retried (never an interrupted solve)
+    if status is SolveStatus.INFEASIBLE:
         # with a load transfer in the model (an oracle's true physics) a free a_x can take the
         # rear's whole load, and IPOPT called the start infeasible (randomized_18, 23 and 25 of the
         # issue-37 benchmark had no oracle lap); slower starts did not help 18 and 25 (stop 54).
         # The steady corner is followed up in speed instead, a_x in the car's range, and the
         # maximisation starts from the fastest one found (docs/decisions.md, issue 37, stop 55)
-        lbx[5], ubx[5] = lim.accel_min, lim.accel_max
-        edge = _fastest_steady(model, ca.vertcat(x, ax), g, kappa / (1 - kappa * e_y), 0.6 * v0, lbx, ubx)
+        lbx[5], ubx[5] = model.vehicle.limits.accel_min, model.vehicle.limits.accel_max
+        edge = _fastest_steady(model, ca.vertcat(x, ax), g, kappa_p, 0.6 * v0, lbx, ubx)
         if edge is not None:
             sol = solver(x0=edge, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
+            check_interrupt()
             status = ipopt_status(solver.stats())
-            if not status.usable and not requested():
+            if not status.usable:
                 sol, status = {"x": edge}, SolveStatus.SOLVED  # the edge itself, to the march's tolerance
+    if not status.usable:
+        raise SolverError(f"max_corner_speed: IPOPT failed ({solver.stats()['return_status']}) for radius {radius}")
     z = np.asarray(sol["x"]).ravel()
     vx, vy, r, epsi, delta, a = z
     sdot = (vx * np.cos(epsi) - vy * np.sin(epsi)) / (1 - kappa * e_y)
@@ -103,30 +109,25 @@ def _fastest_steady(model, z, g, kappa_p: float, v_start: float, lbx: list, ubx:
     relative), each at a fixed speed from the last one's solution; None if none holds at ``v_start``."""
     import casadi as ca
 
-    solve = ca.nlpsol("ss_fixed", "ipopt", {"x": z, "f": 0, "g": g},
-                      {"ipopt.print_level": 0, "print_time": 0, "ipopt.tol": 1e-10, "ipopt.sb": "yes"})
+    solve = ca.nlpsol("ss_fixed", "ipopt", {"x": z, "f": 0, "g": g}, _IPOPT)
 
     def at(v: float, start: list) -> list | None:
         lo, hi = list(lbx), list(ubx)
         lo[0] = hi[0] = v
         sol = solve(x0=[v, *start[1:]], lbx=lo, ubx=hi, lbg=0, ubg=0)
+        check_interrupt()
         return np.asarray(sol["x"]).ravel().tolist() if ipopt_status(solve.stats()).usable else None
 
     vy, r, delta = steady_state_inputs(model, np.array([v_start]), np.array([kappa_p]))
     best = at(v_start, [v_start, vy[0], r[0], 0.0, delta[0], 0.0])
     if best is None:
         return None
-    hi = None
-    while hi is None and not requested():
-        nxt = at(best[0] * (1 + step), best)
+    hi = None  # the slowest speed found without a steady corner
+    while hi is None or hi - best[0] > tol * best[0]:
+        v = best[0] * (1 + step) if hi is None else 0.5 * (best[0] + hi)
+        nxt = at(v, best)
         if nxt is None:
-            hi = best[0] * (1 + step)
-        else:
-            best = nxt
-    while hi is not None and hi - best[0] > tol * best[0] and not requested():
-        nxt = at(0.5 * (best[0] + hi), best)
-        if nxt is None:
-            hi = 0.5 * (best[0] + hi)
+            hi = v
         else:
             best = nxt
     return best
