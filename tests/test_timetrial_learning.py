@@ -160,6 +160,35 @@ def test_grip_limits_widen_hold_and_back_off():
     np.testing.assert_allclose(next_limits(prev, prev, True, 0.4, cap, 0.05, failed=[1.04 * prev]), 1.04 * 0.95 * prev)
 
 
+def test_a_racing_lap_the_envelope_eased_holds_the_limits_it_was_driven_at():
+    """``driven_limits``: a plan time-scaled by ``q`` asks ``q^2`` of its accelerations (checked on
+    a curvature plan on a real circuit), so a racing lap that needed the envelope holds
+    ``limits q^2``, not the plan's limits; exploration laps, laps without interventions and laps
+    at full speed keep the plan's (issue 37, stop 56)."""
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.plan import curvature_plan
+    from gprace.timetrial.grip import driven_limits, next_limits
+    from gprace.timetrial.guard import time_scaled
+    from gprace.tracks import load_track
+
+    model = NominalModel(load_vehicle("bmw_320i"))
+    plan = curvature_plan(load_track("gprace_ring"), model, ds=6.0, limits=(9.55, 3.0, 8.0))
+    q = 0.97
+    lat = lambda p: np.abs(p.v_x * p.yaw_rate).max()  # noqa: E731
+    assert lat(time_scaled(plan, q)) == pytest.approx(q * q * lat(plan), rel=1e-12)
+    assert np.abs(time_scaled(plan, q).a_x).max() == pytest.approx(q * q * np.abs(plan.a_x).max(), rel=1e-12)
+    limits = np.array([9.55, 3.0, 8.0])
+    np.testing.assert_allclose(driven_limits(limits, q, 0.0, 5), q * q * limits)
+    for step, alpha, eased in ((q, 0.857, 5), (q, 0.0, 0), (1.0, 0.0, 5)):
+        np.testing.assert_allclose(driven_limits(limits, step, alpha, eased), limits)
+    # held (the envelope intervened): the next limits are what the eased lap asked, below the plan's
+    cap = np.full(3, 99.0)
+    held = next_limits(driven_limits(limits, q, 0.0, 5), [9.78, 3.2, 8.1], True, 0.54, cap, interventions=5)
+    np.testing.assert_allclose(held, q * q * limits)
+    assert held[0] < limits[0]
+
+
 def test_the_widening_asks_the_rear_tire_for_no_more_than_the_force_it_has_left():
     """``force_headroom``: at ``util`` of the peak slip angle a tire ``sin(C atan(B alpha))`` gives
     ``1 / (1 + headroom)`` of its peak force (analytic), none left at the peak, more far below it;

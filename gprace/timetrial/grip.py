@@ -158,6 +158,26 @@ def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, uti
     return np.minimum(below_failed(out, failed, widen), cap)
 
 
+def driven_limits(limits, step: float, alpha: float, interventions: int) -> np.ndarray:
+    """The limits a lap held the car to, as the next widening or hold starts from them: ``limits``
+    times ``step^2`` (a plan time-scaled by ``step``, by the build-up or a novelty step, asks
+    ``step^2`` of its accelerations) when a racing lap (``alpha`` 0) needed the stability envelope
+    (``interventions > 0``), else ``limits`` as planned.
+
+    :func:`next_limits` holds a lap the envelope had to ease at its limits; held at the plan's
+    limits, the next lap asked more than the eased one did. Measured (commonroad_mb trial 0, seeds
+    0 and 1, two machines): a racing lap at 9.55 m/s^2 driven at 0.97 of its speed (9.0 m/s^2
+    asked) needed the envelope five times; the next plan, held at 9.55 m/s^2 and not time-scaled,
+    was 5 to 6 % faster than that lap and left the track at s = 1609 to 1626 m. Exploration laps
+    (``alpha > 0``) leave their plan on purpose: their interventions say less about its pace, and
+    of the 53 eased exploration laps of two benchmark runs none was followed by a lost lap
+    (docs/decisions.md, issue 37, stop 56)."""
+    limits = np.asarray(limits, dtype=float)
+    if alpha == 0.0 and interventions > 0 and step < 1.0:
+        return limits * step**2
+    return limits
+
+
 def below_failed(limits, failed=(), widen: float = 0.05) -> np.ndarray:
     """``limits`` kept below each of the ``failed`` limits (plans whose laps were lost) by
     ``widen``: limits at or above a failed level on every axis are cut to ``(1 - widen)`` of it.
