@@ -20,7 +20,10 @@ scheme of Wischnewski et al. 2019 (start conservative, widen from measured accel
   of the peak (measuring 8.45); after a slower built-up lap (0.35 of the peak) the widening went
   on to 8.82 m/s^2, and the alpha-0 lap at that level spun the car in the hairpin. On
   randomized_06 a shakedown planned at 9.87 m/s^2 slid past the peak (1.59 of it, 80 border
-  hits) and measured 11.2; the widening to 10.76 then lost the car.
+  hits) and measured 11.2; the widening to 10.76 then lost the car;
+- a racing lap the stability envelope had to ease is held at the limits it was driven at, the
+  plan's times the square of the speed factor of a build-up or novelty step (:func:`driven_limits`),
+  not at the plan's own.
 
 All functions are pure and vectorised over the run's samples.
 """
