@@ -71,6 +71,10 @@ class EnvelopeSettings(Frozen):
     nominal_when_active: bool = Field(True, description="while the envelope is active, the tracking MPC predicts "
                                       "with the nominal model alone where the tracking GP extrapolates")
     warmup: int = Field(60, ge=0, description="samples before a band learned inside the lap replaces the caps")
+    weave_damping: float = Field(3.0, ge=1.0, description="the tracking MPC's steering-rate weight is multiplied by "
+                                 "this while the yaw rate weaves (:func:`weaving`; 1: never)")
+    weave_seconds: float = Field(2.0, ge=0, description="seconds the steering stays damped after the last weave "
+                                 "detected [s]")
 
 
 def signals(predicted_now: np.ndarray, predicted_before: np.ndarray | None, ref: np.ndarray) -> np.ndarray:
@@ -99,6 +103,30 @@ def bands(samples: np.ndarray, settings: EnvelopeSettings) -> np.ndarray | None:
     return np.clip(settings.factor * np.quantile(a, settings.quantile, axis=0), settings.floors, settings.caps)
 
 
+WEAVE_CYCLES = 6             # consecutive half-cycles of the yaw-rate deviation that make a weave
+WEAVE_HALF = (0.15, 0.45)    # their half-periods [s]: the steering loop's own mode (0.5 to 0.6 s measured)
+WEAVE_GROWTH = 1.5           # the last half-cycle's amplitude over the first's
+WEAVE_FLOOR = 0.08           # [rad/s] the last half-cycle's amplitude at least (sensor noise is below 0.01)
+WEAVE_WINDOW = 4.0           # [s] of yaw-rate deviations kept (6 half-cycles of 0.45 s fit)
+
+
+def weaving(d_r: np.ndarray, dt: float) -> bool:
+    """Whether the yaw-rate deviations ``d_r`` (oldest first) end in a growing oscillation: the last
+    ``WEAVE_CYCLES`` complete half-cycles (between sign changes) each last ``WEAVE_HALF`` seconds,
+    the last amplitude is at least ``WEAVE_FLOOR`` and ``WEAVE_GROWTH`` times the first, and the
+    last three amplitudes grow (vectorised over the window)."""
+    d_r = np.asarray(d_r, float)
+    sign = np.where(d_r >= 0.0, 1, -1)
+    cross = np.flatnonzero(np.diff(sign)) + 1   # first sample of each new half-cycle
+    if len(cross) < WEAVE_CYCLES + 1:
+        return False
+    edges = cross[-WEAVE_CYCLES - 1:]
+    half = np.diff(edges) * dt
+    amp = np.maximum.reduceat(np.abs(d_r), edges[:-1])  # peak of each complete half-cycle
+    return bool(np.all((half >= WEAVE_HALF[0]) & (half <= WEAVE_HALF[1])) and amp[-1] >= WEAVE_FLOOR
+                and amp[-1] >= WEAVE_GROWTH * amp[0] and np.all(np.diff(amp[-3:]) > 0.0))
+
+
 class Envelope:
     """Watches one run; :meth:`update` is called once per period after the MPC's step."""
 
@@ -116,6 +144,9 @@ class Envelope:
         self.period = -1   # periods seen
         self.onsets: list[int] = []  # period of each intervention's onset
         self.scores: list[float] = []  # score of every period (the shakedown reads how calm the car was)
+        self._d_r: list[float] = []   # the yaw-rate deviations of the last WEAVE_WINDOW seconds
+        self.weaves = 0               # weaves detected (onsets, at least weave_seconds apart)
+        self.damped_for = 0.0         # seconds the steering stays damped
 
     def update(self, sig: np.ndarray, in_control: bool = True) -> float:
         """Score of this period (``max |signal| / band``); moves ``rho`` and counts onsets."""
@@ -130,6 +161,7 @@ class Envelope:
             self._learn(sig)
         if not st.enabled:
             return score
+        self._watch_weave(float(sig[2]))
         if outside:
             if not self.active and self.inside_for >= st.hold:
                 self.interventions += 1
@@ -145,6 +177,22 @@ class Envelope:
         if self.rho < 1.0:
             self.eased += 1
         return score
+
+    @property
+    def steer_damping(self) -> float:
+        """Factor on the tracking MPC's steering-rate weight this period (``weave_damping`` while a
+        weave was seen in the last ``weave_seconds``, else 1)."""
+        return self.settings.weave_damping if self.damped_for > 0.0 else 1.0
+
+    def _watch_weave(self, d_r: float) -> None:
+        """Keep the last ``WEAVE_WINDOW`` seconds of ``d_r``; a weave (:func:`weaving`) damps the steering."""
+        self._d_r.append(d_r)
+        del self._d_r[: max(0, len(self._d_r) - int(round(WEAVE_WINDOW / self.dt)))]
+        self.damped_for = max(0.0, self.damped_for - self.dt)
+        if weaving(self._d_r, self.dt):
+            if self.damped_for == 0.0:
+                self.weaves += 1
+            self.damped_for = self.settings.weave_seconds
 
     def _learn(self, sig: np.ndarray) -> None:
         """The band inside the first lap: from the clean samples so far (updated every 20)."""

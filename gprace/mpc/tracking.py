@@ -279,6 +279,8 @@ class TrackingMPC:
         self.front_max = None if settings.front_share is None else settings.front_share * peak_slip(p.bf, p.cf)
         self.quantile = quantile_factor(settings.beta)
         self.qp = solvers.create(settings.solver, settings.N, settings.weights)
+        self._qps = {1.0: self.qp}  # by steering-rate factor (the stability envelope damps the steering)
+        self.steer_damping = 1.0
         self._lin = self._build_linearisation()
         lim = model.vehicle.limits
         self.u_lo = np.array([-lim.steering_max, lim.accel_min])
@@ -589,6 +591,16 @@ class TrackingMPC:
         lo[Input.A_X] = min(max(lo[Input.A_X], -room * brake), max(float(a_ref.min()), lo[Input.A_X]), hi[Input.A_X])
         return lo, hi
 
+    def _qp(self):
+        """The QP of this period: the steering-rate weight times ``steer_damping`` (made once per factor)."""
+        from gprace.registry import solvers
+
+        f = float(self.steer_damping)
+        if f not in self._qps:
+            w = self.settings.weights
+            self._qps[f] = solvers.create(self.settings.solver, self.N, w.model_copy(update={"r_delta": w.r_delta * f}))
+        return self._qps[f]
+
     def step(self, x_meas: np.ndarray) -> tuple[np.ndarray, dict]:
         """Input for the measured state (6,); info has solve time, status, fallback flag."""
         from gprace.mpc.delay import predict
@@ -601,7 +613,7 @@ class TrackingMPC:
             x = predict(self._delay_step, x, self.sent, self.delay, self.dt)
         self.predicted = x
         pb, info = self.build(x)
-        res = self.qp.solve(pb)
+        res = self._qp().solve(pb)
         fallback = not res.status.usable
         if fallback:
             self.fallbacks += 1

@@ -88,6 +88,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     wall = time.perf_counter()
     while True:
         mpc.speed_factor = env.rho
+        mpc.steer_damping = env.steer_damping
         mpc.use_gp = not (settings.envelope.nominal_when_active and env.active and _novel(gp, y, u_prev))
         lateral = float(y[State.V_X] * y[State.YAW_RATE])
         rear = float(rear_use(y[None, :], model)[0])
@@ -134,7 +135,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         "solve_time_median": float(np.median(st)) if k else float("nan"),
         "solve_time_p99": float(np.quantile(st, 0.99)) if k else float("nan"),
         "wall_time": time.perf_counter() - wall, "seed": int(seed), "gp": gp is not None, OWN_RUN: True,
-        "interventions": int(env.interventions), "eased_steps": int(env.eased), "band": [float(b) for b in env.band],
+        "interventions": int(env.interventions), "weaves": int(env.weaves), "eased_steps": int(env.eased), "band": [float(b) for b in env.band],
         "delay": float(mpc.delay),
     }
     return Run(data, meta, source=f"drive({plant_config.kind}, {track.name})")
