@@ -213,7 +213,7 @@ def test_stability_envelope_triggers_on_a_slide_and_not_on_a_clean_lap(stadium):
     m = NominalModel(load_vehicle("audi_tt_cup"))
     plan = line_plan(racing_line(stadium, m, 6.0), m, 0.6 * G.nominal_cap(m, 1.0))
     clean = drive(plan, _plant([]), stadium, m, seed=7)
-    assert clean.meta["completed"] and clean.meta["interventions"] == 0
+    assert clean.meta["completed"] and clean.meta["interventions"] == 0 and clean.meta["weaves"] == 0
     band = tuple(clean.meta["band"])  # learned on the clean lap, used on the next as on a GP lap
     start = 250 + np.pi * 30 + 250  # the second hairpin
     patch = [("friction_patch", {"factor": 0.55, "s_start": start + 10, "s_end": start + 60, "ramp": 1.0})]
@@ -223,6 +223,39 @@ def test_stability_envelope_triggers_on_a_slide_and_not_on_a_clean_lap(stadium):
     assert start <= slide["s"][first] <= start + 100, slide["s"][first]
     assert slide["speed_factor"].min() < 1.0
     assert clean.meta["interventions"] == 0 and drive(plan, _plant([]), stadium, m, seed=7, band=band).meta["interventions"] == 0
+
+
+def test_a_growing_yaw_weave_and_only_that_damps_the_steering():
+    """``weaving``: a yaw-rate deviation oscillating at the steering loop's period (0.55 s) with a
+    growing amplitude is a weave; the same decaying, at constant amplitude, at a 2 s period, or
+    sensor noise is not. The envelope fed one damps the MPC's steering for ``weave_seconds`` after
+    the last one seen, counts it once, and never when disabled (issue 37, stop 56)."""
+    from gprace.mpc.stability import WEAVE_HALF, Envelope, EnvelopeSettings, weaving
+
+    dt = 0.05
+    t = np.arange(0.0, 4.0, dt)
+    grow = 0.03 * np.exp(t / 1.5) * np.sin(2 * np.pi * t / 0.55)
+    assert weaving(grow, dt)
+    assert not weaving(grow[::-1], dt)                                         # decaying
+    assert not weaving(0.1 * np.sin(2 * np.pi * t / 0.55), dt)                 # steady
+    assert not weaving(0.03 * np.exp(t / 1.5) * np.sin(2 * np.pi * t / 2.0), dt)  # a slow swing: corners
+    assert not weaving(0.01 * np.random.default_rng(0).normal(size=len(t)), dt)   # noise
+    assert not weaving(0.06 * grow / np.abs(grow).max(), dt)                   # below the amplitude floor
+
+    st = EnvelopeSettings()
+    calm = np.zeros(int(round((st.weave_seconds + WEAVE_HALF[1]) / dt)) + 2)  # it stops: damped for weave_seconds more
+    for settings, damped in ((st, st.weave_damping), (EnvelopeSettings(enabled=False), 1.0)):
+        env = Envelope(settings, dt)
+        seen = []
+        for d_r in np.concatenate([grow, calm]):
+            env.update(np.array([0.0, 0.0, d_r, 0.0]))
+            seen.append(env.steer_damping)
+        seen = np.array(seen)
+        assert seen[: len(grow)].max() == damped and seen[-1] == 1.0
+        assert env.weaves == (1 if settings.enabled else 0)
+        if settings.enabled:  # damped from the detection on, for weave_seconds after the last one
+            first = int(np.argmax(seen > 1.0))
+            assert weaving(grow[: first + 1], dt) and not weaving(grow[:first], dt)
 
 
 def test_lost_lap_is_data_not_an_input_error():

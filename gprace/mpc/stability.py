@@ -113,13 +113,14 @@ WEAVE_WINDOW = 4.0           # [s] of yaw-rate deviations kept (6 half-cycles of
 def weaving(d_r: np.ndarray, dt: float) -> bool:
     """Whether the yaw-rate deviations ``d_r`` (oldest first) end in a growing oscillation: the last
     ``WEAVE_CYCLES`` complete half-cycles (between sign changes) each last ``WEAVE_HALF`` seconds,
-    the last amplitude is at least ``WEAVE_FLOOR`` and ``WEAVE_GROWTH`` times the first, and the
-    last three amplitudes grow (vectorised over the window)."""
+    the last amplitude is at least ``WEAVE_FLOOR`` and ``WEAVE_GROWTH`` times the first, the last
+    three amplitudes grow, and the half-cycle under way is not yet longer than ``WEAVE_HALF``
+    allows (vectorised over the window)."""
     d_r = np.asarray(d_r, float)
     sign = np.where(d_r >= 0.0, 1, -1)
     cross = np.flatnonzero(np.diff(sign)) + 1   # first sample of each new half-cycle
-    if len(cross) < WEAVE_CYCLES + 1:
-        return False
+    if len(cross) < WEAVE_CYCLES + 1 or (len(d_r) - cross[-1]) * dt > WEAVE_HALF[1]:
+        return False  # too few half-cycles, or the oscillation has stopped
     edges = cross[-WEAVE_CYCLES - 1:]
     half = np.diff(edges) * dt
     amp = np.maximum.reduceat(np.abs(d_r), edges[:-1])  # peak of each complete half-cycle
