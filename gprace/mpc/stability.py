@@ -36,7 +36,21 @@ light rear, a GP trained on slower laps kept steering the sliding car into the 1
 gprace_ring and spun it, while on audi_hidden, whose nominal model lacks its downforce, switching
 a well-fed GP off left the track (docs/decisions.md, issue 37, stops 44 and 45).
 
-Counted per lap: ``interventions`` (onsets, at least ``hold`` apart) and the periods eased.
+**A weave damps the steering.** Easing the speed does not stop a weave: the steering loop
+itself going unstable, as it does on a car whose delay the controller predicts over is read too
+short (a dead time tolerates about -0.015 to +0.03 s of error at 50 m/s, the shakedown's estimate
+is off by 0.02 s RMS over the randomized family). :func:`weaving` watches the yaw-rate deviation
+``d_r`` for six half-cycles of 0.15 to 0.45 s with a growing amplitude; while it sees one, and
+``weave_seconds`` after, the tracking MPC's steering-rate weight is ``weave_damping`` times its
+own (:attr:`Envelope.steer_damping`). Measured (issue 37, stops 55 and 56): a randomized Audi
+with 0.1 s of measurement delay, read as 0.08 s, wove with a period of 0.5 to 0.6 s at 45 to
+50 m/s, the amplitude growing from 0.03 to 0.5 rad/s over 3 s while the envelope eased the speed,
+and spun (its shakedown) or left the track (a GP lap); the weave is seen at 0.08 to 0.09 rad/s,
+on the shakedown that spun 0.7 s before the envelope's band was left. Damping the steering for every intervention instead
+made one of four laps of a high-CoG Audi, which needs the loop's bandwidth under braking, slide.
+
+Counted per lap: ``interventions`` (onsets, at least ``hold`` apart), the periods eased and the
+``weaves`` seen.
 """
 
 from __future__ import annotations
