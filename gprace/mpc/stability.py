@@ -46,8 +46,10 @@ own (:attr:`Envelope.steer_damping`). Measured (issue 37, stops 55 and 56): a ra
 with 0.1 s of measurement delay, read as 0.08 s, wove with a period of 0.5 to 0.6 s at 45 to
 50 m/s, the amplitude growing from 0.03 to 0.5 rad/s over 3 s while the envelope eased the speed,
 and spun (its shakedown) or left the track (a GP lap); the weave is seen at 0.08 to 0.09 rad/s,
-on the shakedown that spun 0.7 s before the envelope's band was left. Damping the steering for every intervention instead
-made one of four laps of a high-CoG Audi, which needs the loop's bandwidth under braking, slide.
+on the shakedown that spun 0.7 s before the envelope's band was left. Damping the steering for
+every intervention instead made one of four laps of a high-CoG Audi, which needs the loop's
+bandwidth under braking, slide. A weave seen late (at 0.3 rad/s) went on growing damped: noise
+near the zero crossings can restart the count of half-cycles (docs/decisions.md, stop 56).
 
 Counted per lap: ``interventions`` (onsets, at least ``hold`` apart), the periods eased and the
 ``weaves`` seen.

@@ -6,8 +6,8 @@ applied input, curvature, lap counter, ``border_hit`` (footprint over an edge), 
 of the QP, ``fallback`` (the QP failed, the shifted previous solution was applied) and
 ``explore`` (Algorithm 1 changed the reference), and the stability envelope's
 (:mod:`gprace.mpc.stability`) ``e_r``, ``e_beta``, ``d_r``, ``d_beta``, ``envelope`` (its score, > 1 outside the band)
-and ``speed_factor``; its ``interventions`` and the ``weaves`` it damped are counted in the meta. A car that leaves the track, spins or stalls (:func:`gprace.sim.stop.run_end`)
-ends the run early (``meta.completed = False``); the run is still returned, and marked as gprace's
+and ``speed_factor``; the meta counts its ``interventions`` and the ``weaves`` it damped. A car
+that leaves the track, spins or stalls (:func:`gprace.sim.stop.run_end`) ends the run early (``meta.completed = False``); the run is still returned, and marked as gprace's
 own (no user-file unit check: a spun lap is data, never an input error).
 
 A ``supervisor`` (the shakedown of :mod:`gprace.timetrial.shakedown`) is called after every

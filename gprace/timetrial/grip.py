@@ -173,8 +173,8 @@ def driven_limits(limits, step: float, alpha: float, interventions: int) -> np.n
     asked) needed the envelope five times; the next plan, held at 9.55 m/s^2 and not time-scaled,
     was 5 to 6 % faster than that lap and left the track at s = 1609 to 1626 m. Exploration laps
     (``alpha > 0``) leave their plan on purpose: their interventions say less about its pace, and
-    of the 53 eased exploration laps of two benchmark runs none was followed by a lost lap
-    (docs/decisions.md, issue 37, stop 56)."""
+    of the 79 eased and time-scaled exploration laps of stop 55's two benchmark runs none was
+    followed by a lost lap (docs/decisions.md, issue 37, stop 56)."""
     limits = np.asarray(limits, dtype=float)
     if alpha == 0.0 and interventions > 0 and step < 1.0:
         return limits * step**2
