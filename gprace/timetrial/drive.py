@@ -7,8 +7,9 @@ of the QP, ``fallback`` (the QP failed, the shifted previous solution was applie
 ``explore`` (Algorithm 1 changed the reference), and the stability envelope's
 (:mod:`gprace.mpc.stability`) ``e_r``, ``e_beta``, ``d_r``, ``d_beta``, ``envelope`` (its score, > 1 outside the band)
 and ``speed_factor``; the meta counts its ``interventions`` and the ``weaves`` it damped. A car
-that leaves the track, spins or stalls (:func:`gprace.sim.stop.run_end`) ends the run early (``meta.completed = False``); the run is still returned, and marked as gprace's
-own (no user-file unit check: a spun lap is data, never an input error).
+that leaves the track, spins or stalls (:func:`gprace.sim.stop.run_end`) ends the run early
+(``meta.completed = False``); the run is still returned, and marked as gprace's own (no user-file
+unit check: a spun lap is data, never an input error).
 
 A ``supervisor`` (the shakedown of :mod:`gprace.timetrial.shakedown`) is called after every
 period with the loop's state and may swap the MPC's plan or its delay.
