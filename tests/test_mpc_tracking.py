@@ -175,6 +175,28 @@ def test_failed_solve_falls_back_to_shifted_solution(circle):
     assert np.array_equal(u, np.clip(expected, mpc.u_lo, mpc.u_hi))
 
 
+def test_the_weave_damping_slows_the_steering_and_leaves_the_rest(circle):
+    """``steer_damping`` (set by the stability envelope on a weave) solves with the steering-rate
+    weight times that factor: from a car off its line the first steering step is smaller, and at
+    1 the MPC's own ``qp`` is used, so a swapped QP still takes effect (issue 37, stop 56)."""
+    from gprace.model.dynamics import State
+    from gprace.timetrial.drive import start_state
+
+    tr, m, plan = circle
+    x0, u0 = start_state(plan, tr, m.vehicle)
+    x0 = x0.copy()
+    x0[State.E_Y] += 0.8   # off the line: the MPC steers back
+    steps = {}
+    for f in (1.0, 3.0):
+        mpc = TrackingMPC(m, tr, plan, MPCSettings())
+        mpc.reset(u0[0])
+        mpc.steer_damping = f
+        u, info = mpc.step(x0)
+        assert not info["fallback"]
+        steps[f] = abs(float(u[0] - u0[0]))
+    assert 0.0 < steps[3.0] < 0.8 * steps[1.0], steps
+
+
 def test_linearisation_matches_the_step_and_its_finite_differences(circle):
     """The buffered, compiled linearisation returns per step ``x_next`` = the model's RK4 step
     with the affine curvature, and ``A_k``, ``B_k`` = its central differences (layout check)."""

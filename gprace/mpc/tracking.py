@@ -279,7 +279,7 @@ class TrackingMPC:
         self.front_max = None if settings.front_share is None else settings.front_share * peak_slip(p.bf, p.cf)
         self.quantile = quantile_factor(settings.beta)
         self.qp = solvers.create(settings.solver, settings.N, settings.weights)
-        self._qps = {1.0: self.qp}  # by steering-rate factor (the stability envelope damps the steering)
+        self._damped_qps: dict[float, object] = {}  # by steering-rate factor (the stability envelope damps the steering)
         self.steer_damping = 1.0
         self._lin = self._build_linearisation()
         lim = model.vehicle.limits
@@ -592,14 +592,18 @@ class TrackingMPC:
         return lo, hi
 
     def _qp(self):
-        """The QP of this period: the steering-rate weight times ``steer_damping`` (made once per factor)."""
+        """The QP of this period: :attr:`qp`, or with the steering-rate weight times ``steer_damping``
+        when that is not 1 (made once per factor)."""
         from gprace.registry import solvers
 
         f = float(self.steer_damping)
-        if f not in self._qps:
+        if f == 1.0:
+            return self.qp
+        if f not in self._damped_qps:
             w = self.settings.weights
-            self._qps[f] = solvers.create(self.settings.solver, self.N, w.model_copy(update={"r_delta": w.r_delta * f}))
-        return self._qps[f]
+            self._damped_qps[f] = solvers.create(self.settings.solver, self.N,
+                                                 w.model_copy(update={"r_delta": w.r_delta * f}))
+        return self._damped_qps[f]
 
     def step(self, x_meas: np.ndarray) -> tuple[np.ndarray, dict]:
         """Input for the measured state (6,); info has solve time, status, fallback flag."""
