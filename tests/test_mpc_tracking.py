@@ -175,10 +175,11 @@ def test_failed_solve_falls_back_to_shifted_solution(circle):
     assert np.array_equal(u, np.clip(expected, mpc.u_lo, mpc.u_hi))
 
 
-def test_the_weave_damping_slows_the_steering_and_leaves_the_rest(circle):
+def test_the_weave_damping_slows_the_first_steering_step(circle):
     """``steer_damping`` (set by the stability envelope on a weave) solves with the steering-rate
-    weight times that factor: from a car off its line the first steering step is smaller, and at
-    1 the MPC's own ``qp`` is used, so a swapped QP still takes effect (issue 37, stop 56)."""
+    weight times that factor: from a car off its line the first steering step is smaller (at 1 the
+    MPC's own ``qp`` is used: test_failed_solve_falls_back_to_shifted_solution swaps it) (issue 37,
+    stop 56)."""
     from gprace.model.dynamics import State
     from gprace.timetrial.drive import start_state
 

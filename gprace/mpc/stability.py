@@ -57,6 +57,8 @@ Counted per lap: ``interventions`` (onsets, at least ``hold`` apart), the period
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 from pydantic import Field
 
@@ -65,6 +67,7 @@ from gprace.model.dynamics import Input, State
 
 
 SIGNALS = ("e_r", "e_beta", "d_r", "d_beta")
+D_R = SIGNALS.index("d_r")
 
 
 class EnvelopeSettings(Frozen):
@@ -161,7 +164,7 @@ class Envelope:
         self.period = -1   # periods seen
         self.onsets: list[int] = []  # period of each intervention's onset
         self.scores: list[float] = []  # score of every period (the shakedown reads how calm the car was)
-        self._d_r: list[float] = []   # the yaw-rate deviations of the last WEAVE_WINDOW seconds
+        self._d_r = deque(maxlen=int(round(WEAVE_WINDOW / self.dt)))  # the last WEAVE_WINDOW seconds of d_r
         self.weaves = 0               # weaves detected (onsets, at least weave_seconds apart)
         self.damped_for = 0.0         # seconds the steering stays damped
 
@@ -178,7 +181,7 @@ class Envelope:
             self._learn(sig)
         if not st.enabled:
             return score
-        self._watch_weave(float(sig[2]))
+        self._watch_weave(float(sig[D_R]))
         if outside:
             if not self.active and self.inside_for >= st.hold:
                 self.interventions += 1
@@ -204,9 +207,8 @@ class Envelope:
     def _watch_weave(self, d_r: float) -> None:
         """Keep the last ``WEAVE_WINDOW`` seconds of ``d_r``; a weave (:func:`weaving`) damps the steering."""
         self._d_r.append(d_r)
-        del self._d_r[: max(0, len(self._d_r) - int(round(WEAVE_WINDOW / self.dt)))]
         self.damped_for = max(0.0, self.damped_for - self.dt)
-        if weaving(self._d_r, self.dt):
+        if weaving(np.fromiter(self._d_r, float, len(self._d_r)), self.dt):
             if self.damped_for == 0.0:
                 self.weaves += 1
             self.damped_for = self.settings.weave_seconds

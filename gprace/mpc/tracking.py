@@ -594,12 +594,12 @@ class TrackingMPC:
     def _qp(self):
         """The QP of this period: :attr:`qp`, or with the steering-rate weight times ``steer_damping``
         when that is not 1 (made once per factor)."""
-        from gprace.registry import solvers
-
         f = float(self.steer_damping)
         if f == 1.0:
             return self.qp
         if f not in self._damped_qps:
+            from gprace.registry import solvers
+
             w = self.settings.weights
             self._damped_qps[f] = solvers.create(self.settings.solver, self.N,
                                                  w.model_copy(update={"r_delta": w.r_delta * f}))

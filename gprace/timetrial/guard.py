@@ -64,6 +64,11 @@ def slip_bounds(grip_share: float) -> tuple[float, float]:
     return 1.0, grip_share
 
 
+def speed_step(record) -> float:
+    """The speed factor a record's plan was driven at (a build-up or novelty step; 1 at full speed)."""
+    return float((record.get("safety") or {}).get("step", 1.0))
+
+
 def lap_status(record, earlier: list, tolerance: float) -> str:
     """``good``, ``lost`` or ``slower`` for ``record`` given the ``earlier`` records of its trial.
 
@@ -71,7 +76,7 @@ def lap_status(record, earlier: list, tolerance: float) -> str:
     (read-only keys) and ``gprace learn``'s lap dicts both are."""
     if not record["completed"]:
         return "lost"
-    if record["alpha"] != 0.0 or (record.get("safety") or {}).get("step", 1.0) < 1.0:
+    if record["alpha"] != 0.0 or speed_step(record) < 1.0:
         return "good"  # exploring, or a novelty step (a slower lap on purpose): judged by completion
     best = [r["driven"] for r in earlier if r["completed"] and r["alpha"] == 0.0 and np.isfinite(r["driven"])]
     if best and record["driven"] > min(best) * (1.0 + tolerance):

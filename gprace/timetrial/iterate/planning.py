@@ -34,13 +34,13 @@ def _replan(c: _Chain, i: int) -> None:
     else:
         last = read_plan(c.dir(i - 1) / "plan.h5", track)
         eased = rec.interventions if i > 1 else 0  # the shakedown's own envelope is not the plan's
-        asked = G.driven_limits(last.meta.get("limits", c.cap), (rec.safety or {}).get("step", 1.0), rec.alpha, eased)
+        asked = G.driven_limits(last.meta.get("limits", c.cap), guard.speed_step(rec), rec.alpha, eased)
         limits = G.next_limits(asked, rec.envelope, rec.completed, rec.utilisation,
                                c.cap, st.widen, failed=failed, border_hits=rec.border_hits,
                                interventions=eased, widen_max=st.widen_max,
                                shape=model.params.cr)
         source = "replan"
-        limits[0] = min(limits[0], G.held_level([(r.envelope, r.utilisation, r.limits, (r.safety or {}).get("step", 1.0))
+        limits[0] = min(limits[0], G.held_level([(r.envelope, r.utilisation, r.limits, guard.speed_step(r))
                                                  for r in records if r.completed]))
         shown = _grip_shown(c, i)
         if shown is not None:  # never plan corners faster than the grip the car has shown
