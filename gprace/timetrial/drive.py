@@ -136,7 +136,8 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         "solve_time_median": float(np.median(st)) if k else float("nan"),
         "solve_time_p99": float(np.quantile(st, 0.99)) if k else float("nan"),
         "wall_time": time.perf_counter() - wall, "seed": int(seed), "gp": gp is not None, OWN_RUN: True,
-        "interventions": int(env.interventions), "weaves": int(env.weaves), "eased_steps": int(env.eased), "band": [float(b) for b in env.band],
+        "interventions": int(env.interventions), "weaves": int(env.weaves), "eased_steps": int(env.eased),
+        "band": [float(b) for b in env.band],
         "delay": float(mpc.delay),
     }
     return Run(data, meta, source=f"drive({plant_config.kind}, {track.name})")
