@@ -26,7 +26,7 @@ from gprace.config import G, CommandSettings
 from gprace.errors import InputError
 from gprace.io.runs import OWN_RUN, Run
 from gprace.model.dynamics import Input, State
-from gprace.mpc.stability import SIGNALS, Envelope, EnvelopeSettings, braking_needed, corners, signals
+from gprace.mpc.stability import SIGNALS, Envelope, EnvelopeSettings, braking_needed, corners, lagging_in_corner, signals
 from gprace.mpc.tracking import MPCSettings, TrackingMPC
 from gprace.sim.stop import run_end, step_plant
 from gprace.timetrial.grip import rear_use
@@ -110,7 +110,8 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         sig = signals(mpc.predicted, before, info["xref"][0])
         before = mpc.prev_x[0]
         _log(cols, k, plant.lap, info, mpc, sig, env.rho)
-        cols["envelope"][k] = env.update(sig, bool(in_control(y[None, :])[0]))
+        lagging = lagging_in_corner(mpc.predicted, info["xref"][0], mpc.plan_limits()[0], settings.envelope.recover_corner)
+        cols["envelope"][k] = env.update(sig, bool(in_control(y[None, :])[0]), lagging)
         k += 1
         if (reason := run_end(track, plant, vehicle.width, v_stall, goal, k, n_max, "no lap")) is not None:
             break
