@@ -88,6 +88,30 @@ def test_drive_stays_inside_the_plans_friction_ellipse(circle):
     assert np.isclose(b_hi[Input.A_X], 0.2 * drive) and np.isclose(b_lo[Input.A_X], -0.5 * brake)
 
 
+def test_no_drive_beyond_the_reference_while_the_car_is_faster(circle):
+    """A car faster than its reference gets no more drive than the reference asks anywhere on the
+    horizon (none if it only brakes or coasts), never less than its braking bound; a slower car
+    keeps the full range (issue 37, stop 58)."""
+    from gprace.mpc.tracking import fast_drive_cap
+
+    lo, hi = np.array([-0.5, -6.0]), np.array([0.5, 4.0])
+    a_ref = np.array([-2.9, -2.5, 1.2])
+    assert np.allclose(fast_drive_cap(12.0, 11.5, a_ref, lo, hi), [0.5, 1.2])
+    assert np.allclose(fast_drive_cap(12.0, 11.5, -np.abs(a_ref), lo, hi), [0.5, 0.0])
+    assert np.allclose(fast_drive_cap(11.0, 11.5, a_ref, lo, hi), hi)
+    assert np.allclose(fast_drive_cap(12.0, 11.5, a_ref, np.array([-0.5, 2.0]), hi), [0.5, 2.0])
+    _, model, plan, x_ref, _ = circle
+    track = circle[0]
+    for dv, held in ((1.0, True), (-1.0, False)):
+        x = x_ref.copy()
+        x[State.V_X] += dv
+        pb, info = TrackingMPC(model, track, plan, MPCSettings()).build(x)
+        free, _ = TrackingMPC(model, track, plan, MPCSettings(hold_drive_when_fast=False)).build(x)
+        cap = max(float(info["uref"][:, Input.A_X].max()), 0.0)
+        assert (pb.u_hi[Input.A_X] <= cap + 1e-12) == held
+        assert free.u_hi[Input.A_X] > cap + 0.5
+
+
 def test_the_nominal_model_alone_while_the_envelope_is_active(circle):
     """``use_gp = False`` (the drive loop sets it while the stability envelope is active): the QP
     of the period is the nominal MPC's, whatever the GP says; with it the GP's mean enters."""

@@ -258,6 +258,37 @@ def test_a_growing_yaw_weave_and_only_that_damps_the_steering():
             assert weaving(grow[: first + 1], dt) and not weaving(grow[:first], dt)
 
 
+def test_the_eased_speed_does_not_rise_while_the_car_lags_in_a_corner():
+    """``lagging_in_corner``: slower than the eased reference while cornering above the share of
+    the plan's lateral limit, not when faster, on a straight, or with the rule off. The envelope
+    holds its speed factor while the car lags and recovers once it keeps up (issue 37, stop 58)."""
+    from gprace.model.dynamics import State
+    from gprace.mpc.stability import Envelope, EnvelopeSettings, lagging_in_corner
+
+    ref = np.array([14.0, 0.0, 0.6, 0.0, 0.0, 0.0])
+    slow = ref * np.array([13.0 / 14.0, 1, 1, 1, 1, 1])            # 13 m/s at 0.6 rad/s: 7.8 m/s^2
+    assert lagging_in_corner(slow, ref, 10.0, 0.5)
+    assert not lagging_in_corner(slow, ref, 10.0, 0.8)                # below 0.8 of the limit
+    assert not lagging_in_corner(slow, ref, 10.0, None)
+    assert not lagging_in_corner(ref * np.array([15.0 / 14.0, 1, 1, 1, 1, 1]), ref, 10.0, 0.5)  # faster
+    straight = slow.copy()
+    straight[State.YAW_RATE] = 0.0
+    assert not lagging_in_corner(straight, ref, 10.0, 0.5)
+
+    dt, st = 0.05, EnvelopeSettings()
+    env = Envelope(st, dt)
+    for _ in range(10):                                              # a slide: eased
+        env.update(np.array([10.0, 0.0, 0.0, 0.0]))
+    eased = env.rho
+    assert eased < 1.0
+    for _ in range(40):                                              # calm, but lagging in the corner
+        env.update(np.zeros(4), lagging=True)
+    assert env.rho == eased
+    for _ in range(40):
+        env.update(np.zeros(4))
+    assert env.rho == 1.0
+
+
 def test_lost_lap_is_data_not_an_input_error():
     """The spin of issue 37: a lap lost in a long slide has v_y of a km/h-looking magnitude. The
     loop's own run keeps it (and reads it back); as a user's file its columns are accepted too

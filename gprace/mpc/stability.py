@@ -28,7 +28,8 @@ cornering, and in the braking instability of a car with load transfer it is the 
 it away), with at least ``plan_brake_share`` of the braking the plan itself asks for there (an
 eased car must still make the corner), and the braking the corners ahead need from the speed the
 car has (:func:`braking_needed`). Once the signals have been back inside the band for
-``hold`` seconds, ``rho`` recovers by ``recover`` per period. The envelope never changes the model:
+``hold`` seconds, ``rho`` recovers by ``recover`` per period, except while the car, in a corner, is
+slower than the eased reference (:func:`lagging_in_corner`). The envelope never changes the model:
 it catches what the model has not learned yet. While it is active the tracking MPC predicts with
 the nominal model alone where the tracking GP extrapolates (``nominal_when_active``; the test is
 ``gprace.timetrial.drive._novel``; the GPs still learn from the lap): on randomized BMWs with a

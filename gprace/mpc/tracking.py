@@ -44,6 +44,8 @@ Each control period:
    kept within ``front_share`` of the nominal front tire's peak slip angle of the front axle's
    heading (:meth:`TrackingMPC.front_bounds`), and drive and braking inside the friction ellipse
    of the plan's limits at the lateral acceleration the car uses (:meth:`TrackingMPC.ellipse_bounds`).
+   While the car is faster than its reference, drive is held to the most the reference asks over
+   the horizon (:func:`fast_drive_cap`).
    The nominal model knows neither a tire past its peak nor combined slip; without these bounds
    the QP steered a sliding car to full lock and asked for full drive at the lateral limit.
    With that bound, the **linearisation point** keeps its steering within ``LINEARISE_FRONT`` of
@@ -197,8 +199,8 @@ def fast_drive_cap(v: float, v_ref: float, a_ref: np.ndarray, lo: np.ndarray, hi
     go. Measured on a randomized Audi with a light rear (randomized_10, rear grip 0.85 of the
     front's 1.04): at the apex of gprace_ring's 18 m hairpin, 0.4 m/s faster than its reference,
     which braked at 2.9 m/s^2, the MPC asked for +2 m/s^2 of drive for 0.2 s, the car ran 1.6 m/s
-    faster than the reference and spun; held to the reference's most, the lap completes on 3 of 3
-    noise seeds (docs/decisions.md, issue 37, stop 58)."""
+    faster than the reference and spun. Re-driven on 3 noise seeds, that lap is lost on 1 without
+    the hold and on none with it (docs/decisions.md, issue 37, stop 58)."""
     if v <= v_ref:
         return hi
     hi = hi.copy()
