@@ -93,7 +93,8 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         mpc.use_gp = not (settings.envelope.nominal_when_active and env.active and _novel(gp, y, u_prev))
         lateral = float(y[State.V_X] * y[State.YAW_RATE])
         rear = float(rear_use(y[None, :], model)[0])
-        brake_limit = mpc.plan_limits()[2]
+        limits = mpc.plan_limits()  # (lateral, drive, brake) of the plan driven this period
+        brake_limit = limits[2]
         needed = 0.0
         if env.active:  # the braking that makes the plan's corners from half a second to a gentle stop ahead
             v = float(y[State.V_X])
@@ -110,7 +111,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         sig = signals(mpc.predicted, before, info["xref"][0])
         before = mpc.prev_x[0]
         _log(cols, k, plant.lap, info, mpc, sig, env.rho)
-        lagging = lagging_in_corner(mpc.predicted, info["xref"][0], mpc.plan_limits()[0], settings.envelope.recover_corner)
+        lagging = lagging_in_corner(mpc.predicted, info["xref"][0], limits[0], settings.envelope.recover_corner)
         cols["envelope"][k] = env.update(sig, bool(in_control(y[None, :])[0]), lagging)
         k += 1
         if (reason := run_end(track, plant, vehicle.width, v_stall, goal, k, n_max, "no lap")) is not None:

@@ -205,7 +205,8 @@ def clear_of(limits, failed=(), widen: float = 0.05) -> bool:
 def eased_level(laps) -> float:
     """Lowest lateral level [m/s^2] of the completed racing ``laps`` (``(limits, step, interventions)``:
     the plan's limits, the speed factor it was driven at and the stability envelope's interventions)
-    that needed the envelope: ``limits[0] step^2``, what the lap asked; inf if none did.
+    that needed the envelope: the lateral limit it was driven at (:func:`driven_limits`, ``limits[0]
+    step^2``), what the lap asked; inf if none did.
 
     :func:`next_limits` holds the limits after such a lap; this remembers the level, as
     :func:`held_level` does for the rear's peak. A calm lap at the same level otherwise widened the
@@ -213,7 +214,7 @@ def eased_level(laps) -> float:
     randomized_07 needed the envelope at 9.73 and 9.53 m/s^2, completed the next lap calm, were
     widened to 10.14 and 10.39 m/s^2 and lost the car at the last corners; re-driven on 3 noise
     seeds, the widened plans are lost on 2 and 3 of them."""
-    levels = [float(limits[0]) * step**2 for limits, step, interventions in laps
+    levels = [float(driven_limits(limits, step, 0.0, interventions)[0]) for limits, step, interventions in laps
               if interventions > 0 and limits is not None and len(limits) == 3]
     return min(levels, default=np.inf)
 
