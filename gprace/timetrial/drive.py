@@ -85,11 +85,15 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     plan_brake = 0.0  # the hardest braking the plan asks for over the horizon (before easing)
     grip = vehicle.mu * G  # the friction circle's radius for the envelope's braking
     ahead = (None, None)  # (plan, its corners): found again only when the shakedown swaps the plan
+    delay_bumped = False  # the MPC's delay is lengthened once, at the first weave
     k = 0
     wall = time.perf_counter()
     while True:
         mpc.speed_factor = env.rho
         mpc.steer_damping = env.steer_damping
+        if env.weaves and not delay_bumped:  # a weave: the delay was read short (EnvelopeSettings.weave_delay)
+            delay_bumped = True
+            mpc.set_delay(min(mpc.delay + settings.envelope.weave_delay, mpc.N * mpc.dt))
         mpc.use_gp = not (settings.envelope.nominal_when_active and env.active and _novel(gp, y, u_prev))
         lateral = float(y[State.V_X] * y[State.YAW_RATE])
         rear = float(rear_use(y[None, :], model)[0])
