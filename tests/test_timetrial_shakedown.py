@@ -258,6 +258,33 @@ def test_a_growing_yaw_weave_and_only_that_damps_the_steering():
             assert weaving(grow[: first + 1], dt) and not weaving(grow[:first], dt)
 
 
+def test_the_first_weave_lengthens_the_delay_the_mpc_predicts_over(stadium):
+    """Once the envelope has seen a weave, the drive loop adds ``weave_delay`` to the MPC's delay,
+    once, for the rest of the run; with ``weave_delay`` 0 it stays as set (issue 37, stop 58)."""
+    from gprace.config import load_vehicle
+    from gprace.model import NominalModel
+    from gprace.mpc.stability import EnvelopeSettings
+    from gprace.mpc.tracking import MPCSettings
+    from gprace.plan import line_plan, racing_line
+    from gprace.timetrial import grip as G
+    from gprace.timetrial.drive import DriveSettings, drive
+
+    m = NominalModel(load_vehicle("audi_tt_cup"))
+    plan = line_plan(racing_line(stadium, m, 6.0), m, 0.5 * G.nominal_cap(m, 1.0))
+    for added in (0.02, 0.0):
+        seen = {}
+
+        def supervisor(k, Y, U, mpc, env):
+            if k == 10:
+                env.weaves += 1  # as if a weave had been detected
+            seen[k] = mpc.delay
+
+        settings = DriveSettings(laps=0.1, mpc=MPCSettings(delay=0.05), envelope=EnvelopeSettings(weave_delay=added))
+        drive(plan, _plant([]), stadium, m, settings, seed=3, supervisor=supervisor)
+        assert seen[10] == pytest.approx(0.05) and seen[12] == pytest.approx(0.05 + added)
+        assert max(seen.values()) == pytest.approx(0.05 + added)
+
+
 def test_the_eased_speed_does_not_rise_while_the_car_lags_in_a_corner():
     """``lagging_in_corner``: slower than the eased reference while cornering above the share of
     the plan's lateral limit, not when faster, on a straight, or with the rule off. The envelope
