@@ -82,6 +82,7 @@ class IterationRecord(_ReadByKey, Frozen):
                         "far); empty in records before issue 37")
     interventions: int = Field(0, ge=0, description="stability-envelope interventions during the lap")
     eased_steps: int = Field(0, ge=0, description="periods driven with the reference speed eased")
+    weaves: int = Field(0, ge=0, description="growing yaw weaves the stability envelope saw during the lap")
     band: list[float] = Field(default_factory=list, description="stability-envelope bands at the end of the lap "
                               "(gprace.mpc.stability.SIGNALS: e_r, e_beta, d_r, d_beta)")
     delay: Num = Field(NAN, description="total steering and measurement delay the MPC predicted over [s] (iteration 0: "

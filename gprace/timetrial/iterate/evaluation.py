@@ -55,6 +55,7 @@ def _record(i, alpha, c: _Chain, plan, run, gps, sizes, extra) -> IterationRecor
     rec["limits"] = [float(v) for v in plan.meta.get("limits", [])]
     rec["interventions"] = int(m.get("interventions", 0))
     rec["eased_steps"] = int(m.get("eased_steps", 0))
+    rec["weaves"] = int(m.get("weaves", 0))
     rec["band"] = [float(v) for v in m.get("band", [])]
     draft = IterationRecord(**rec, **extra)
     return draft.model_copy(update={"status": lap_status(draft, [c.record(k) for k in range(i)], c.st.slower_tolerance)})
