@@ -195,10 +195,11 @@ def fast_drive_cap(v: float, v_ref: float, a_ref: np.ndarray, lo: np.ndarray, hi
 
     Drive beyond the reference's own, while the car is already faster than the reference, does not
     serve the tracking of the speed; to the nominal model, which has no combined slip, it costs no
-    lateral grip, but on the car it takes grip from a rear axle working near its peak. Measured on a randomized Audi with a light rear (randomized_10, rear grip 0.85 of the
-    front's 1.04): at the apex of gprace_ring's 18 m hairpin, 0.4 m/s faster than its reference,
-    which braked at 2.9 m/s^2, the MPC asked for +2 m/s^2 of drive for 0.2 s, the car ran 1.6 m/s
-    faster than the reference and spun. Re-driven on 3 noise seeds, that lap is lost on 1 without
+    lateral grip, but on the car it takes grip from a rear axle working near its peak. Measured on
+    a randomized Audi with a light rear (randomized_10, rear grip 0.85 of the front's 1.04): at the
+    apex of gprace_ring's 18 m hairpin, 0.4 m/s faster than its reference, which braked at
+    2.9 m/s^2, the MPC asked for +2 m/s^2 of drive for 0.2 s, the car ran 1.6 m/s faster than the
+    reference and spun. Re-driven on 3 noise seeds, that lap is lost on 1 without
     the hold and on none with it (docs/decisions.md, issue 37, stop 58)."""
     if v <= v_ref:
         return hi

@@ -24,9 +24,9 @@ scheme of Wischnewski et al. 2019 (start conservative, widen from measured accel
 - never cornering harder than the lowest lateral level a racing lap asked (its plan's times the
   square of its speed factor) when it needed the stability envelope, an intervention or a weave
   (:func:`eased_level`);
-- a racing lap the stability envelope had to ease is held at the limits it was driven at, the
-  plan's times the square of the speed factor of a build-up or novelty step (:func:`driven_limits`),
-  not at the plan's own.
+- a racing lap the stability envelope had to ease (an intervention or a weave) is held at the
+  limits it was driven at, the plan's times the square of the speed factor of a build-up or
+  novelty step (:func:`driven_limits`), not at the plan's own.
 
 All functions are pure and vectorised over the run's samples.
 """

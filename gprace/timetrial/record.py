@@ -93,6 +93,12 @@ class IterationRecord(_ReadByKey, Frozen):
     safety: dict[str, float | str] = Field(default_factory=dict, description="the plan's predicted safety "
                                            "(gprace.timetrial.guard.plan_safety)")
 
+    @property
+    def envelope_events(self) -> int:
+        """The times the lap needed the stability envelope: its interventions and weaves (a weave
+        counts as the envelope's for the limits, :mod:`gprace.timetrial.grip`)."""
+        return self.interventions + self.weaves
+
     @model_validator(mode="before")
     @classmethod
     def _gap_of_old_record(cls, data: Any) -> Any:

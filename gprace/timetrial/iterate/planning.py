@@ -33,8 +33,7 @@ def _replan(c: _Chain, i: int) -> None:
                                                else ", below the limits of the lost laps")
     else:
         last = read_plan(c.dir(i - 1) / "plan.h5", track)
-        # the shakedown's own envelope is not the plan's; a weave is the envelope's too (stop 58)
-        eased = rec.interventions + rec.weaves if i > 1 else 0
+        eased = rec.envelope_events if i > 1 else 0  # the shakedown's own envelope is not the plan's
         asked = G.driven_limits(last.meta.get("limits", c.cap), guard.speed_step(rec), rec.alpha, eased)
         limits = G.next_limits(asked, rec.envelope, rec.completed, rec.utilisation,
                                c.cap, st.widen, failed=failed, border_hits=rec.border_hits,
@@ -43,7 +42,7 @@ def _replan(c: _Chain, i: int) -> None:
         source = "replan"
         limits[0] = min(limits[0], G.held_level([(r.envelope, r.utilisation, r.limits, guard.speed_step(r))
                                                  for r in records if r.completed]),
-                        G.eased_level([(r.limits, guard.speed_step(r), r.interventions + r.weaves) for r in records[1:]
+                        G.eased_level([(r.limits, guard.speed_step(r), r.envelope_events) for r in records[1:]
                                        if r.completed and r.alpha == 0.0]))  # racing laps after the shakedown
         shown = _grip_shown(c, i)
         if shown is not None:  # never plan corners faster than the grip the car has shown
