@@ -60,6 +60,18 @@ def test_iterate_resumes_after_kill(tmp_path, monkeypatch):
     # the summary on disk and from the folder agree
     assert json.loads((out / "summary.json").read_text())["rows"] == jsonable(build_summary(out)["rows"])
     assert all(np.isfinite(r["planned"]) for r in rows)
+    # a lap driven again with its own noise seed is the recorded lap; another seed is a new draw
+    # (benchmarks/timetrial_redrive.py)
+    from gprace.timetrial.iterate.chain import _chain
+    from gprace.timetrial.iterate.driving import drive_lap
+
+    settings = json.loads((out / "settings.json").read_text())
+    c = _chain({"out": str(out), "trial": 0, "settings": settings.get("settings", settings)})
+    recorded = read_run(out / "trial_0" / "iter_01" / "run.h5")
+    again, other = drive_lap(c, 1, TINY.alphas[0]), drive_lap(c, 1, TINY.alphas[0], seed=7920)
+    np.testing.assert_array_equal(again.states(), recorded.states())
+    n = min(len(other.states()), len(recorded.states()))
+    assert not np.array_equal(other.states()[:n], recorded.states()[:n])
 
 
 def test_iterate_rejects_bad_settings(tmp_path):

@@ -95,12 +95,13 @@ def _band(c: _Chain, i: int):
     return None
 
 
-def _drive_iteration(c: _Chain, i: int, alpha: float) -> None:
-    """(4) The plan driven by the GP-compensated tracking MPC, exploring with weight ``alpha``."""
+def drive_lap(c: _Chain, i: int, alpha: float, seed: int | None = None):
+    """Iteration ``i``'s plan driven by the GP-compensated tracking MPC, exploring with weight
+    ``alpha``, with the iteration's own GP, candidates and envelope band: the run. ``seed`` (the
+    sensor noise) defaults to the iteration's own; another one drives the same lap on a new draw
+    (``benchmarks/timetrial_redrive.py``)."""
     from gprace.explore.algorithm import CandidateGrid
-    from gprace.gp.dataset import read_dataset
     from gprace.io.artifacts import read_artifact
-    from gprace.io.runs import write_run
     from gprace.plan import read_plan
     from gprace.timetrial import learning as L
     from gprace.timetrial.drive import drive
@@ -110,9 +111,21 @@ def _drive_iteration(c: _Chain, i: int, alpha: float) -> None:
     gp_track = L.load_predictor(di / "gp_tracking.h5", "tracking")
     a = read_artifact(di / "candidates.h5", "candidates") if alpha > 0 else None
     grid = CandidateGrid(a.arrays["Z"], a.arrays["v"], a.arrays["scale"]) if a is not None else None
+    return drive(plan, c.plant, c.track, c.model, c.drive_settings(c.delay), gp=gp_track, grid=grid, alpha=alpha,
+                 seed=c.seed * 100 + i if seed is None else seed, band=_band(c, i))
+
+
+def _drive_iteration(c: _Chain, i: int, alpha: float) -> None:
+    """(4) The plan driven by the GP-compensated tracking MPC, exploring with weight ``alpha``."""
+    from gprace.gp.dataset import read_dataset
+    from gprace.io.runs import write_run
+    from gprace.plan import read_plan
+    from gprace.timetrial import learning as L
+
+    di = c.dir(i)
+    plan = read_plan(di / "plan.h5", c.track)
     delay = c.delay
-    run = drive(plan, c.plant, c.track, c.model, c.drive_settings(delay), gp=gp_track, grid=grid, alpha=alpha,
-                seed=c.seed * 100 + i, band=_band(c, i))
+    run = drive_lap(c, i, alpha)
     write_run(run, di / "run.h5")
     gps = {k: L.load_predictor(di / f"gp_{k}.h5", k) for k in ("tracking", "planning")}
     sizes = {k: int(read_dataset(di / f"data_{k}.h5").Z.shape[0]) for k in gps}
