@@ -460,16 +460,21 @@ def test_a_level_the_envelope_had_to_ease_is_not_passed_later():
     """The hold after a racing lap the envelope eased is remembered: a calm lap at the same level
     widens (``next_limits``), the remembered level stops it there (randomized_07, stop 58: eased at
     9.53, calm at 9.53, widened to 10.39 and lost). The level is what the lap asked (its plan's
-    lateral limit times the square of its speed factor); calm laps set none."""
-    from gprace.timetrial.grip import eased_level, next_limits
+    lateral limit times the square of its speed factor); calm laps set none, nor do exploration
+    laps with fewer than ``EDGE_EVENTS`` events (randomized_18, stop 60: an exploration lap asked
+    10.04 with 3 events, the next one 10.69 and was lost)."""
+    from gprace.timetrial.grip import EDGE_EVENTS, eased_level, next_limits
 
-    laps = [([9.53, 3.46, 3.69], 1.0, 1), ([9.53, 3.46, 3.69], 1.0, 0)]
+    laps = [([9.53, 3.46, 3.69], 1.0, 0.0, 1), ([9.53, 3.46, 3.69], 1.0, 0.0, 0)]
     widened = next_limits(laps[1][0], [9.6, 3.4, 3.7], True, 0.5, np.full(3, 99.0), 0.05, widen_max=0.15)
     assert widened[0] > 10.0
     assert min(widened[0], eased_level(laps)) == pytest.approx(9.53)
-    assert eased_level([([10.0, 3.5, 4.0], 0.9, 2), ([9.0, 3.5, 4.0], 1.0, 1)]) == pytest.approx(8.1)
-    assert eased_level([([9.0, 3.5, 4.0], 1.0, 0)]) == np.inf and eased_level([]) == np.inf
-    assert eased_level([(None, 1.0, 3), ([], 1.0, 2)]) == np.inf
+    assert eased_level([([10.0, 3.5, 4.0], 0.9, 0.0, 2), ([9.0, 3.5, 4.0], 1.0, 0.0, 1)]) == pytest.approx(8.1)
+    assert eased_level([([9.0, 3.5, 4.0], 1.0, 0.0, 0)]) == np.inf and eased_level([]) == np.inf
+    assert eased_level([(None, 1.0, 0.0, 3), ([], 1.0, 0.0, 2)]) == np.inf
+    explored = [11.12, 3.5, 4.0]
+    assert eased_level([(explored, 0.95, 0.857, EDGE_EVENTS - 1)]) == np.inf
+    assert eased_level([(explored, 0.95, 0.857, EDGE_EVENTS)]) == pytest.approx(11.12 * 0.95**2)
 
 
 def test_a_refusal_for_novelty_alone_drives_the_new_line_slower():
