@@ -21,6 +21,9 @@ scheme of Wischnewski et al. 2019 (start conservative, widen from measured accel
   on to 8.82 m/s^2, and the alpha-0 lap at that level spun the car in the hairpin. On
   randomized_06 a shakedown planned at 9.87 m/s^2 slid past the peak (1.59 of it, 80 border
   hits) and measured 11.2; the widening to 10.76 then lost the car;
+- a widening below the lowest such level at which a lap slid past the peak and needed the
+  stability envelope ``EDGE_EVENTS`` times or more (:func:`slid_level`): it completed because the
+  envelope caught the car;
 - never cornering harder than the lowest lateral level a racing lap asked (its plan's times the
   square of its speed factor) when it needed the stability envelope, an intervention or a weave,
   or an exploration lap asked when it needed it ``EDGE_EVENTS`` times or more (:func:`eased_level`);
@@ -246,10 +249,32 @@ def held_level(laps, hold: float = 0.8) -> float:
     was driven at) whose rear tire came to ``hold`` of its peak slip angle: the smaller of what
     was measured and what the plan asked (``limits[0] step^2``; a lap sliding past the peak
     measures more than the plan asked), inf if no lap did."""
-    levels = []
-    for env, util, limits, step in laps:
-        if env is None or len(env) != 3 or not np.isfinite(util) or util < hold:
-            continue
-        asked = float(limits[0]) * step**2 if limits is not None and len(limits) == 3 else np.inf
-        levels.append(min(float(env[0]), asked))
+    levels = [_lateral_level(env, limits, step) for env, util, limits, step in laps
+              if env is not None and len(env) == 3 and np.isfinite(util) and util >= hold]
     return min((v for v in levels if np.isfinite(v)), default=np.inf)
+
+
+def slid_level(laps, widen: float = 0.05) -> float:
+    """``(1 - widen)`` of the lowest lateral level [m/s^2] (as :func:`held_level` reads it) of the
+    completed ``laps`` (``(envelope, utilisation, limits, step, events)``, with the stability
+    envelope's interventions and weaves) whose rear slid past its peak slip angle (utilisation
+    1 or more) and that needed the envelope ``EDGE_EVENTS`` times or more; inf if none did. Such a
+    level completed only because the envelope caught the car: the next plans stay a widening
+    below it, as below a lost lap's (:func:`below_failed`).
+
+    Measured (issue 37, stop 60): rule 4's edge laps (3 or more events), re-driven on two more
+    noise seeds each, lost the car on 4 of the 24 draws that followed a lap past the peak with 3 or
+    more events, and on 1 of the other 108 (randomized_10 trial 0 after its shakedown slid to 2.28
+    of the peak, randomized_25 trial 1 after three laps at 8.44 m/s^2 at 1.1 of the peak with 5
+    and 6 events each)."""
+    levels = [_lateral_level(env, limits, step) for env, util, limits, step, events in laps
+              if env is not None and len(env) == 3 and np.isfinite(util) and util >= 1.0
+              and events >= EDGE_EVENTS]
+    return (1.0 - widen) * min((v for v in levels if np.isfinite(v)), default=np.inf)
+
+
+def _lateral_level(env, limits, step: float) -> float:
+    """The lateral level a lap showed: the smaller of the measured ``env[0]`` and what its plan asked
+    (``limits[0] step^2``; a lap sliding past the peak measures more than the plan asked)."""
+    asked = float(limits[0]) * step**2 if limits is not None and len(limits) == 3 else np.inf
+    return min(float(env[0]), asked)

@@ -42,6 +42,8 @@ def _replan(c: _Chain, i: int) -> None:
         source = "replan"
         limits[0] = min(limits[0], G.held_level([(r.envelope, r.utilisation, r.limits, guard.speed_step(r))
                                                  for r in records if r.completed]),
+                        G.slid_level([(r.envelope, r.utilisation, r.limits, guard.speed_step(r), r.envelope_events)
+                                      for r in records if r.completed], st.widen),
                         G.eased_level([(r.limits, guard.speed_step(r), r.alpha, r.envelope_events)
                                        for r in records[1:] if r.completed]))  # the laps after the shakedown
         shown = _grip_shown(c, i)
