@@ -163,12 +163,13 @@ def test_grip_limits_widen_hold_and_back_off():
 def test_a_racing_lap_the_envelope_eased_holds_the_limits_it_was_driven_at():
     """``driven_limits``: a plan time-scaled by ``q`` asks ``q^2`` of its accelerations (checked on
     a curvature plan on a real circuit), so a racing lap that needed the envelope holds
-    ``limits q^2``, not the plan's limits; exploration laps, laps without interventions and laps
-    at full speed keep the plan's (issue 37, stop 56)."""
+    ``limits q^2``, not the plan's limits, and so does an exploration lap from ``EDGE_EVENTS``
+    events on; exploration laps with fewer, laps without interventions and laps at full speed keep
+    the plan's (issue 37, stops 56 and 60)."""
     from gprace.config import load_vehicle
     from gprace.model import NominalModel
     from gprace.plan import curvature_plan
-    from gprace.timetrial.grip import driven_limits, next_limits
+    from gprace.timetrial.grip import EDGE_EVENTS, driven_limits, next_limits
     from gprace.timetrial.guard import time_scaled
     from gprace.tracks import load_track
 
@@ -179,8 +180,9 @@ def test_a_racing_lap_the_envelope_eased_holds_the_limits_it_was_driven_at():
     assert lat(time_scaled(plan, q)) == pytest.approx(q * q * lat(plan), rel=1e-12)
     assert np.abs(time_scaled(plan, q).a_x).max() == pytest.approx(q * q * np.abs(plan.a_x).max(), rel=1e-12)
     limits = np.array([9.55, 3.0, 8.0])
-    np.testing.assert_allclose(driven_limits(limits, q, 0.0, 5), q * q * limits)
-    for step, alpha, eased in ((q, 0.857, 5), (q, 0.0, 0), (1.0, 0.0, 5)):
+    for alpha, eased in ((0.0, 5), (0.0, 1), (0.857, EDGE_EVENTS)):
+        np.testing.assert_allclose(driven_limits(limits, q, alpha, eased), q * q * limits)
+    for step, alpha, eased in ((q, 0.857, EDGE_EVENTS - 1), (q, 0.0, 0), (1.0, 0.0, 5), (1.0, 0.857, 5)):
         np.testing.assert_allclose(driven_limits(limits, step, alpha, eased), limits)
     # held (the envelope intervened): the next limits are what the eased lap asked, below the plan's
     cap = np.full(3, 99.0)

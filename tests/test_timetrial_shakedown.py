@@ -456,20 +456,44 @@ def test_a_level_that_came_near_the_rear_peak_is_not_passed_later():
     assert held_level([([8.2, 3.5, 4.0], 0.81, None, 1.0)]) == pytest.approx(8.2)  # no plan limits: the measured
 
 
+def test_a_level_that_slid_past_the_peak_and_needed_the_envelope_is_left_a_widening_below():
+    """``slid_level``: a lap whose rear passed its peak slip angle and that needed the envelope
+    ``EDGE_EVENTS`` times or more puts a ceiling a widening below its level (the smaller of the
+    measured and the asked, as ``held_level`` reads it); a lap past the peak with fewer events, or
+    with many events below the peak, sets none (randomized_25, stop 60: three laps at 8.44 m/s^2,
+    1.1 of the peak, 5 and 6 events each, the next lost on 2 of 2 re-drives)."""
+    from gprace.timetrial.grip import EDGE_EVENTS, held_level, slid_level
+
+    lap = ([8.9, 3.5, 3.8], 1.13, [8.44, 3.5, 3.83], 1.0)
+    assert slid_level([(*lap, 6)], 0.05) == pytest.approx(0.95 * 8.44)
+    assert slid_level([(*lap, 6)], 0.05) == pytest.approx(0.95 * held_level([lap]))
+    assert slid_level([(*lap, EDGE_EVENTS - 1)]) == np.inf
+    assert slid_level([([8.9, 3.5, 3.8], 0.99, [8.44, 3.5, 3.83], 1.0, 6)]) == np.inf
+    time_scaled = ([11.2, 5.7, 6.1], 2.28, [11.07, 5.71, 6.1], 0.95, 3)  # the plan asked 11.07 * 0.95^2
+    assert slid_level([time_scaled, (*lap, 6)], 0.1) == pytest.approx(0.9 * 8.44)
+    assert slid_level([time_scaled], 0.1) == pytest.approx(0.9 * 11.07 * 0.95**2)
+    assert slid_level([]) == np.inf and slid_level([(None, 1.5, None, 1.0, 5)]) == np.inf
+
+
 def test_a_level_the_envelope_had_to_ease_is_not_passed_later():
     """The hold after a racing lap the envelope eased is remembered: a calm lap at the same level
     widens (``next_limits``), the remembered level stops it there (randomized_07, stop 58: eased at
     9.53, calm at 9.53, widened to 10.39 and lost). The level is what the lap asked (its plan's
-    lateral limit times the square of its speed factor); calm laps set none."""
-    from gprace.timetrial.grip import eased_level, next_limits
+    lateral limit times the square of its speed factor); calm laps set none, nor do exploration
+    laps with fewer than ``EDGE_EVENTS`` events (randomized_18, stop 60: an exploration lap asked
+    10.04 with 3 events, the next one 10.69 and was lost)."""
+    from gprace.timetrial.grip import EDGE_EVENTS, eased_level, next_limits
 
-    laps = [([9.53, 3.46, 3.69], 1.0, 1), ([9.53, 3.46, 3.69], 1.0, 0)]
+    laps = [([9.53, 3.46, 3.69], 1.0, 0.0, 1), ([9.53, 3.46, 3.69], 1.0, 0.0, 0)]
     widened = next_limits(laps[1][0], [9.6, 3.4, 3.7], True, 0.5, np.full(3, 99.0), 0.05, widen_max=0.15)
     assert widened[0] > 10.0
     assert min(widened[0], eased_level(laps)) == pytest.approx(9.53)
-    assert eased_level([([10.0, 3.5, 4.0], 0.9, 2), ([9.0, 3.5, 4.0], 1.0, 1)]) == pytest.approx(8.1)
-    assert eased_level([([9.0, 3.5, 4.0], 1.0, 0)]) == np.inf and eased_level([]) == np.inf
-    assert eased_level([(None, 1.0, 3), ([], 1.0, 2)]) == np.inf
+    assert eased_level([([10.0, 3.5, 4.0], 0.9, 0.0, 2), ([9.0, 3.5, 4.0], 1.0, 0.0, 1)]) == pytest.approx(8.1)
+    assert eased_level([([9.0, 3.5, 4.0], 1.0, 0.0, 0)]) == np.inf and eased_level([]) == np.inf
+    assert eased_level([(None, 1.0, 0.0, 3), ([], 1.0, 0.0, 2)]) == np.inf
+    explored = [11.12, 3.5, 4.0]
+    assert eased_level([(explored, 0.95, 0.857, EDGE_EVENTS - 1)]) == np.inf
+    assert eased_level([(explored, 0.95, 0.857, EDGE_EVENTS)]) == pytest.approx(11.12 * 0.95**2)
 
 
 def test_a_refusal_for_novelty_alone_drives_the_new_line_slower():

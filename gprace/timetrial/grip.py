@@ -21,12 +21,14 @@ scheme of Wischnewski et al. 2019 (start conservative, widen from measured accel
   on to 8.82 m/s^2, and the alpha-0 lap at that level spun the car in the hairpin. On
   randomized_06 a shakedown planned at 9.87 m/s^2 slid past the peak (1.59 of it, 80 border
   hits) and measured 11.2; the widening to 10.76 then lost the car;
+- a widening below the lowest such level at which a lap slid past the peak and needed the
+  stability envelope ``EDGE_EVENTS`` times or more (:func:`slid_level`): it completed because the
+  envelope caught the car;
 - never cornering harder than the lowest lateral level a racing lap asked (its plan's times the
-  square of its speed factor) when it needed the stability envelope, an intervention or a weave
-  (:func:`eased_level`);
-- a racing lap the stability envelope had to ease (an intervention or a weave) is held at the
-  limits it was driven at, the plan's times the square of the speed factor of a build-up or
-  novelty step (:func:`driven_limits`), not at the plan's own.
+  square of its speed factor) when it needed the stability envelope, an intervention or a weave,
+  or an exploration lap asked when it needed it ``EDGE_EVENTS`` times or more (:func:`eased_level`);
+- such a lap is held at the limits it was driven at, the plan's times the square of the speed
+  factor of a build-up or novelty step (:func:`driven_limits`), not at the plan's own.
 
 All functions are pure and vectorised over the run's samples.
 """
@@ -164,11 +166,28 @@ def next_limits(previous: np.ndarray, measured: np.ndarray, completed: bool, uti
     return np.minimum(below_failed(out, failed, widen), cap)
 
 
+EDGE_EVENTS = 3  # envelope events (interventions + weaves) from which an exploration lap's pace counts
+
+
+def tells_pace(alpha: float, events: int) -> bool:
+    """Whether a lap's stability-envelope ``events`` (interventions + weaves) say its plan's pace was
+    too much for the car: any event on a racing lap (``alpha`` 0), ``EDGE_EVENTS`` or more on an
+    exploration lap, which leaves its plan on purpose.
+
+    Measured (issue 37, stop 60; rule 4's two benchmark runs and 26 new cars, the laps after a GP
+    lap with 3 or more events): 61 asked no more lateral acceleration than it did, and none was
+    lost; 25, all after exploration laps, asked more, and 2 were lost (randomized_18 seed 0: an
+    exploration lap at 11.12 m/s^2 driven at 0.95 of its speed, 10.04 asked, then 10.69 and the
+    car lost after the fast chicane; randomized_49: 8.98, then 9.11 on a racing lap, a spin at a
+    corner exit)."""
+    return events > 0 and (alpha == 0.0 or events >= EDGE_EVENTS)
+
+
 def driven_limits(limits, step: float, alpha: float, interventions: int) -> np.ndarray:
     """The limits a lap held the car to, as the next widening or hold starts from them: ``limits``
     times ``step^2`` (a plan time-scaled by ``step``, by the build-up or a novelty step, asks
-    ``step^2`` of its accelerations) when a racing lap (``alpha`` 0) needed the stability envelope
-    (``interventions > 0``), else ``limits`` as planned.
+    ``step^2`` of its accelerations) when the lap's stability-envelope events (``interventions``,
+    with the weaves) tell about its pace (:func:`tells_pace`), else ``limits`` as planned.
 
     :func:`next_limits` holds a lap the envelope had to ease at its limits; held at the plan's
     limits, the next lap asked more than the eased one did. Measured (commonroad_mb trial 0, seeds
@@ -177,9 +196,10 @@ def driven_limits(limits, step: float, alpha: float, interventions: int) -> np.n
     was 5 to 6 % faster than that lap and left the track at s = 1609 to 1626 m. Exploration laps
     (``alpha > 0``) leave their plan on purpose: their interventions say less about its pace, and
     of the 79 eased and time-scaled exploration laps of stop 55's two benchmark runs none was
-    followed by a lost lap (docs/decisions.md, issue 37, stop 56)."""
+    followed by a lost lap (docs/decisions.md, issue 37, stop 56); from ``EDGE_EVENTS`` on they
+    count (stop 60)."""
     limits = np.asarray(limits, dtype=float)
-    if alpha == 0.0 and interventions > 0 and step < 1.0:
+    if tells_pace(alpha, interventions) and step < 1.0:
         return limits * step**2
     return limits
 
@@ -204,10 +224,11 @@ def clear_of(limits, failed=(), widen: float = 0.05) -> bool:
 
 
 def eased_level(laps) -> float:
-    """Lowest lateral level [m/s^2] of the completed racing ``laps`` (``(limits, step, events)``: the
-    plan's limits, the speed factor it was driven at and the stability envelope's interventions and
-    weaves) that needed the envelope: the lateral limit it was driven at (:func:`driven_limits`,
-    ``limits[0] step^2``), what the lap asked; inf if none did.
+    """Lowest lateral level [m/s^2] of the completed ``laps`` (``(limits, step, alpha, events)``: the
+    plan's limits, the speed factor it was driven at, its alpha and the stability envelope's
+    interventions and weaves) whose events tell about its pace (:func:`tells_pace`): the lateral
+    limit it was driven at (:func:`driven_limits`, ``limits[0] step^2``), what the lap asked; inf
+    if none did.
 
     :func:`next_limits` holds the limits after such a lap; this remembers the level, as
     :func:`held_level` does for the rear's peak. A calm lap at the same level otherwise widened the
@@ -217,8 +238,8 @@ def eased_level(laps) -> float:
     seeds, the widened plans are lost on 2 and 3 of them. A weave counts: with the delay lengthened
     at its first weave (:mod:`gprace.mpc.stability`), randomized_05 completed a lap that wove once
     with no intervention, was widened from 9.71 to 10.11 m/s^2 and lost the car at the same corner."""
-    levels = [float(driven_limits(limits, step, 0.0, events)[0]) for limits, step, events in laps
-              if events > 0 and limits is not None and len(limits) == 3]
+    levels = [float(driven_limits(limits, step, alpha, events)[0]) for limits, step, alpha, events in laps
+              if tells_pace(alpha, events) and limits is not None and len(limits) == 3]
     return min(levels, default=np.inf)
 
 
@@ -228,10 +249,32 @@ def held_level(laps, hold: float = 0.8) -> float:
     was driven at) whose rear tire came to ``hold`` of its peak slip angle: the smaller of what
     was measured and what the plan asked (``limits[0] step^2``; a lap sliding past the peak
     measures more than the plan asked), inf if no lap did."""
-    levels = []
-    for env, util, limits, step in laps:
-        if env is None or len(env) != 3 or not np.isfinite(util) or util < hold:
-            continue
-        asked = float(limits[0]) * step**2 if limits is not None and len(limits) == 3 else np.inf
-        levels.append(min(float(env[0]), asked))
+    levels = [_lateral_level(env, limits, step) for env, util, limits, step in laps
+              if env is not None and len(env) == 3 and np.isfinite(util) and util >= hold]
     return min((v for v in levels if np.isfinite(v)), default=np.inf)
+
+
+def slid_level(laps, widen: float = 0.05) -> float:
+    """``(1 - widen)`` of the lowest lateral level [m/s^2] (as :func:`held_level` reads it) of the
+    completed ``laps`` (``(envelope, utilisation, limits, step, events)``, with the stability
+    envelope's interventions and weaves) whose rear slid past its peak slip angle (utilisation
+    1 or more) and that needed the envelope ``EDGE_EVENTS`` times or more; inf if none did. Such a
+    level completed only because the envelope caught the car: the next plans stay a widening
+    below it, as below a lost lap's (:func:`below_failed`).
+
+    Measured (issue 37, stop 60): rule 4's edge laps (3 or more events), re-driven on two more
+    noise seeds each, lost the car on 4 of the 24 draws that followed a lap past the peak with 3 or
+    more events, and on 1 of the other 108 (randomized_10 trial 0 after its shakedown slid to 2.28
+    of the peak, randomized_25 trial 1 after three laps at 8.44 m/s^2 at 1.1 of the peak with 5
+    and 6 events each)."""
+    levels = [_lateral_level(env, limits, step) for env, util, limits, step, events in laps
+              if env is not None and len(env) == 3 and np.isfinite(util) and util >= 1.0
+              and events >= EDGE_EVENTS]
+    return (1.0 - widen) * min((v for v in levels if np.isfinite(v)), default=np.inf)
+
+
+def _lateral_level(env, limits, step: float) -> float:
+    """The lateral level a lap showed: the smaller of the measured ``env[0]`` and what its plan asked
+    (``limits[0] step^2``; a lap sliding past the peak measures more than the plan asked)."""
+    asked = float(limits[0]) * step**2 if limits is not None and len(limits) == 3 else np.inf
+    return min(float(env[0]), asked)

@@ -42,8 +42,10 @@ def _replan(c: _Chain, i: int) -> None:
         source = "replan"
         limits[0] = min(limits[0], G.held_level([(r.envelope, r.utilisation, r.limits, guard.speed_step(r))
                                                  for r in records if r.completed]),
-                        G.eased_level([(r.limits, guard.speed_step(r), r.envelope_events) for r in records[1:]
-                                       if r.completed and r.alpha == 0.0]))  # racing laps after the shakedown
+                        G.slid_level([(r.envelope, r.utilisation, r.limits, guard.speed_step(r), r.envelope_events)
+                                      for r in records if r.completed], st.widen),
+                        G.eased_level([(r.limits, guard.speed_step(r), r.alpha, r.envelope_events)
+                                       for r in records[1:] if r.completed]))  # the laps after the shakedown
         shown = _grip_shown(c, i)
         if shown is not None:  # never plan corners faster than the grip the car has shown
             limits[0] = min(limits[0], max(shown * G.nominal_cap(model, 1.0)[0], np.asarray(last.meta.get("limits", limits))[0]))
