@@ -262,11 +262,11 @@ def slid_level(laps, widen: float = 0.05) -> float:
     level completed only because the envelope caught the car: the next plans stay a widening
     below it, as below a lost lap's (:func:`below_failed`).
 
-    Measured (issue 37, stop 60): rule 4's edge laps (3 or more events), re-driven on two more
-    noise seeds each, lost the car on 4 of the 24 draws that followed a lap past the peak with 3 or
-    more events, and on 1 of the other 108 (randomized_10 trial 0 after its shakedown slid to 2.28
-    of the peak, randomized_25 trial 1 after three laps at 8.44 m/s^2 at 1.1 of the peak with 5
-    and 6 events each)."""
+    Measured (issue 37, stop 60): rule 4's edge laps (3 or more events, both benchmark seeds),
+    re-driven on two more noise seeds each (``benchmarks/timetrial_redrive.py``), lost the car on
+    4 of the 24 draws that followed a lap past the peak with 3 or more events, and on 2 of the
+    other 122 (randomized_10 trial 0 after its shakedown slid to 2.28 of the peak, randomized_25
+    trial 1 after three laps at 8.44 m/s^2 at 1.1 of the peak with 5 and 6 events each)."""
     levels = [_lateral_level(env, limits, step) for env, util, limits, step, events in laps
               if env is not None and len(env) == 3 and np.isfinite(util) and util >= 1.0
               and events >= EDGE_EVENTS]
