@@ -28,6 +28,7 @@ import argparse
 import json
 import sys
 from concurrent.futures import ProcessPoolExecutor
+from functools import lru_cache
 from pathlib import Path
 
 
@@ -39,27 +40,35 @@ def noise_seed(draw: int, iteration: int) -> int:
 
 def laps(root: Path, only: set[str], min_events: int) -> list[dict]:
     """The GP laps of ``root``'s plants to re-drive: lost, or ``min_events`` envelope events or more."""
+    from gprace.timetrial.record import read_record
+
     out = []
-    for rec in sorted(root.glob("*/trial_*/iter_*/record.json")):
-        plant, trial, it = rec.parts[-4], int(rec.parts[-3][6:]), int(rec.parts[-2][5:])
+    for path in sorted(root.glob("*/trial_*/iter_*/record.json")):
+        plant, trial, it = path.parts[-4], int(path.parts[-3][6:]), int(path.parts[-2][5:])
         if it == 0 or (only and plant not in only):
             continue
-        r = json.loads(rec.read_text())
-        events = int(r.get("interventions") or 0) + int(r.get("weaves") or 0)
-        if events >= min_events or not r["completed"]:
-            out.append({"plant": plant, "trial": trial, "iteration": it, "alpha": float(r["alpha"]),
-                        "events": events, "own_completed": bool(r["completed"])})
+        r = read_record(path)
+        if r.envelope_events >= min_events or not r.completed:
+            out.append({"plant": plant, "trial": trial, "iteration": it, "alpha": float(r.alpha),
+                        "events": r.envelope_events, "own_completed": bool(r.completed)})
     return out
+
+
+@lru_cache(maxsize=8)
+def _trial(folder: str, trial: int):
+    """The trial's chain (track, model, plant, reference runs), built once per worker and trial."""
+    from gprace.timetrial.iterate.chain import _chain
+
+    settings = json.loads((Path(folder) / "settings.json").read_text())
+    return _chain({"out": folder, "trial": trial, "settings": settings.get("settings", settings)})
 
 
 def redrive(task: tuple) -> dict:
     """One draw of one lap: ``{..lap, "draw", "completed", "reason"}``."""
     root, lap, draw = task
-    from gprace.timetrial.iterate.chain import _chain
     from gprace.timetrial.iterate.driving import drive_lap
 
-    settings = json.loads((Path(root) / lap["plant"] / "settings.json").read_text())
-    c = _chain({"out": str(Path(root) / lap["plant"]), "trial": lap["trial"], "settings": settings.get("settings", settings)})
+    c = _trial(str(Path(root) / lap["plant"]), lap["trial"])
     run = drive_lap(c, lap["iteration"], lap["alpha"], seed=noise_seed(draw, lap["iteration"]))
     return {**lap, "draw": draw, "completed": bool(run.meta["completed"]), "reason": str(run.meta.get("reason", ""))[:80]}
 
@@ -97,7 +106,8 @@ def main(argv=None) -> None:
     cache = a.root / "redrive.jsonl"
     done = [json.loads(line) for line in cache.read_text().splitlines() if line.strip()] if cache.exists() else []
     seen = {(r["plant"], r["trial"], r["iteration"], r["draw"]) for r in done}
-    todo = [(str(a.root), lap, k) for lap in laps(a.root, {p for p in a.only.split(",") if p}, a.min_events)
+    chosen = laps(a.root, {p for p in a.only.split(",") if p}, a.min_events)
+    todo = [(str(a.root), lap, k) for lap in chosen
             for k in range(a.draws) if (lap["plant"], lap["trial"], lap["iteration"], k) not in seen]
     print(f"timetrial_redrive: {len(todo)} draws to drive ({len(done)} cached)", file=sys.stderr)
     with ProcessPoolExecutor(a.workers) as pool, cache.open("a") as f:
@@ -105,8 +115,7 @@ def main(argv=None) -> None:
             f.write(json.dumps(row) + "\n")
             f.flush()
             done.append(row)
-    wanted = {(lap["plant"], lap["trial"], lap["iteration"])
-              for lap in laps(a.root, {p for p in a.only.split(",") if p}, a.min_events)}
+    wanted = {(lap["plant"], lap["trial"], lap["iteration"]) for lap in chosen}
     rows = [r for r in done if (r["plant"], r["trial"], r["iteration"]) in wanted and r["draw"] < a.draws]
     print(json.dumps(summary(rows), indent=1))
 

@@ -249,8 +249,12 @@ def held_level(laps, hold: float = 0.8) -> float:
     was driven at) whose rear tire came to ``hold`` of its peak slip angle: the smaller of what
     was measured and what the plan asked (``limits[0] step^2``; a lap sliding past the peak
     measures more than the plan asked), inf if no lap did."""
-    levels = [_lateral_level(env, limits, step) for env, util, limits, step in laps
-              if env is not None and len(env) == 3 and np.isfinite(util) and util >= hold]
+    levels = []
+    for env, util, limits, step in laps:
+        if env is None or len(env) != 3 or not np.isfinite(util) or util < hold:
+            continue
+        asked = float(limits[0]) * step**2 if limits is not None and len(limits) == 3 else np.inf
+        levels.append(min(float(env[0]), asked))
     return min((v for v in levels if np.isfinite(v)), default=np.inf)
 
 
@@ -267,14 +271,5 @@ def slid_level(laps, widen: float = 0.05) -> float:
     4 of the 24 draws that followed a lap past the peak with 3 or more events, and on 2 of the
     other 122 (randomized_10 trial 0 after its shakedown slid to 2.28 of the peak, randomized_25
     trial 1 after three laps at 8.44 m/s^2 at 1.1 of the peak with 5 and 6 events each)."""
-    levels = [_lateral_level(env, limits, step) for env, util, limits, step, events in laps
-              if env is not None and len(env) == 3 and np.isfinite(util) and util >= 1.0
-              and events >= EDGE_EVENTS]
-    return (1.0 - widen) * min((v for v in levels if np.isfinite(v)), default=np.inf)
-
-
-def _lateral_level(env, limits, step: float) -> float:
-    """The lateral level a lap showed: the smaller of the measured ``env[0]`` and what its plan asked
-    (``limits[0] step^2``; a lap sliding past the peak measures more than the plan asked)."""
-    asked = float(limits[0]) * step**2 if limits is not None and len(limits) == 3 else np.inf
-    return min(float(env[0]), asked)
+    return (1.0 - widen) * held_level([(env, util, limits, step) for env, util, limits, step, events in laps
+                                       if events >= EDGE_EVENTS], hold=1.0)

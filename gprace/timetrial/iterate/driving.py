@@ -95,11 +95,11 @@ def _band(c: _Chain, i: int):
     return None
 
 
-def drive_lap(c: _Chain, i: int, alpha: float, seed: int | None = None):
-    """Iteration ``i``'s plan driven by the GP-compensated tracking MPC, exploring with weight
-    ``alpha``, with the iteration's own GP, candidates and envelope band: the run. ``seed`` (the
-    sensor noise) defaults to the iteration's own; another one drives the same lap on a new draw
-    (``benchmarks/timetrial_redrive.py``)."""
+def drive_lap(c: _Chain, i: int, alpha: float, seed: int | None = None, plan=None):
+    """Iteration ``i``'s plan (read from its folder unless given) driven by the GP-compensated
+    tracking MPC, exploring with weight ``alpha``, with the iteration's own GP, candidates and
+    envelope band: the run. ``seed`` (the sensor noise) defaults to the iteration's own; another one
+    drives the same lap on a new draw (``benchmarks/timetrial_redrive.py``)."""
     from gprace.explore.algorithm import CandidateGrid
     from gprace.io.artifacts import read_artifact
     from gprace.plan import read_plan
@@ -107,7 +107,7 @@ def drive_lap(c: _Chain, i: int, alpha: float, seed: int | None = None):
     from gprace.timetrial.drive import drive
 
     di = c.dir(i)
-    plan = read_plan(di / "plan.h5", c.track)
+    plan = plan if plan is not None else read_plan(di / "plan.h5", c.track)
     gp_track = L.load_predictor(di / "gp_tracking.h5", "tracking")
     a = read_artifact(di / "candidates.h5", "candidates") if alpha > 0 else None
     grid = CandidateGrid(a.arrays["Z"], a.arrays["v"], a.arrays["scale"]) if a is not None else None
@@ -125,7 +125,7 @@ def _drive_iteration(c: _Chain, i: int, alpha: float) -> None:
     di = c.dir(i)
     plan = read_plan(di / "plan.h5", c.track)
     delay = c.delay
-    run = drive_lap(c, i, alpha)
+    run = drive_lap(c, i, alpha, plan=plan)
     write_run(run, di / "run.h5")
     gps = {k: L.load_predictor(di / f"gp_{k}.h5", k) for k in ("tracking", "planning")}
     sizes = {k: int(read_dataset(di / f"data_{k}.h5").Z.shape[0]) for k in gps}
