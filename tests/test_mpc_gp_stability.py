@@ -9,7 +9,7 @@ import pytest
 from gprace.config import load_vehicle
 from gprace.model import NominalModel
 from gprace.model.dynamics import Input, State
-from gprace.mpc.tracking import GP_STATES, MPCSettings, TrackingMPC, spectral_radius2, stable_share
+from gprace.mpc.tracking import GP_STATES, MPCSettings, TrackingMPC, spectral_radius2, stable_share, steer_share
 from gprace.plan import curvature_plan
 from gprace.tracks import load_track
 
@@ -108,3 +108,29 @@ def test_a_damping_gradient_is_kept_whole(circle):
     assert np.all(mpc.gp_share == 1.0)
     assert np.allclose(pb.A[:, State.YAW_RATE, State.YAW_RATE] - pb0.A[:, State.YAW_RATE, State.YAW_RATE], -0.05)
     assert np.allclose(pb.B[:, State.YAW_RATE, Input.DELTA] - pb0.B[:, State.YAW_RATE, Input.DELTA], 0.5)
+
+
+def test_steer_share_keeps_the_sign_and_a_share_of_the_steering_gain():
+    b0 = np.array([1.0, 1.0, 1.0, -0.5, 0.4])
+    jb = np.array([-0.5, -0.9, 0.3, -1.0, -2.0])
+    t = steer_share(b0, jb, 0.25)
+    assert np.allclose(t, [1.0, 0.75 / 0.9, 1.0, 1.0, 0.75 * 0.4 / 2.0])
+    gain = b0 + t * jb
+    assert np.all(gain[b0 > 0] >= 0.25 * b0[b0 > 0] - 1e-12)
+    assert np.isclose(gain[4], 0.1) and np.isclose(gain[1], 0.25)
+    assert np.all(steer_share(b0, jb, 0.0) <= 1.0) and np.isclose(steer_share(b0, jb, 0.0)[4], 0.2)
+
+
+def test_a_gradient_that_reverses_the_steering_is_shrunk(circle):
+    """A GP whose yaw-error gradient in the steering is -3 per period (as one fitted on laps with
+    the front past its peak): without the rule the QP's steering turns the car the other way, with
+    it the steering keeps a quarter of its nominal gain and the rest of the gradient its share."""
+    J = np.zeros((2, 5))
+    J[1, 3] = -3.0  # d(yaw-rate error)/d(delta)
+    pb, pb0, _ = _build(circle, J, gp_steer_keep=0.0, gp_stable=False)
+    b0 = pb0.B[:, State.YAW_RATE, Input.DELTA]
+    assert np.all(b0 > 0) and np.any(pb.B[:, State.YAW_RATE, Input.DELTA] < 0)  # reversed without the rule
+    pb, pb0, mpc = _build(circle, J, gp_stable=False)
+    b = pb.B[:, State.YAW_RATE, Input.DELTA]
+    assert np.all(b >= 0.25 * b0 - 1e-9)
+    assert np.allclose(b[mpc.gp_share < 1], 0.25 * b0[mpc.gp_share < 1])

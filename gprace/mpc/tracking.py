@@ -23,7 +23,9 @@ Each control period:
    Its gradient enters ``A`` and ``B`` (linearised with the nominal model), except where the
    nominal lateral block (``v_y``, ``yaw_rate``) of a step is already unstable (spectral radius at
    least 1: tires linearised at or past their peak) and the gradient would make it more so: there
-   it is shrunk until it does not (``gp_stable``, :func:`stable_share`; beyond the paper, issue 37).
+   it is shrunk until it does not (``gp_stable``, :func:`stable_share`; beyond the paper, issue 37),
+   and where it would leave the steering less than ``gp_steer_keep`` of its nominal effect on the
+   yaw rate (:func:`steer_share`).
 5. **Chance-constraint tightening**: ``Sigma_{k+1} = A_k Sigma_k A_k^T + diag(0, var_vy, var_r, 0..)``
    from ``Sigma_0 = 0`` (GP latent variances); ``gamma_k = sqrt(2) sigma_ey,k erfinv(2 beta - 1)``.
 5b. **Grip** (beyond the paper; Liniger et al. 2015, Kabzan et al. 2019 bound tire slip or the
@@ -126,6 +128,8 @@ class MPCSettings(CommandSettings):
     weights: Weights = Field(default_factory=Weights, description="weights of the tracking cost")
     delay: float = Field(0.0, ge=0, description="total actuator and measurement delay [s] the MPC predicts over "
                          "(gprace.mpc.delay); at most the horizon N dt")
+    gp_steer_keep: float = Field(0.25, ge=0, le=1, description="share of the nominal model's steering gain on the yaw "
+                                 "rate the tracking GP's gradient always leaves (0: none; :func:`steer_share`)")
     gp_stable: bool = Field(True, description="where the nominal model's predicted lateral dynamics (v_y, yaw rate) "
                             "are unstable, the tracking GP's gradient may not make them more so (it is shrunk)")
 
@@ -250,6 +254,26 @@ def stable_share(A0: np.ndarray, J: np.ndarray) -> np.ndarray:
         ok = open_ & (spectral_radius2(A0 + share * J) <= bound)
         t[ok] = share
         open_ &= ~ok
+    return t
+
+
+def steer_share(b0: np.ndarray, jb: np.ndarray, keep: float) -> np.ndarray:
+    """Share ``t (N,)`` of the GP's gradient kept per step so that the steering's one-step gain on
+    the yaw rate, ``b0 + t jb``, stays at least ``keep`` times the nominal ``b0`` (where ``b0 > 0``;
+    1 elsewhere and where the gradient adds gain).
+
+    The GP may learn that the steering does less than the nominal model says (a lag, a weaker front
+    axle); it may not turn the sign. Fitted on laps whose front axle went past its peak, the GP's
+    gradient reversed the gain on 14 % of the horizon's steps of a randomized BMW's GP lap
+    (nominal +0.09, with the GP -0.25 to -0.30 at 13 m/s out of the hairpin): the QP steered into
+    an over-rotation, held the steering at its front bound while the car turned 0.4 rad/s more
+    than the reference, and the car crossed the track and stalled. On completed laps of four other
+    plants the GP left 0.19 of the nominal gain at the 0.1 % quantile, 0.37 to 0.61 at the 1 %
+    (docs/decisions.md, issue 37, stop 61)."""
+    b0, jb = np.asarray(b0, float), np.asarray(jb, float)
+    t = np.ones(len(b0))
+    cut = (b0 > 0.0) & (b0 + jb < keep * b0)
+    t[cut] = (1.0 - keep) * b0[cut] / -jb[cut]
     return t
 
 
@@ -525,7 +549,9 @@ class TrackingMPC:
     def _compensate(self, A: np.ndarray, B: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(A, B)`` with the GP's gradient ``J (N, 2, d)`` added to the nominal Jacobians. With ``settings.gp_stable`` the gradient of a step is
         shrunk where the nominal lateral block is unstable and the gradient makes it more so
-        (:func:`stable_share`); ``self.gp_share (N,)`` keeps the share used."""
+        (:func:`stable_share`), and where it would leave the steering less than ``gp_steer_keep``
+        of its nominal gain on the yaw rate (:func:`steer_share`); ``self.gp_share (N,)`` keeps
+        the share used."""
         N = len(A)
         JA = np.zeros((N, 2, 6))
         JB = np.zeros((N, 2, 2))
@@ -535,6 +561,9 @@ class TrackingMPC:
         t = np.ones(N)
         if self.settings.gp_stable:
             t = stable_share(A[:, GP_STATES, GP_STATES], JA[:, :, GP_STATES])
+        if self.settings.gp_steer_keep > 0:
+            r, d = State.YAW_RATE, Input.DELTA
+            t = np.minimum(t, steer_share(B[:, r, d], JB[:, r - GP_STATES.start, d], self.settings.gp_steer_keep))
         self.gp_share = t
         A, B = A.copy(), B.copy()
         A[:, GP_STATES] += JA * t[:, None, None]
