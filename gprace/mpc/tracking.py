@@ -267,8 +267,8 @@ def steer_share(b0: np.ndarray, jb: np.ndarray, keep: float) -> np.ndarray:
     gradient reversed the gain on 14 % of the horizon's steps of a randomized BMW's GP lap
     (nominal +0.09, with the GP -0.25 to -0.30 at 13 m/s out of the hairpin): the QP steered into
     an over-rotation, held the steering at its front bound while the car turned 0.4 rad/s more
-    than the reference, and the car crossed the track and stalled. On completed laps of four other
-    plants the GP left 0.19 of the nominal gain at the 0.1 % quantile, 0.37 to 0.61 at the 1 %
+    than the reference, and the car crossed the track and stalled. On completed laps of three other
+    plants the GP left 0.19 to 0.57 of the nominal gain at the 0.1 % quantile, 0.37 to 0.61 at the 1 %
     (docs/decisions.md, issue 37, stop 61)."""
     b0, jb = np.asarray(b0, float), np.asarray(jb, float)
     t = np.ones(len(b0))
