@@ -85,6 +85,7 @@ FEATURES = DYN_INPUTS
 EXPLORED = ("v_y", "yaw_rate", "delta")  # features Algorithm 1 may move the reference to
 FRONT_SHARE = 1.25  # default front slip bound: share of the nominal front tire's peak slip angle
 LINEARISE_FRONT = 0.8  # front slip of the linearisation point: share of the nominal front peak slip angle
+LINEARISE_REAR = 0.9  # rear slip of the linearisation point (after its first step): share of the nominal rear peak
 ELLIPSE = 1.0  # default friction ellipse of the longitudinal command: share of the plan's limits
 BRAKE_HEADROOM = 0.15  # braking beyond the plan's limit the ellipse leaves for tracking (MPCSettings.brake_headroom)
 RECOVER_STEPS = 10  # periods over which a rear slip beyond its bound is brought back
@@ -210,6 +211,27 @@ def fast_drive_cap(v: float, v_ref: float, a_ref: np.ndarray, lo: np.ndarray, hi
     hi = hi.copy()
     hi[Input.A_X] = max(min(hi[Input.A_X], max(float(np.max(a_ref)), 0.0)), lo[Input.A_X])
     return hi
+
+
+def rear_within(X: np.ndarray, p, slip: float) -> np.ndarray:
+    """States ``X (n, 6)`` with ``v_y`` clipped so that the rear slip angle
+    ``-atan((v_y - l_r r) / v_x)`` is within ``slip`` (a copy; yaw rate and speed are kept).
+
+    The linearisation point of the tracking MPC after its first step is the previous solution,
+    the QP's own prediction. Where that prediction carries the rear past its peak, the nominal
+    model linearised there is unstable (spectral radius of the lateral block up to 1.19 per step),
+    the next prediction diverges further, and linearising on it closes the loop. Measured on a
+    randomized Audi's GP lap at a hairpin exit (docs/decisions.md, issue 37, stop 62): the
+    predictions carried rear slip angles of 0.25 to 1.26 rad (peak 0.15) with speeds up to 43 m/s
+    and 35 m of lateral offset; the braking alternated between -6.3 and +1.8 m/s^2 from one period
+    to the next and the car stalled in the corner.
+    """
+    X = X.copy()
+    vx = np.maximum(X[:, State.V_X], p.vmin)
+    room = np.tan(slip) * vx
+    centre = p.lr * X[:, State.YAW_RATE]
+    X[:, State.V_Y] = np.clip(X[:, State.V_Y], centre - room, centre + room)
+    return X
 
 
 def front_heading(X: np.ndarray, lf: float, v_min: float) -> np.ndarray:
@@ -478,6 +500,8 @@ class TrackingMPC:
             kin = front_heading(Xb, p.lf, p.vmin)
             lin_max = LINEARISE_FRONT * peak_slip(p.bf, p.cf)
             Ub[:, Input.DELTA] = np.clip(Ub[:, Input.DELTA], kin - lin_max, kin + lin_max)
+        if self.settings.grip:
+            Xb[1:] = rear_within(Xb[1:], self.model.params, LINEARISE_REAR * peak_slip(self.model.params.br, self.model.params.cr))
         sb = Xb[:, State.S]
         kap, k_up, k_dn = self.track.kappa(np.concatenate([sb, sb + KAPPA_DS, sb - KAPPA_DS])).reshape(3, -1)
         slope = (k_up - k_dn) / (2 * KAPPA_DS)
