@@ -85,7 +85,6 @@ FEATURES = DYN_INPUTS
 EXPLORED = ("v_y", "yaw_rate", "delta")  # features Algorithm 1 may move the reference to
 FRONT_SHARE = 1.25  # default front slip bound: share of the nominal front tire's peak slip angle
 LINEARISE_FRONT = 0.8  # front slip of the linearisation point: share of the nominal front peak slip angle
-LINEARISE_REAR = 0.9  # rear slip of the linearisation point (after its first step): share of the nominal rear peak
 ELLIPSE = 1.0  # default friction ellipse of the longitudinal command: share of the plan's limits
 BRAKE_HEADROOM = 0.15  # braking beyond the plan's limit the ellipse leaves for tracking (MPCSettings.brake_headroom)
 RECOVER_STEPS = 10  # periods over which a rear slip beyond its bound is brought back
@@ -489,6 +488,8 @@ class TrackingMPC:
             Xb = np.vstack([x_meas, self.prev_x[1:]])
             Ub = np.vstack([self.prev_u[1:], self.prev_u[-1:]])
         Xb[:, State.S] = np.maximum.accumulate(Xb[:, State.S])  # progress along the nominal cannot go back
+        if self.settings.grip:  # after its first step (the measured state), the rear within the grip rows' bound
+            Xb[1:] = rear_within(Xb[1:], self.model.params, self.slip_max)
         if self.front_max is not None:
             # linearise where the front tire still answers the steering: past its peak the tangent
             # says that more steering turns the car less, and the QP steers in to stop an
@@ -500,8 +501,6 @@ class TrackingMPC:
             kin = front_heading(Xb, p.lf, p.vmin)
             lin_max = LINEARISE_FRONT * peak_slip(p.bf, p.cf)
             Ub[:, Input.DELTA] = np.clip(Ub[:, Input.DELTA], kin - lin_max, kin + lin_max)
-        if self.settings.grip:
-            Xb[1:] = rear_within(Xb[1:], self.model.params, LINEARISE_REAR * peak_slip(self.model.params.br, self.model.params.cr))
         sb = Xb[:, State.S]
         kap, k_up, k_dn = self.track.kappa(np.concatenate([sb, sb + KAPPA_DS, sb - KAPPA_DS])).reshape(3, -1)
         slope = (k_up - k_dn) / (2 * KAPPA_DS)
