@@ -204,3 +204,53 @@ def test_the_linearisation_keeps_the_steering_gain_positive_past_the_front_peak(
     k0 = float(front_heading(x, p.lf, p.vmin)[0])
     B = model.jacobians(x, np.array([k0 + 2.0 * peak_slip(p.bf, p.cf), 0.0]), float(track.kappa(x[State.S])), mpc.dt)[1]
     assert B[State.YAW_RATE, Input.DELTA] < 0
+
+
+def test_rear_within_clips_only_the_lateral_speed_of_states_past_the_bound():
+    from gprace.mpc.tracking import rear_within
+
+    p = NominalModel(load_vehicle("audi_tt_cup")).params
+    rng = np.random.default_rng(5)
+    X = np.column_stack([rng.uniform(0.5, 60, 400), rng.normal(0, 3, 400), rng.normal(0, 1, 400),
+                         rng.normal(0, 0.2, (400, 3))])
+    bound = 0.9 * peak_slip(p.br, p.cr)
+    Y = rear_within(X, p, bound)
+
+    def rear(Z):
+        return -np.arctan((Z[:, State.V_Y] - p.lr * Z[:, State.YAW_RATE]) / np.maximum(Z[:, State.V_X], p.vmin))
+
+    inside = np.abs(rear(X)) <= bound
+    assert 0 < inside.sum() < len(X)
+    assert np.all(np.abs(rear(Y)) <= bound + 1e-12)
+    np.testing.assert_array_equal(Y[inside], X[inside])
+    np.testing.assert_allclose(np.abs(rear(Y[~inside])), bound, rtol=1e-9)  # moved to the bound, not beyond
+    assert np.all(np.sign(rear(Y[~inside])) == np.sign(rear(X[~inside])))
+    np.testing.assert_array_equal(np.delete(Y, State.V_Y, axis=1), np.delete(X, State.V_Y, axis=1))
+
+
+def test_the_linearisation_does_not_follow_a_prediction_past_the_rear_peak(circle):
+    """The linearisation point after its first step is the previous solution. Where that
+    prediction carries the rear past the grip rows' bound, it is linearised at the bound: a warm
+    start at 1.5, 3 or 6 times the rear peak gives the QP the dynamics of one at the bound (issue
+    37, stop 62: predictions at up to 8 times the peak, linearised where they were, fed the next
+    prediction and the car stalled in a hairpin); with ``grip = False`` (the paper's QP) it is
+    linearised where the prediction is."""
+    from gprace.mpc.tracking import _at_s
+
+    track, model, plan, x, u = circle
+    p = model.params
+
+    def dynamics(share, grip=True):
+        mpc = TrackingMPC(model, track, plan, MPCSettings(grip=grip))
+        _, info = mpc.build(x)
+        W = _at_s(info["xref"][:-1], x[State.S])
+        W[:, State.V_Y] = p.lr * W[:, State.YAW_RATE] - np.tan(share * peak_slip(p.br, p.cr)) * W[:, State.V_X]
+        mpc.prev_x, mpc.prev_u = np.vstack([x, W]), np.tile(u, (mpc.N, 1))
+        pb, _ = mpc.build(x)
+        return pb.A, pb.B, pb.c
+
+    at_bound = dynamics(MPCSettings().grip_share)
+    for share in (1.5, 3.0, 6.0):
+        for got, want in zip(dynamics(share), at_bound):
+            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+        assert not np.allclose(dynamics(share, grip=False)[0], dynamics(0.9, grip=False)[0])

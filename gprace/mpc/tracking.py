@@ -212,9 +212,10 @@ def fast_drive_cap(v: float, v_ref: float, a_ref: np.ndarray, lo: np.ndarray, hi
     return hi
 
 
-def rear_within(X: np.ndarray, p, slip: float) -> np.ndarray:
+def rear_within(X: np.ndarray, p, slip) -> np.ndarray:
     """States ``X (n, 6)`` with ``v_y`` clipped so that the rear slip angle
-    ``-atan((v_y - l_r r) / v_x)`` is within ``slip`` (a copy; yaw rate and speed are kept).
+    ``-atan((v_y - l_r r) / v_x)`` is within ``slip`` (a number or one per state; a copy, yaw rate
+    and speed are kept).
 
     The linearisation point of the tracking MPC after its first step is the previous solution,
     the QP's own prediction. Where that prediction carries the rear past its peak, the nominal
@@ -488,8 +489,15 @@ class TrackingMPC:
             Xb = np.vstack([x_meas, self.prev_x[1:]])
             Ub = np.vstack([self.prev_u[1:], self.prev_u[-1:]])
         Xb[:, State.S] = np.maximum.accumulate(Xb[:, State.S])  # progress along the nominal cannot go back
-        if self.settings.grip:  # after its first step (the measured state), the rear within the grip rows' bound
-            Xb[1:] = rear_within(Xb[1:], self.model.params, self.slip_max)
+        if self.settings.grip:
+            # a car already past the rear bound is brought back within RECOVER_STEPS, not at once:
+            # measured in the fast chicane of gprace_ring, demanding it at the first step made the
+            # QP yank the steering and spun the car the nominal MPC kept
+            a_now = abs(float(rear_slip_rows(x_meas[None, :6], self.model.params.lr, self.model.params.vmin)[0][0]))
+            back = a_now * (1.0 - np.arange(1, N + 1) / RECOVER_STEPS)  # (N,) for x_1..x_N
+            # after its first step (the measured state) the linearisation point keeps the rear
+            # within the bound the grip rows put on the QP (:func:`rear_within`)
+            Xb[1:] = rear_within(Xb[1:], self.model.params, np.maximum(self.slip_max, back[:-1]))
         if self.front_max is not None:
             # linearise where the front tire still answers the steering: past its peak the tangent
             # says that more steering turns the car less, and the QP steers in to stop an
@@ -555,11 +563,7 @@ class TrackingMPC:
             # off its line, 0.08 m with this floor (tests/test_mpc_tire_bounds.py). On a GP lap of
             # a randomized BMW it binds in 2 % of the periods, in the hairpin (issue 37, stop 51)
             room = np.maximum(room, np.minimum(np.abs(a_r), self.slip_max))
-            # a car already past the bound is brought back within RECOVER_STEPS, not at once:
-            # measured in the fast chicane of gprace_ring, demanding it at the first step made the
-            # QP yank the steering and spun the car the nominal MPC kept
-            a_now = abs(float(rear_slip_rows(x_meas[None, :6], self.model.params.lr, self.model.params.vmin)[0][0]))
-            room = np.maximum(room, a_now * (1.0 - np.arange(1, N + 1) / RECOVER_STEPS))
+            room = np.maximum(room, back)
             grip = {"grip_G": G, "grip_lo": -room - off, "grip_hi": room - off}
         u_lo, u_hi = self.front_bounds(x_meas, *self.bounds)
         u_lo, u_hi = self.ellipse_bounds(x_meas, uref, u_lo, u_hi)
