@@ -226,11 +226,15 @@ def test_rear_within_clips_only_the_lateral_speed_of_states_past_the_bound():
     np.testing.assert_allclose(np.abs(rear(Y[~inside])), bound, rtol=1e-9)  # moved to the bound, not beyond
     assert np.all(np.sign(rear(Y[~inside])) == np.sign(rear(X[~inside])))
     np.testing.assert_array_equal(np.delete(Y, State.V_Y, axis=1), np.delete(X, State.V_Y, axis=1))
+    # one bound per state (a sliding car's way back): each state within its own
+    bounds = rng.uniform(0.5, 3.0, len(X)) * bound
+    assert np.all(np.abs(rear(rear_within(X, p, bounds))) <= bounds + 1e-12)
 
 
 def test_the_linearisation_does_not_follow_a_prediction_past_the_rear_peak(circle):
     """The linearisation point after its first step is the previous solution. Where that
-    prediction carries the rear past the grip rows' bound, it is linearised at the bound: a warm
+    prediction carries the rear past the grip rows' bound (on a car that is not sliding now), it
+    is linearised at the bound: a warm
     start at 1.5, 3 or 6 times the rear peak gives the QP the dynamics of one at the bound (issue
     37, stop 62: predictions at up to 8 times the peak, linearised where they were, fed the next
     prediction and the car stalled in a hairpin); with ``grip = False`` (the paper's QP) it is
