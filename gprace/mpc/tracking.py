@@ -52,7 +52,9 @@ Each control period:
    the QP steered a sliding car to full lock and asked for full drive at the lateral limit.
    With that bound, the **linearisation point** keeps its steering within ``LINEARISE_FRONT`` of
    the peak slip: past the peak the tangent says that more steering turns the car less, and the
-   QP steered in to stop an over-rotation.
+   QP steered in to stop an over-rotation. After its first step it keeps the rear within the grip
+   rows' bound (:func:`rear_within`): linearised where its own prediction had let the rear go past
+   the peak, the QP's next prediction diverged further.
 
 Beyond the paper, two run-time hooks:
 
