@@ -197,12 +197,12 @@ def test_the_plan_steers_no_faster_than_the_actuator_allows():
     assert held.lap_time == pytest.approx(free.lap_time, rel=0.01)
 
 
-@pytest.mark.parametrize("seed", [18, 23, 25])
+@pytest.mark.parametrize("seed", [8, 18, 23, 25])
 def test_the_corner_speed_of_a_car_whose_loads_move_with_a_x_is_the_edge_of_its_steady_corners(seed):
     """The true physics of the benchmark's randomized_18, 23 and 25 (load transfer, combined slip,
     downforce, load sensitivity): from the first start IPOPT called the steady-corner NLP
     infeasible, and the plants had no oracle lap; slower starts solved 23 only, on a counter-steered
-    drift (v_y = -18 m/s). Followed up in speed, the answer is a steady state on the grip branch,
+    drift (v_y = -18 m/s). On randomized_08 IPOPT ran out of iterations from it (stop 62). Followed up in speed, the answer is a steady state on the grip branch,
     and it is the edge: checked by another solver (scipy's least squares on the model's numpy
     equations at a fixed speed), a steady corner exists 1 % slower and none 2 % faster."""
     from scipy.optimize import least_squares
