@@ -491,15 +491,16 @@ class TrackingMPC:
             Xb = np.vstack([x_meas, self.prev_x[1:]])
             Ub = np.vstack([self.prev_u[1:], self.prev_u[-1:]])
         Xb[:, State.S] = np.maximum.accumulate(Xb[:, State.S])  # progress along the nominal cannot go back
+        p = self.model.params
         if self.settings.grip:
             # a car already past the rear bound is brought back within RECOVER_STEPS, not at once:
             # measured in the fast chicane of gprace_ring, demanding it at the first step made the
             # QP yank the steering and spun the car the nominal MPC kept
-            a_now = abs(float(rear_slip_rows(x_meas[None, :6], self.model.params.lr, self.model.params.vmin)[0][0]))
+            a_now = abs(float(rear_slip_rows(x_meas[None, :6], p.lr, p.vmin)[0][0]))
             back = a_now * (1.0 - np.arange(1, N + 1) / RECOVER_STEPS)  # (N,) for x_1..x_N
             # after its first step (the measured state) the linearisation point keeps the rear
             # within the bound the grip rows put on the QP (:func:`rear_within`)
-            Xb[1:] = rear_within(Xb[1:], self.model.params, np.maximum(self.slip_max, back[:-1]))
+            Xb[1:] = rear_within(Xb[1:], p, np.maximum(self.slip_max, back[:-1]))
         if self.front_max is not None:
             # linearise where the front tire still answers the steering: past its peak the tangent
             # says that more steering turns the car less, and the QP steers in to stop an
@@ -507,7 +508,6 @@ class TrackingMPC:
             # stop 51): along a warm start steered to 1.2 times the front peak, B[r, delta] fell
             # from +0.62 to -0.08 and the car left the track on the inside of a 40 m/s corner.
             # Stop 53: that lap re-driven completes on 4 of 4 noise seeds with this, 0 of 4 without
-            p = self.model.params
             kin = front_heading(Xb, p.lf, p.vmin)
             lin_max = LINEARISE_FRONT * peak_slip(p.bf, p.cf)
             Ub[:, Input.DELTA] = np.clip(Ub[:, Input.DELTA], kin - lin_max, kin + lin_max)
@@ -547,7 +547,7 @@ class TrackingMPC:
             # rear slip linearised about the REFERENCE x_1..x_N: a + G (x - xref). Measured: about
             # the previous solution (as the dynamics) the rows fed back on themselves, and an
             # alternating exploration target made successive solutions flip until full lock.
-            a_r, G = rear_slip_rows(xr0, self.model.params.lr, self.model.params.vmin)
+            a_r, G = rear_slip_rows(xr0, p.lr, p.vmin)
             if not self.settings.slip_by_speed:
                 # the slip angle falls with v_x, but drive on a sliding rear axle takes its lateral
                 # grip (combined slip, which the nominal model lacks): the row may not be met by
