@@ -9,7 +9,8 @@ import pytest
 from gprace.config import load_vehicle
 from gprace.model import NominalModel
 from gprace.model.dynamics import Input, State
-from gprace.mpc.tracking import GP_STATES, MPCSettings, TrackingMPC, spectral_radius2, stable_share, steer_share
+from gprace.mpc.tracking import (GP_STATES, MPCSettings, TrackingMPC, spectral_radius2, stable_share, steer_share,
+                                trust_share)
 from gprace.plan import curvature_plan
 from gprace.tracks import load_track
 
@@ -134,3 +135,54 @@ def test_a_gradient_that_reverses_the_steering_is_shrunk(circle):
     b = pb.B[:, State.YAW_RATE, Input.DELTA]
     assert np.all(b >= 0.25 * b0 - 1e-9)
     assert np.allclose(b[mpc.gp_share < 1], 0.25 * b0[mpc.gp_share < 1])
+
+
+class _EdgeGP(_GradientGP):
+    """A constructed GP whose extrapolation runs from its data (0) past its prior (1.2) along the horizon."""
+
+    def extrapolation_of(self, var):
+        return np.linspace(0.0, 1.2, len(var))
+
+
+def test_the_gradient_fades_as_the_gp_nears_its_prior(circle):
+    """With ``gp_trust`` each step keeps ``1 - extrapolation`` of the gradient (none at or past the
+    prior); without it, the whole gradient. The mean enters either way."""
+    tr, m, plan = circle
+    x0 = plan.at_time(np.array([0.0]))[0][0]
+    J = np.zeros((2, 5))
+    J[1, 3] = 0.4  # d(yaw-rate error)/d(delta)
+    kw = dict(gp_stable=False, gp_steer_keep=0.0)
+    pb0, _ = TrackingMPC(m, tr, plan, MPCSettings(**kw)).build(x0)
+    mpc = TrackingMPC(m, tr, plan, MPCSettings(**kw), gp=_EdgeGP(J))
+    pb, _ = mpc.build(x0)
+    e = np.linspace(0.0, 1.2, len(pb.A))
+    assert np.allclose(mpc.gp_share, np.clip(1.0 - e, 0.0, 1.0)) and np.allclose(trust_share([np.nan, 0.3]), [1.0, 0.7])
+    gain = pb.B[:, State.YAW_RATE, Input.DELTA] - pb0.B[:, State.YAW_RATE, Input.DELTA]
+    assert np.allclose(gain, 0.4 * mpc.gp_share) and gain[0] == pytest.approx(0.4) and np.all(gain[e >= 1.0] == 0.0)
+    whole = TrackingMPC(m, tr, plan, MPCSettings(gp_trust=False, **kw), gp=_EdgeGP(J))
+    pbw, _ = whole.build(x0)
+    assert np.allclose(pbw.B[:, State.YAW_RATE, Input.DELTA] - pb0.B[:, State.YAW_RATE, Input.DELTA], 0.4)
+    # where no gradient is left the GP's mean alone moves the affine term
+    assert np.allclose((pb.c - pb0.c)[e >= 1.0][:, GP_STATES], [0.01, -0.02])
+
+
+def test_extrapolation_from_the_real_time_variance_matches_the_exact_one():
+    """``GPPredictor.extrapolation_of`` on the variance of the MPC's real-time path (spectral, with
+    a calibration) reads what ``extrapolation`` reads from an exact prediction, never below it."""
+    from gprace.gp import make_gp
+    from gprace.timetrial.learning import GPPredictor
+
+    rng = np.random.default_rng(5)
+    Z = rng.uniform(-2, 2, (600, 2))
+    Y = np.column_stack([np.sin(Z[:, 0]), np.cos(Z[:, 1])]) + rng.normal(0, 0.1, (600, 2))
+    gp = GPPredictor(make_gp("exact", optimize=True, max_fit_points=500, seed=0).fit(Z, Y), "tracking",
+                     inputs=("v_y", "yaw_rate"), var_scale=[2.0, 0.5])
+    X = np.zeros((60, 6))
+    X[:, State.V_X] = 20.0
+    X[:, State.V_Y] = np.linspace(0.0, 6.0, 60)  # from the middle of the data to far outside it
+    X[:, State.YAW_RATE] = 0.5
+    U = np.zeros((60, 2))
+    exact = gp.extrapolation(X, U)
+    fast = gp.extrapolation_of(gp.at_with_gradient(X, U)[1])
+    assert exact[0] < 0.3 and exact[-1] > 0.99 and np.all(np.diff(exact[X[:, State.V_Y] > 2.5]) >= -1e-9)
+    assert np.all(fast >= exact - 1e-9) and np.all(fast <= 1.1 * exact + 0.01)
