@@ -25,7 +25,8 @@ Each control period:
    least 1: tires linearised at or past their peak) and the gradient would make it more so: there
    it is shrunk until it does not (``gp_stable``, :func:`stable_share`; beyond the paper, issue 37),
    and where it would leave the steering less than ``gp_steer_keep`` of its nominal effect on the
-   yaw rate (:func:`steer_share`).
+   yaw rate (:func:`steer_share`). The gradient fades as the GP nears its prior: each step keeps
+   ``1 - extrapolation`` of it (``gp_trust``, :func:`trust_share`).
 5. **Chance-constraint tightening**: ``Sigma_{k+1} = A_k Sigma_k A_k^T + diag(0, var_vy, var_r, 0..)``
    from ``Sigma_0 = 0`` (GP latent variances); ``gamma_k = sqrt(2) sigma_ey,k erfinv(2 beta - 1)``.
 5b. **Grip** (beyond the paper; Liniger et al. 2015, Kabzan et al. 2019 bound tire slip or the
@@ -313,7 +314,10 @@ def trust_share(extrapolation: np.ndarray) -> np.ndarray:
     the prior, not the car. Measured on a randomized BMW's GP lap at 38 to 40 m/s in a long bend
     where the extrapolation read 0.69 to 0.97 (median 0.08 along the lap): with the GP's mean and
     its whole gradient the lap was lost on 4 of 4 noise draws, with either one alone on none, and
-    with the gradient scaled by this share on none (docs/decisions.md, issue 37, stops 62 and 63)."""
+    with the gradient scaled by this share on none. On the same car's lap of another chain the
+    whole GP lost 4 of 4 draws, the gradient scaled 3 of 4, the nominal model alone none: the mean
+    at the edge of the data costs laps too (branch ``s63-mean`` scales it as well; not benchmarked
+    whole; docs/decisions.md, issue 37, stops 62 and 63)."""
     return np.clip(1.0 - np.nan_to_num(np.asarray(extrapolation, float), nan=0.0), 0.0, 1.0)
 
 
