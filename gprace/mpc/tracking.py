@@ -136,7 +136,7 @@ class MPCSettings(CommandSettings):
     gp_stable: bool = Field(True, description="where the nominal model's predicted lateral dynamics (v_y, yaw rate) "
                             "are unstable, the tracking GP's gradient may not make them more so (it is shrunk)")
     gp_trust: bool = Field(True, description="the tracking GP's gradient at each horizon step is scaled by one minus "
-                           "its extrapolation there (latent std over prior std: 1 on dense data, 0 at the prior; "
+                           "its extrapolation there (latent std over prior std: 0 on dense data, 1 at the prior; "
                            ":func:`trust_share`)")
 
     @model_validator(mode="after")
