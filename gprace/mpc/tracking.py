@@ -547,8 +547,8 @@ class TrackingMPC:
                 # as a constant only, a GP that learned the steering lag (mean falling with delta)
                 # made successive solutions flip sign until full lock on a straight.
                 mean, var, J = self.gp.at_with_gradient(Xb, Ub)
-                extrapolation = self.gp.extrapolation_of(var) if hasattr(self.gp, "extrapolation_of") else None
-                A, B = self._compensate(A, B, J, extrapolation)
+                trust = self.settings.gp_trust and hasattr(self.gp, "extrapolation_of")
+                A, B = self._compensate(A, B, J, self.gp.extrapolation_of(var) if trust else None)
             else:
                 mean, var = self.gp(dyn_inputs(Xb, Ub, self.inputs))
         c = xn - np.einsum("kij,kj->ki", A, Xr) - np.einsum("kij,kj->ki", B, Ub)
@@ -601,9 +601,9 @@ class TrackingMPC:
         """``(A, B)`` with the GP's gradient ``J (N, 2, d)`` added to the nominal Jacobians. With ``settings.gp_stable`` the gradient of a step is
         shrunk where the nominal lateral block is unstable and the gradient makes it more so
         (:func:`stable_share`), and where it would leave the steering less than ``gp_steer_keep``
-        of its nominal gain on the yaw rate (:func:`steer_share`); with ``settings.gp_trust`` as
-        the GP's ``extrapolation (N,)`` nears its prior (:func:`trust_share`). ``self.gp_share (N,)``
-        keeps the share used."""
+        of its nominal gain on the yaw rate (:func:`steer_share`); and as the GP's
+        ``extrapolation (N,)`` nears its prior (:func:`trust_share`; None: not read, as with
+        ``settings.gp_trust`` off). ``self.gp_share (N,)`` keeps the share used."""
         N = len(A)
         JA = np.zeros((N, 2, 6))
         JB = np.zeros((N, 2, 2))
@@ -616,7 +616,7 @@ class TrackingMPC:
         if self.settings.gp_steer_keep > 0:
             r, d = State.YAW_RATE, Input.DELTA
             t = np.minimum(t, steer_share(B[:, r, d], JB[:, r - GP_STATES.start, d], self.settings.gp_steer_keep))
-        if self.settings.gp_trust and extrapolation is not None:
+        if extrapolation is not None:
             t = np.minimum(t, trust_share(extrapolation))
         self.gp_share = t
         A, B = A.copy(), B.copy()
