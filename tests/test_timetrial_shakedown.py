@@ -589,6 +589,26 @@ def test_envelope_braking_follows_the_friction_circle():
     assert env.input_bounds(lo, hi, 0.0, 14.0, 14.7)[1][1] == pytest.approx(st.gentle_drive * 6.0)
 
 
+def test_an_eased_car_brakes_inside_the_plans_friction_ellipse():
+    """The ellipse is the plan's (lateral and braking limits, what the car has shown), not the
+    command's bound on the nominal circle. The shakedown lap of randomized_27 (issue 37, stop 64):
+    a plan at 7.1 m/s^2 lateral and 4.0 braking, the car at 5.7 sideways, leaves
+    4.0 sqrt(1 - (5.7 / 7.1)^2) = 2.39 m/s^2 of braking, where the nominal circle (10.3) allowed
+    4.2 of a -5 command bound; running straight the plan's whole braking limit; beyond the plan's
+    lateral limit the gentle share of it."""
+    from gprace.mpc.stability import Envelope, EnvelopeSettings
+
+    st = EnvelopeSettings()
+    env = Envelope(st, 0.05)
+    env.active = True
+    lo, hi = np.array([-0.4, -5.0]), np.array([0.4, 3.5])
+    assert env.input_bounds(lo, hi, -0.3, 5.7, 7.1, brake_limit=4.0)[0][1] == pytest.approx(-2.39, abs=0.01)
+    assert env.input_bounds(lo, hi, -0.3, 5.7, 10.3)[0][1] == pytest.approx(-5.0 * np.sqrt(1 - (5.7 / 10.3) ** 2))
+    assert env.input_bounds(lo, hi, -0.3, 0.0, 7.1, brake_limit=4.0)[0][1] == pytest.approx(-4.0)
+    assert env.input_bounds(lo, hi, -0.3, 8.0, 7.1, brake_limit=4.0)[0][1] == pytest.approx(-st.gentle_brake * 4.0)
+    assert env.input_bounds(lo, hi, -0.3, 0.0, 7.1, brake_limit=9.0)[0][1] == pytest.approx(-5.0)  # never past the bound
+
+
 def test_an_eased_car_may_always_brake_for_the_plans_corners_ahead():
     """``braking_needed`` is the constant deceleration that brings the car down to the plan's
     speed in the corners ahead (analytic: a step from 40 to 20 m/s 60 m ahead needs (40^2 - 20^2)
@@ -628,7 +648,7 @@ def test_envelope_does_not_brake_a_rear_past_its_peak():
     env = Envelope(st, 0.05)
     env.active = True
     lo, hi = np.array([-0.35, -14.0]), np.array([0.35, 6.0])
-    assert env.input_bounds(lo, hi, -6.0, 2.0, 14.7, rear=0.9, brake_limit=6.0)[0][1] == pytest.approx(-14.0 * np.sqrt(1 - (2 / 14.7) ** 2))
+    assert env.input_bounds(lo, hi, -6.0, 2.0, 14.7, rear=0.9, brake_limit=6.0)[0][1] == pytest.approx(-6.0 * np.sqrt(1 - (2 / 14.7) ** 2))
     assert env.input_bounds(lo, hi, -6.0, 2.0, 14.7, rear=1.2, brake_limit=6.0)[0][1] == pytest.approx(-st.gentle_brake * 6.0)
     assert env.input_bounds(lo, hi, -6.0, 2.0, 14.7, rear=1.2)[0][1] == pytest.approx(-st.gentle_brake * 14.0)
     # rear_use: the rear slip angle of a state over the nominal peak

@@ -242,9 +242,10 @@ class Envelope:
                      brake_limit: float | None = None, needed: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """The MPC's input bounds for the next period: the longitudinal range narrowed while active.
 
-        Braking follows the friction circle (:func:`brake_share`): ``lateral`` is the lateral
-        acceleration the car uses now (``|v_x r|``, m/s^2) and ``grip`` the radius of the circle
-        (the nominal ``mu g``); the braking left by cornering stays allowed, never less than
+        Braking follows the friction ellipse of the plan (:func:`brake_share`): ``lateral`` is the
+        lateral acceleration the car uses now (``|v_x r|``, m/s^2), ``grip`` the plan's lateral
+        limit and ``brake_limit`` its braking limit (what the car has been shown to take; None:
+        the command's bound); the braking left by cornering stays allowed, never less than
         ``gentle_brake`` of the limit, and ``plan_brake_share`` of the hardest braking the plan
         asks for over the horizon (before any easing) always, so an eased car still makes the
         corner; and the braking ``needed`` for the plan's corners ahead from the speed the car has
@@ -257,14 +258,18 @@ class Envelope:
         with braking held to 0.4 of the limit whatever the car did, audi_hidden on the circle_100
         plan could not slow to the eased speed on the straight-running moments and left the track
         (docs/decisions.md, issue 37, tt3).
+        The ellipse is the plan's, not the nominal tire's circle: a shakedown plan at 7.1 m/s^2
+        lateral and 4.0 braking (a randomized BMW, rear grip 0.88, CoG 0.58 m) was eased in the
+        18 m hairpin, and the nominal circle (10.3 m/s^2) let the MPC brake at 3.7 m/s^2 while the
+        car turned at 5.7: the rear let go and the car spun, where the plan's ellipse allows 2.4
+        (docs/decisions.md, issue 37, stop 64).
 
         A rear axle past its peak (``rear``, the rear slip angle over the nominal tire's peak slip
         angle, at least 1) is an exception: it has no grip left for braking, and braking moves load
-        off it. Braking is then held to ``gentle_brake`` of ``brake_limit`` (the plan's braking
-        limit, what the car has been shown to take; else the command's), and neither the plan's own
-        braking nor the braking ``needed`` is kept. ``|v_x r|`` cannot see this: in a slide the
-        car's speed falls, ``|v_x r|`` falls with it and the friction circle widened the braking
-        while the rear stayed saturated.
+        off it. Braking is then held to ``gentle_brake`` of the braking limit, and neither the
+        plan's own braking nor the braking ``needed`` is kept. ``|v_x r|`` cannot see this: in a
+        slide the car's speed falls, ``|v_x r|`` falls with it and the friction circle widened the
+        braking while the rear stayed saturated.
         Measured on the shakedown of a randomized Audi with a light rear (grip 0.85 of the front's
         1.04) entering the 18 m hairpin of gprace_ring: with the circle the eased MPC braked at 5 to
         6.4 m/s^2 through a slide of v_y = -4.7 m/s and spun the car; held to 0.4 of the plan's 6.1
@@ -274,12 +279,12 @@ class Envelope:
             return u_lo, u_hi
         st = self.settings
         lo, hi = u_lo.copy(), u_hi.copy()
+        limit = -u_lo[Input.A_X] if brake_limit is None else min(float(brake_limit), -u_lo[Input.A_X])
         if rear >= 1.0:
-            limit = -u_lo[Input.A_X] if brake_limit is None else min(float(brake_limit), -u_lo[Input.A_X])
             lo[Input.A_X] = -st.gentle_brake * limit
         else:
             share = brake_share(lateral, grip, st.gentle_brake)
-            lo[Input.A_X] = max(u_lo[Input.A_X], min(share * u_lo[Input.A_X], st.plan_brake_share * plan_brake, -needed))
+            lo[Input.A_X] = max(u_lo[Input.A_X], min(-share * limit, st.plan_brake_share * plan_brake, -needed))
         hi[Input.A_X] = st.gentle_drive * u_hi[Input.A_X]
         return lo, hi
 

@@ -22,7 +22,7 @@ import time
 import numpy as np
 from pydantic import Field
 
-from gprace.config import G, CommandSettings
+from gprace.config import CommandSettings
 from gprace.errors import InputError
 from gprace.io.runs import OWN_RUN, Run
 from gprace.model.dynamics import Input, State
@@ -83,7 +83,6 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     env = Envelope(settings.envelope, dt, band)
     before = None  # the state the last solution predicted for this period
     plan_brake = 0.0  # the hardest braking the plan asks for over the horizon (before easing)
-    grip = vehicle.mu * G  # the friction circle's radius for the envelope's braking
     ahead = (None, None)  # (plan, its corners): found again only when the shakedown swaps the plan
     delay_bumped = False  # the MPC's delay is lengthened once, at the first weave
     k = 0
@@ -106,7 +105,8 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
             if ahead[0] is not mpc.plan:
                 ahead = (mpc.plan, corners(mpc.plan.s, mpc.plan.v_x))
             needed = braking_needed(ahead[1], track.length, float(y[State.S]), v, reach, near=v * settings.envelope.hold)
-        mpc.bounds = env.input_bounds(mpc.u_lo, mpc.u_hi, plan_brake, lateral, grip, rear, brake_limit, needed)
+        # the envelope's braking stays inside the plan's friction ellipse (lateral and braking limits)
+        mpc.bounds = env.input_bounds(mpc.u_lo, mpc.u_hi, plan_brake, lateral, limits[0], rear, brake_limit, needed)
         u, info = mpc.step(y)
         u_prev = u
         plan_brake = float(info["uref"][:, Input.A_X].min()) / mpc.speed_factor**2
