@@ -7,7 +7,10 @@ evaluation, so above ``max_fit_points`` (default 800) the hyperparameters are fi
 subsample of that size (seeded); the posterior is then computed on ALL points with those
 hyperparameters. At M = 2000 this cuts the fit from about 60 s to a few seconds while the
 length scales and variances, being properties of the function rather than of the sample size,
-change little.
+change little. A fit whose optimum explains the data no better than white noise (length scales
+collapsed to their lower bound, :func:`noise_lml`) is optimised again from a smooth start and the
+better optimum kept: L-BFGS-B from the default start ends there on some subsamples of data that
+have a clear signal (docs/decisions.md, issue 37, stop 64).
 
 Prediction never calls scikit-learn: the Cholesky factor ``L`` of ``K + sn2 I`` and
 ``alpha = (K + sn2 I)^-1 y`` are cached per output; a query costs one kernel block
