@@ -38,7 +38,7 @@ _FEW = 8  # queries answered by the fast path of the variance
 
 
 NOISE_GAIN = 0.01   # log marginal likelihood per target value a fit must gain over white noise
-SMOOTH_START = np.log(3.0)  # log length scale (normalised inputs) of the second start
+SMOOTH_START = (3.0, 1.0, 0.1)  # (length scales, signal, noise) of the second start, normalised units
 
 
 def noise_lml(y: np.ndarray) -> float:
@@ -99,7 +99,8 @@ class ExactGP(GPBackend):
                 # four led L-BFGS-B there from the default start (log marginal likelihood -2265
                 # against -1378 for the smooth optimum the others found; held-out error 1.00
                 # against 0.59). A second start from a smooth function decides; the better wins
-                th2 = np.concatenate([np.full(d, SMOOTH_START), [0.0, np.log(0.1)]])
+                ls0, sf20, sn20 = SMOOTH_START
+                th2 = np.log(np.r_[np.full(d, ls0), sf20, sn20])
                 kf2, lml2 = self._optimise(Zs, y, th2, rng)
                 if lml2 > lml:
                     kf = kf2

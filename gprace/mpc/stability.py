@@ -238,13 +238,13 @@ class Envelope:
                 self.band = b
 
     def input_bounds(self, u_lo: np.ndarray, u_hi: np.ndarray, plan_brake: float = 0.0,
-                     lateral: float = 0.0, grip: float = np.inf, rear: float = 0.0,
+                     lateral: float = 0.0, lateral_limit: float = np.inf, rear: float = 0.0,
                      brake_limit: float | None = None, needed: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """The MPC's input bounds for the next period: the longitudinal range narrowed while active.
 
         Braking follows the friction ellipse of the plan (:func:`brake_share`): ``lateral`` is the
-        lateral acceleration the car uses now (``|v_x r|``, m/s^2), ``grip`` the plan's lateral
-        limit and ``brake_limit`` its braking limit (what the car has been shown to take; None:
+        lateral acceleration the car uses now (``|v_x r|``, m/s^2), ``lateral_limit`` the plan's
+        lateral limit and ``brake_limit`` its braking limit (what the car has been shown to take; None:
         the command's bound); the braking left by cornering stays allowed, never less than
         ``gentle_brake`` of the limit, and ``plan_brake_share`` of the hardest braking the plan
         asks for over the horizon (before any easing) always, so an eased car still makes the
@@ -283,7 +283,7 @@ class Envelope:
         if rear >= 1.0:
             lo[Input.A_X] = -st.gentle_brake * limit
         else:
-            share = brake_share(lateral, grip, st.gentle_brake)
+            share = brake_share(lateral, lateral_limit, st.gentle_brake)
             lo[Input.A_X] = max(u_lo[Input.A_X], min(-share * limit, st.plan_brake_share * plan_brake, -needed))
         hi[Input.A_X] = st.gentle_drive * u_hi[Input.A_X]
         return lo, hi
