@@ -48,7 +48,10 @@ def _replan(c: _Chain, i: int) -> None:
                                        for r in records[1:] if r.completed]))  # the laps after the shakedown
         shown = _grip_shown(c, i)
         if shown is not None:  # never plan corners faster than the grip the car has shown
-            limits[0] = min(limits[0], max(shown * G.nominal_cap(model, 1.0)[0], np.asarray(last.meta.get("limits", limits))[0]))
+            over = G.overshoot([(r.envelope[0], r.limits[0] * guard.speed_step(r)**2)
+                                for r in records if r.completed and r.envelope and r.limits])
+            limits[0] = min(limits[0], G.shown_limit(shown, G.nominal_cap(model, 1.0)[0], over,
+                                                     np.asarray(last.meta.get("limits", limits))[0]))
     if st.never_worse:  # the plan started from, and driven again if the new one is unsafe: clear of the lost laps
         ref = guard.last_good(records, clear=lambda lim: G.clear_of(lim, failed, st.widen))
     good = [k for k in range(i - 1, -1, -1) if records[k].completed]
