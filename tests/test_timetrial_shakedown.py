@@ -456,6 +456,28 @@ def test_a_level_that_came_near_the_rear_peak_is_not_passed_later():
     assert held_level([([8.2, 3.5, 4.0], 0.81, None, 1.0)]) == pytest.approx(8.2)  # no plan limits: the measured
 
 
+def test_the_grip_shown_cap_leaves_room_for_how_much_harder_the_car_corners_than_its_plans():
+    """``shown_limit``: the plan's lateral limit stays at the grip shown divided by the overshoot
+    the car's own laps measured (``overshoot``: the median of measured over asked), so the lap
+    driven, not only the plan, stays within the grip shown. randomized_27 trial 0 (stop 64): its
+    shakedown measured 8.64 at limits of 8.37 and its built-up lap 8.19 where it asked 8.80 x 0.934^2;
+    with 0.846 of the nominal grip shown, the cap was 8.80 m/s^2 and the next lap was lost; the same
+    plan asking 8.50 to 8.62 completed."""
+    from gprace.timetrial.grip import OVERSHOOT_MAX, overshoot, shown_limit
+
+    laps = [(8.64, 8.37), (8.19, 8.80 * 0.934**2)]
+    over = overshoot(laps)
+    assert over == pytest.approx(np.median([8.64 / 8.37, 8.19 / (8.80 * 0.934**2)]))
+    cap = shown_limit(0.846, 10.398, over, floor=8.37)
+    assert cap * over == pytest.approx(0.846 * 10.398)  # driven with the overshoot: at the grip shown
+    assert 8.3 < cap < 8.5 < shown_limit(0.846, 10.398, 1.0, floor=8.37) == pytest.approx(8.797, abs=1e-3)
+    assert shown_limit(0.846, 10.398, over, floor=8.6) == 8.6  # a cap, never a narrowing
+    # a car that corners below its plans, or laps with nothing measured, take no margin; a lap that
+    # slid far past its plan does not make the cap collapse
+    assert overshoot([(7.9, 8.37)]) == 1.0 and overshoot([]) == 1.0 and overshoot([(np.nan, 8.0), (9.0, 0.0)]) == 1.0
+    assert overshoot([(12.0, 8.0)]) == OVERSHOOT_MAX
+
+
 def test_a_level_that_slid_past_the_peak_and_needed_the_envelope_is_left_a_widening_below():
     """``slid_level``: a lap whose rear passed its peak slip angle and that needed the envelope
     ``EDGE_EVENTS`` times or more puts a ceiling a widening below its level (the smaller of the
