@@ -298,7 +298,7 @@ def overshoot(laps) -> float:
 def shown_limit(shown: float, nominal_lateral: float, over: float, floor: float) -> float:
     """The largest lateral limit [m/s^2] the grip the car has shown allows: ``shown`` (the weakest
     axle's force over the nominal tire's, :func:`gprace.timetrial.shakedown.axle_grip`) times the
-    nominal model's lateral limit, divided by the car's ``over``\ shoot (:func:`overshoot`), so that
+    nominal model's lateral limit, divided by the car's overshoot ``over`` (:func:`overshoot`), so that
     the lap driven, not only its plan, stays within that grip; never below ``floor`` (the last plan's
     lateral limit: the cap stops a widening, it does not narrow).
 
