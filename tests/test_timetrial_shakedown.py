@@ -465,7 +465,7 @@ def test_the_grip_shown_cap_leaves_room_for_how_much_harder_the_car_corners_than
     plan asking 8.50 to 8.62 completed."""
     from gprace.timetrial.grip import OVERSHOOT_MAX, overshoot, shown_limit
 
-    laps = [(8.64, 8.37), (8.19, 8.80 * 0.934**2)]
+    laps = [([8.64, 3.5, 3.98], [8.37, 3.5, 4.03], 1.0), ([8.19, 3.14, 3.73], [8.80, 3.5, 4.22], 0.934)]
     over = overshoot(laps)
     assert over == pytest.approx(np.median([8.64 / 8.37, 8.19 / (8.80 * 0.934**2)]))
     cap = shown_limit(0.846, 10.398, over, floor=8.37)
@@ -474,8 +474,11 @@ def test_the_grip_shown_cap_leaves_room_for_how_much_harder_the_car_corners_than
     assert shown_limit(0.846, 10.398, over, floor=8.6) == 8.6  # a cap, never a narrowing
     # a car that corners below its plans, or laps with nothing measured, take no margin; a lap that
     # slid far past its plan does not make the cap collapse
-    assert overshoot([(7.9, 8.37)]) == 1.0 and overshoot([]) == 1.0 and overshoot([(np.nan, 8.0), (9.0, 0.0)]) == 1.0
-    assert overshoot([(12.0, 8.0)]) == OVERSHOOT_MAX
+    lim = [8.37, 3.5, 4.0]
+    assert overshoot([([7.9, 3.5, 4.0], lim, 1.0)]) == 1.0 and overshoot([]) == 1.0
+    assert overshoot([([np.nan, 3.5, 4.0], lim, 1.0), ([9.0, 3.5, 4.0], [0.0, 3.5, 4.0], 1.0), ([], lim, 1.0),
+                      ([9.0, 3.5, 4.0], None, 1.0)]) == 1.0
+    assert overshoot([([12.0, 3.5, 4.0], [8.0, 3.5, 4.0], 1.0)]) == OVERSHOOT_MAX
 
 
 def test_a_level_that_slid_past_the_peak_and_needed_the_envelope_is_left_a_widening_below():

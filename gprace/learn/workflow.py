@@ -620,7 +620,7 @@ def next_plan_limits(c: Iteration, facts: list[dict]) -> dict:
         source = "replan"
         shown = grip_shown(c, completed)
         if shown is not None:  # never plan corners faster than the grip the car has shown (as iterate)
-            over = G.overshoot([(measured[0], previous[0])] if completed and last["known"] else [])
+            over = G.overshoot([(measured, previous, 1.0)] if completed and last["known"] else [])
             limits[0] = min(limits[0], G.shown_limit(shown, lateral_cap(c.model, 1.0)[0][0], over, float(previous[0])))
     start = start_lap(laps, st.never_worse, st.widen)
     return {"limits": np.asarray(limits, float).tolist(), "previous": previous.tolist(), "measured": measured.tolist(),

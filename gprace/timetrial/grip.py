@@ -282,16 +282,19 @@ OVERSHOOT_MAX = 1.15  # largest overshoot read from a car's laps (a lap sliding 
 
 def overshoot(laps) -> float:
     """How much harder than their plans the car's completed laps cornered: the median over ``laps``
-    (``(measured, asked)``: the robust peak lateral acceleration a lap measured, :func:`envelope_of`,
-    and the plan's lateral limit times the square of the speed factor it was driven at) of
-    ``measured / asked``, kept within ``[1, OVERSHOOT_MAX]``; 1 without laps.
+    (``(envelope, limits, step)``, as :func:`held_level` reads them: the measured envelope,
+    :func:`envelope_of`, the plan's limits and the speed factor it was driven at) of the measured
+    lateral peak over what the plan asked (``limits[0] step^2``), kept within ``[1, OVERSHOOT_MAX]``;
+    1 without laps (a lap with no envelope or no plan limits tells nothing).
 
     A plan's lateral limit is a steady level on its line; the car tracking it turns in a little late,
     sits a little inside or outside the line and rotates through transients. Measured on the 29
     plants of seed 0 and the 26 new cars (stop 64's benchmarks, 547 completed GP laps): the peak is
     1.046 times the plan's on calm racing laps (10 %: 1.026, 90 %: 1.059) and 1.056 on exploration
     laps."""
-    ratios = [m / a for m, a in laps if np.isfinite(m) and np.isfinite(a) and a > 0]
+    ratios = [float(env[0]) / (float(limits[0]) * step**2) for env, limits, step in laps
+              if env is not None and len(env) == 3 and limits is not None and len(limits) == 3 and limits[0] > 0]
+    ratios = [r for r in ratios if np.isfinite(r)]
     return float(np.clip(np.median(ratios), 1.0, OVERSHOOT_MAX)) if ratios else 1.0
 
 

@@ -48,8 +48,7 @@ def _replan(c: _Chain, i: int) -> None:
                                        for r in records[1:] if r.completed]))  # the laps after the shakedown
         shown = _grip_shown(c, i)
         if shown is not None:  # never plan corners faster than the grip the car has shown
-            over = G.overshoot([(r.envelope[0], r.limits[0] * guard.speed_step(r)**2)
-                                for r in records if r.completed and r.envelope and r.limits])
+            over = G.overshoot([(r.envelope, r.limits, guard.speed_step(r)) for r in records if r.completed])
             limits[0] = min(limits[0], G.shown_limit(shown, G.nominal_cap(model, 1.0)[0], over,
                                                      np.asarray(last.meta.get("limits", limits))[0]))
     if st.never_worse:  # the plan started from, and driven again if the new one is unsafe: clear of the lost laps
