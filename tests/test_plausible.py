@@ -111,3 +111,16 @@ def test_gyration_bound_holds_for_any_mass_inside_the_footprint():
         cog = (m[:, None] * pts).sum(0) / m.sum()
         k = math.sqrt((m * ((pts - cog) ** 2).sum(1)).sum() / m.sum())
         assert k <= 0.5 * math.hypot(length, width) + 1e-12
+
+
+def test_iterate_warns_once_when_the_nominal_vehicle_is_not_the_plants(capsys):
+    """``--vehicle`` is not read from the plant: a model of another car is warned before any lap,
+    naming both cars; the plant's own vehicle is not."""
+    from gprace.timetrial.iterate.settings import IterateSettings, _check_start
+
+    _check_start(IterateSettings(plant="bmw_commonroad", vehicle="bmw_320i"))
+    assert capsys.readouterr().err == ""
+    _check_start(IterateSettings(plant="bmw_commonroad", vehicle="audi_tt_cup"))
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("warning: iterate: the nominal vehicle is 'audi_tt_cup'"), err
+    assert "built on 'bmw_320i'" in err[0] and "--vehicle bmw_320i" in err[0]

@@ -108,9 +108,16 @@ def _check_start(settings: IterateSettings) -> None:
     from gprace.tracks import load_track
 
     track = load_track(settings.track)
-    load_plant(settings.plant)
+    plant = load_plant(settings.plant)
     vehicle = load_vehicle(settings.vehicle)
     model = NominalModel(vehicle)
+    if plant.vehicle.name != vehicle.name:
+        # a model of another car is a legitimate experiment, and an easy slip (--vehicle is not
+        # read from the plant): say so once, before hours of laps
+        from gprace.console import console
+
+        console.warn(f"iterate: the nominal vehicle is {vehicle.name!r}, the plant {settings.plant!r} is built "
+                     f"on {plant.vehicle.name!r}; pass --vehicle {plant.vehicle.name} unless a model of another car is meant")
     if not track.closed:
         raise InputError(f"--track {settings.track}: an open track; the time trial needs a closed lap")
     if settings.delay is None and vehicle.known_delay is not None:
