@@ -113,7 +113,7 @@ def test_gyration_bound_holds_for_any_mass_inside_the_footprint():
         assert k <= 0.5 * math.hypot(length, width) + 1e-12
 
 
-def test_iterate_warns_once_when_the_nominal_vehicle_is_not_the_plants(capsys):
+def test_iterate_warns_when_the_nominal_vehicle_is_not_the_plants(capsys):
     """``--vehicle`` is not read from the plant: a model of another car is warned before any lap,
     naming both cars; the plant's own vehicle is not."""
     from gprace.timetrial.iterate.settings import IterateSettings, _check_start
