@@ -255,9 +255,17 @@ def held_level(laps, hold: float = 0.8) -> float:
     for env, util, limits, step in laps:
         if env is None or len(env) != 3 or not np.isfinite(util) or util < hold:
             continue
-        asked = float(limits[0]) * step**2 if limits is not None and len(limits) == 3 else np.inf
-        levels.append(min(float(env[0]), asked))
+        asked = lateral_asked(limits, step)
+        levels.append(min(float(env[0]), asked) if not np.isnan(asked) else float(env[0]))
     return min((v for v in levels if np.isfinite(v)), default=np.inf)
+
+
+def lateral_asked(limits, step: float) -> float:
+    """The lateral acceleration [m/s^2] a plan with ``limits`` driven at speed factor ``step`` asks:
+    ``limits[0] step^2`` (accelerations scale with the speed squared); nan without plan limits."""
+    if limits is None or len(limits) != 3:
+        return float("nan")
+    return float(limits[0]) * step**2
 
 
 def slid_level(laps, widen: float = 0.05) -> float:
@@ -292,8 +300,8 @@ def overshoot(laps) -> float:
     plants of seed 0 and the 26 new cars (stop 64's benchmarks, 547 completed GP laps): the peak is
     1.046 times the plan's on calm racing laps (10 %: 1.026, 90 %: 1.059) and 1.056 on exploration
     laps."""
-    ratios = [float(env[0]) / (float(limits[0]) * step**2) for env, limits, step in laps
-              if env is not None and len(env) == 3 and limits is not None and len(limits) == 3 and limits[0] > 0]
+    ratios = [float(env[0]) / asked for env, limits, step in laps
+              if env is not None and len(env) == 3 and (asked := lateral_asked(limits, step)) > 0]
     ratios = [r for r in ratios if np.isfinite(r)]
     return float(np.clip(np.median(ratios), 1.0, OVERSHOOT_MAX)) if ratios else 1.0
 
