@@ -174,6 +174,35 @@ def test_a_calm_closed_loop_is_not_read_as_a_long_delay(circuit):
     assert 0.0 <= dead + lag <= 0.1, (dead, lag)
 
 
+def test_a_calibration_run_lost_early_is_driven_slower_until_it_gives_the_delay(tmp_path, monkeypatch):
+    """A car of the family with 0.18 s of delay (98 ms dead time, 78 ms steering lag) spins the
+    reference controller on the Nürburgring's first braking down to 0.63 of its profile, before
+    the estimator has its samples; without more, the shakedown starts from the prior (0.08 s) and
+    loses the car. Further down the ladder the run lasts long enough to read the delay."""
+    from shared_data import TUM_TRACKS
+
+    from gprace.config import load_plant
+    from gprace.io.runs import read_run
+    from gprace.plants.randomized import draw_car
+    from gprace.timetrial.iterate import data as D
+    from gprace.timetrial.iterate.settings import IterateSettings
+
+    path = TUM_TRACKS / "Nuerburgring.csv"
+    if not path.exists():
+        pytest.skip("the TUM circuits are not on this machine")
+    toml = tmp_path / "car.toml"
+    toml.write_text('kind = "randomized"\nvehicle = "audi_tt_cup"\nsubsteps = 10\n[options]\nseed = 74\n'
+                    '[noise]\nv_x = 0.02\nv_y = 0.01\nyaw_rate = 0.005\ne_psi = 0.002\ne_y = 0.02\ns = 0.05\n')
+    car = draw_car(load_plant(str(toml)))
+    true = car.delay * 0.05 + car.steering_lag
+    settings = IterateSettings(plant=str(toml), track=str(path), vehicle="audi_tt_cup")
+    D._reference_run(settings, tmp_path, "calib")
+    assert abs(D._delay_of(read_run(tmp_path / "calib.h5")) - true) <= 0.03, true
+    monkeypatch.setattr(D, "REFERENCE_SLOWEST", ())
+    D._reference_run(settings, tmp_path, "calib")
+    assert np.isnan(D._delay_of(read_run(tmp_path / "calib.h5")))
+
+
 def test_gp_targets_follow_the_delay_the_car_has(stadium):
     """A car whose inputs act two periods late (simulated with the nominal model): the tracking
     GP's targets are zero when the features know the delay and far from it when they do not."""

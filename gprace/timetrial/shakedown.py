@@ -38,7 +38,8 @@ two periods, steering lag up to 80 ms, a rate-limited actuator) the MPC that pre
 delay started a growing yaw oscillation on the start straight and spun the car within 4 s at half
 the nominal limits; predicting over 80 to 120 ms it completed the lap. So the lap starts with the
 known delay, else an estimate from the calibration run the loop already has (weaving at 0.9 of the
-reference profile), else ``DELAY_PRIOR``; at 200, 400, 800 ... periods the delay is estimated again
+reference profile, slower on a car that spins there: :mod:`gprace.timetrial.iterate.data`), else
+``DELAY_PRIOR``; at 200, 400, 800 ... periods the delay is estimated again
 from the lap so far and the calibration run together (:func:`gprace.mpc.delay.estimate`) and the
 MPC predicts over the new value.
 """
