@@ -7,7 +7,7 @@ import numpy as np
 
 from gprace.console import console
 from gprace.timetrial.iterate.chain import _Chain
-from gprace.timetrial.iterate.data import _calibration_samples
+from gprace.timetrial.iterate.data import _calibration_samples, _delay_of
 from gprace.timetrial.iterate.evaluation import _lap_extra, _record
 from gprace.timetrial.record import write_record
 
@@ -27,7 +27,7 @@ def _iteration_zero(c: _Chain) -> None:
     nominal = G.nominal_cap(c.model, 1.0)
     shake = None
     reference = _calibration_samples(c)
-    start_delay = c.delay_known if c.delay_known is not None else _delay_before(reference, c.mpc.dt)
+    start_delay = c.delay_known if c.delay_known is not None else _delay_before(c.runs.get("calib"))
     if st.shakedown:
         shake = Shakedown(racing_line(c.track, c.model, st.plan_ds), c.model, nominal,
                           ShakedownSettings(start=st.shakedown_start), c.mpc.dt, delay_known=c.delay_known is not None,
@@ -65,18 +65,13 @@ def _iteration_zero(c: _Chain) -> None:
         c.steps.mark(c.tag(0, "drive"))
 
 
-def _delay_before(reference: tuple, dt: float) -> float:
-    """The delay iteration 0 starts with when none is known: estimated from the calibration run,
-    else the shakedown's prior."""
-    from gprace.mpc.delay import estimate
+def _delay_before(calib) -> float:
+    """The delay iteration 0 starts with when none is known: estimated from the calibration run
+    (``None`` without one), else the shakedown's prior."""
     from gprace.timetrial.shakedown import DELAY_PRIOR
 
-    if reference:
-        X, U, ok = reference[0]
-        dead, lag = estimate(X, U, dt, ok)
-        if np.isfinite(dead):
-            return float(dead + lag)
-    return DELAY_PRIOR
+    delay = _delay_of(calib) if calib is not None else float("nan")
+    return delay if np.isfinite(delay) else DELAY_PRIOR
 
 
 def _band(c: _Chain, i: int):
