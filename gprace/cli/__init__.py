@@ -247,6 +247,10 @@ def _main(argv: list[str], process: bool) -> int:
         except typer.Abort:
             console.error("aborted")
             return 130
+        except BrokenPipeError:  # the reader went away (`gprace ... --help | head`): end quietly, as shell tools do
+            if process:
+                _drop_stdout()
+            return 141  # 128 + SIGPIPE, what a shell reports for a tool its pipe's reader closed
         except Exception as exc:  # click usage errors and anything unexpected
             if isinstance(exc, _click_exceptions()):  # usage: one line too, with where to look
                 ctx = getattr(exc, "ctx", None)
@@ -259,6 +263,15 @@ def _main(argv: list[str], process: bool) -> int:
         finally:
             _RUN["outputs"] = None
     return 0
+
+
+def _drop_stdout() -> None:
+    """Point the process's stdout at the null device: the flush at exit would hit the closed pipe again."""
+    import contextlib
+
+    with contextlib.suppress(OSError, ValueError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
 
 
 if __name__ == "__main__":
