@@ -3,7 +3,7 @@ sensible result, so the examples cannot rot.
 
 The time-trial example runs a whole pipeline (IPOPT plans, MPC laps, GP hyperparameter fits) and
 takes minutes on two cores even with its tiny settings: it is ``slow``. The diagnosis and
-head-to-head examples (about 15 s with the compiled NMPC) run by default.
+head-to-head examples (about 30 s with the compiled NMPC, once it is compiled) run by default.
 """
 
 from __future__ import annotations

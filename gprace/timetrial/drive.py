@@ -56,9 +56,12 @@ def start_state(plan, track, vehicle) -> tuple[np.ndarray, np.ndarray]:
 
 
 def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSettings(), gp=None, grid=None,
-          alpha: float = 0.0, seed: int = 0, band: tuple[float, float] | None = None, supervisor=None) -> Run:
+          alpha: float = 0.0, seed: int = 0, band: tuple[float, float] | None = None, supervisor=None,
+          sensors=None) -> Run:
     """Drive ``settings.laps`` laps; ``gp`` is a callable ``Z -> (mean, var)`` (the tracking GP);
-    ``band`` the stability envelope's band from earlier laps (None: learned inside this run)."""
+    ``band`` the stability envelope's band from earlier laps (None: learned inside this run);
+    ``sensors`` a :class:`gprace.mpc.sensors.SensorCalibration` the measurements are corrected by
+    before the controller sees them (and as recorded)."""
     from gprace.plants import make_plant
     from gprace.sim.record import border_hits, lap_times_of, run_columns
     from gprace.timetrial.learning import in_control
@@ -70,7 +73,8 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
     mpc = TrackingMPC(model, track, plan, settings.mpc, gp=gp, grid=grid, alpha=alpha)
     x0, u0 = start_state(plan, track, model.vehicle)
     plant = make_plant(plant_config, track, dt)
-    y = plant.reset(x0, u0)
+    correct = sensors.apply if sensors is not None else (lambda y: y)
+    y = correct(plant.reset(x0, u0))
     mpc.reset(delta_prev=float(u0[Input.DELTA]), a_prev=float(u0[Input.A_X]))
     u_prev = np.asarray(u0, float)
 
@@ -125,6 +129,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         y, reason = step_plant(plant, u)
         if reason:
             break
+        y = correct(y)
     data = {
         **run_columns(track, dt, Y[:k], U[:k]),
         **{c: v[:k] for c, v in cols.items()},
@@ -145,6 +150,7 @@ def drive(plan, plant_config, track, model, settings: DriveSettings = DriveSetti
         "interventions": int(env.interventions), "weaves": int(env.weaves), "eased_steps": int(env.eased),
         "band": [float(b) for b in env.band],
         "delay": float(mpc.delay),
+        **({"sensors": sensors.as_dict()} if sensors is not None and not sensors.identity else {}),
     }
     return Run(data, meta, source=f"drive({plant_config.kind}, {track.name})")
 

@@ -17,6 +17,17 @@ if TYPE_CHECKING:
 ORACLE_MARGINS = (1.0, 0.95)  # shares of the true grip the oracle plans with, tried in turn
 
 
+def true_sensors(effects):
+    """The :class:`gprace.mpc.sensors.SensorCalibration` the plant's measurement effects (``gyro_bias``,
+    ``velocity_misalignment``) call for: the oracle knows the car's sensors as it knows its physics."""
+    from gprace.mpc.sensors import SensorCalibration
+
+    def total(name: str, key: str) -> float:
+        return float(sum(float(e.params.get(key, 0.0)) for e in effects if e.name == name))
+
+    return SensorCalibration(yaw_rate_bias=total("gyro_bias", "bias"), velocity_angle=total("velocity_misalignment", "angle"))
+
+
 def oracle_lap(settings: IterateSettings, out: Path | None = None) -> dict:
     """Plan and drive the oracle lap; ``{"known": False}`` for a plant whose physics are unknown.
 
@@ -72,7 +83,7 @@ def oracle_lap(settings: IterateSettings, out: Path | None = None) -> dict:
         except SolverError as exc:
             res["tried"].append({"margin": margin, "reason": str(exc)})
             continue
-        run = drive(plan, plant, track, truth, dset, seed=settings.seed * 1000 + 999)
+        run = drive(plan, plant, track, truth, dset, seed=settings.seed * 1000 + 999, sensors=true_sensors(approx.effects))
         m = run.meta
         res["tried"].append({"margin": margin, "planned": float(plan.lap_time), "driven": float(m["lap_time"]), "reason": m["reason"]})
         if m["completed"]:

@@ -92,6 +92,9 @@ class IterationRecord(_ReadByKey, Frozen):
                              "back to iteration k, last good plan, replan failed")
     safety: dict[str, float | str] = Field(default_factory=dict, description="the plan's predicted safety "
                                            "(gprace.timetrial.guard.plan_safety)")
+    sensors: dict[str, float] = Field(default_factory=dict, description="iteration 0: the sensor calibration every "
+                                      "lap was corrected by (gprace.mpc.sensors: yaw_rate_bias [rad/s], velocity_angle "
+                                      "[rad]); empty when the sensors read true")
 
     @property
     def envelope_events(self) -> int:

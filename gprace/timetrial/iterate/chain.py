@@ -46,8 +46,9 @@ class _Chain:
     plant: Any
     mpc: Any
     seed: int
-    runs: dict  # "heldout" / "calib" -> Run or None
+    runs: dict  # "heldout" / "calib" -> Run or None, as the corrected sensors read them
     cap: np.ndarray
+    sensors: Any = None  # the SensorCalibration read from a reference run (gprace.mpc.sensors)
     _features: dict = field(default_factory=dict)
 
     @property
@@ -110,8 +111,10 @@ def _chain(task: dict) -> _Chain:
     from gprace.config import load_plant, load_vehicle
     from gprace.io.runs import read_run
     from gprace.model import NominalModel
+    from gprace.mpc import sensors as S
     from gprace.mpc.tracking import MPCSettings
     from gprace.timetrial import grip as G
+    from gprace.timetrial.learning import in_control
     from gprace.tracks import load_track
 
     st = _task_settings(task)
@@ -119,5 +122,22 @@ def _chain(task: dict) -> _Chain:
     track, model = load_track(st.track), NominalModel(load_vehicle(st.vehicle))
     mpc = MPCSettings(solver=st.solver, beta=st.beta, grip=st.grip)
     runs = {"heldout": read_run(out / "heldout.h5"), "calib": read_run(out / "calib.h5") if st.calib_weave > 0 else None}
+    sensors = S.of_run(_sensor_run(runs), track, in_control)
+    runs = {k: None if r is None else S.corrected(r, sensors) for k, r in runs.items()}
     return _Chain(st=st, out=out, trial=j, steps=Steps(out), track=track, model=model, plant=load_plant(st.plant),
-                  mpc=mpc, seed=st.seed * 1000 + j + 1, runs=runs, cap=G.nominal_cap(model, st.plan_grip))
+                  mpc=mpc, seed=st.seed * 1000 + j + 1, runs=runs, cap=G.nominal_cap(model, st.plan_grip), sensors=sensors)
+
+
+def _sensor_run(runs: dict):
+    """The reference run the car's sensors are read from (:mod:`gprace.mpc.sensors`): of the
+    calibration and held-out runs (driven before the first lap) the one with the longest stretch in
+    control: the reference controller spins some cars of the randomized family within
+    20 s on one of them (docs/decisions.md, issue 37, stop 71)."""
+    from gprace.mpc.sensors import longest_stretch
+    from gprace.timetrial.learning import in_control
+
+    def held(run) -> float:
+        sl = longest_stretch(in_control(run.states()))
+        return float(run["t"][sl.stop - 1] - run["t"][sl.start]) if sl.stop > sl.start else 0.0
+
+    return max((r for r in (runs.get("calib"), runs.get("heldout")) if r is not None), key=held)

@@ -44,8 +44,13 @@ def _iteration_zero(c: _Chain) -> None:
     if not c.steps.done(c.tag(0, "drive")):
         plan = read_plan(d0 / "plan_start.h5", c.track)
         run = drive(plan, c.plant, c.track, c.model, c.drive_settings(start_delay), seed=c.seed * 100,
-                    supervisor=shake)
+                    supervisor=shake, sensors=c.sensors)
         extra = {"delay": float("nan"), "delay_source": "known" if c.delay_known is not None else "estimated"}
+        if c.sensors is not None and not c.sensors.identity:
+            extra["sensors"] = c.sensors.as_dict()
+            console.info(f"iterate: {c.out.name} trial {c.trial}: the reference run reads a yaw-rate bias of "
+                         f"{c.sensors.yaw_rate_bias:+.4f} rad/s and a velocity frame turned by "
+                         f"{c.sensors.velocity_angle:+.4f} rad; every lap is corrected by them")
         if shake is not None:
             plan = shake.plan()  # the limits the car was shown to take
             plan.meta["shakedown"] = shake.log
@@ -107,7 +112,7 @@ def drive_lap(c: _Chain, i: int, alpha: float, seed: int | None = None, plan=Non
     a = read_artifact(di / "candidates.h5", "candidates") if alpha > 0 else None
     grid = CandidateGrid(a.arrays["Z"], a.arrays["v"], a.arrays["scale"]) if a is not None else None
     return drive(plan, c.plant, c.track, c.model, c.drive_settings(c.delay), gp=gp_track, grid=grid, alpha=alpha,
-                 seed=c.seed * 100 + i if seed is None else seed, band=_band(c, i))
+                 seed=c.seed * 100 + i if seed is None else seed, band=_band(c, i), sensors=c.sensors)
 
 
 def _drive_iteration(c: _Chain, i: int, alpha: float) -> None:
