@@ -12,9 +12,9 @@ were held from iteration 1 on and the lap stayed at 62.75 s (a third of the gap 
 closed); without the turn the same car came to 59.8 s (0.64 closed). A gyro bias of 0.02 rad/s
 alone cost less (0.59 closed).
 
-Both are read from any run of the car (the loop reads them from its calibration run, before the
-first lap) through the position and heading the localisation gives, which do not share these
-sensors' errors:
+Both are read from any run of the car (the loop reads them from a reference run, calibration or
+held-out, before the first lap: :func:`gprace.timetrial.iterate.chain._sensor_run`) through the
+position and heading the localisation gives, which do not share these sensors' errors:
 
 - the car's heading ``psi = heading(s) + e_psi`` changes by the integral of the true yaw rate, so
   the bias is ``b = (integral of r_measured - change of psi) / duration``;
