@@ -40,8 +40,7 @@ def read_car(task: dict) -> dict:
     import tomli_w
 
     from gprace.config import load_plant
-    from gprace.mpc import sensors as S
-    from gprace.mpc.sensors import DEAD_BAND, read
+    from gprace.mpc.sensors import DEAD_BAND, dead_banded, read
     from gprace.io.runs import read_run
     from gprace.timetrial.iterate.chain import _sensor_run
     from gprace.timetrial.iterate.data import _reference_run
@@ -65,7 +64,7 @@ def read_car(task: dict) -> dict:
     run = _sensor_run(runs)
     X = run.states()
     raw = read(X, run["t"], in_control(X), track)
-    used = S.of_run(run, track, in_control)
+    used = dead_banded(raw)
     row = {"name": task["name"], "track": task["track"], "seed": task["seed"], "read_from": next(k for k in runs if runs[k] is run),
            "samples": int(run.n),
            "completed": bool(run.meta.get("completed")), **{f"read_{k}": v for k, v in raw.items()},

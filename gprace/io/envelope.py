@@ -209,7 +209,7 @@ def envelope(data: dict[str, np.ndarray], source: str = "<memory>",
 
     # drop short kept islands between exclusions (and at the ends next to one)
     min_keep = max(int(round(MIN_KEEP_S * ts / max(dt, 1e-9))), 1)
-    starts, ends = _runs(keep)
+    starts, ends = true_runs(keep)
     if (~keep).any():
         short = (ends - starts + 1) < min_keep
         for a, b in zip(starts[short], ends[short]):  # a few stretches, not samples
@@ -256,7 +256,7 @@ def _exclusions(keep: np.ndarray, grown: np.ndarray, t: np.ndarray, s: np.ndarra
     neighbour)."""
     n = len(t)
     ex: list[Exclusion] = []
-    xs, xe = _runs(~keep)
+    xs, xe = true_runs(~keep)
     for a0, b0 in zip(xs, xe):  # one entry per excluded stretch and reason (a spin, then standing)
         g = np.maximum(grown[a0 : b0 + 1], 1)
         cut = np.flatnonzero(np.diff(g)) + 1
@@ -298,8 +298,8 @@ def _sustained(flag: np.ndarray, w: int) -> np.ndarray:
     return (c[hi] - c[lo]) * 2 > (hi - lo)
 
 
-def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """First and last index of every run of True in ``mask``."""
+def true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First and last index of every run of True in ``mask`` (vectorised)."""
     m = np.concatenate([[False], mask, [False]]).astype(np.int8)
     d = np.diff(m)
     return np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1

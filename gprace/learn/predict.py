@@ -89,8 +89,9 @@ def stretches(mask: np.ndarray, closed: bool = True) -> list[tuple[int, int]]:
         return []
     if m.all():
         return [(0, len(m) - 1)]
-    d = np.diff(np.concatenate([[0], m.astype(np.int8), [0]]))
-    a, b = np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1
+    from gprace.io.envelope import true_runs
+
+    a, b = true_runs(m)
     runs = list(zip(a.tolist(), b.tolist()))
     if closed and len(runs) > 1 and runs[0][0] == 0 and runs[-1][1] == len(m) - 1:
         runs = [(runs[-1][0], runs[0][1])] + runs[1:-1]

@@ -76,18 +76,19 @@ class SensorCalibration:
 
 def longest_stretch(ok: np.ndarray) -> slice:
     """The longest run of consecutive ``True`` in the mask ``ok``, as a slice (empty without one)."""
-    ok = np.asarray(ok, dtype=bool)
-    if not ok.any():
+    from gprace.io.envelope import true_runs
+
+    first, last = true_runs(np.asarray(ok, dtype=bool))
+    if not len(first):
         return slice(0, 0)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(np.int8), [0]])))
-    starts, ends = edges[::2], edges[1::2]
-    k = int(np.argmax(ends - starts))
-    return slice(int(starts[k]), int(ends[k]))
+    k = int(np.argmax(last - first))
+    return slice(int(first[k]), int(last[k]) + 1)
 
 
-def _integral(y: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Cumulative trapezoid integral of ``y`` over ``t``, starting at 0."""
-    return np.concatenate([[0.0], np.cumsum(0.5 * (y[1:] + y[:-1]) * np.diff(t))])
+def held_seconds(t: np.ndarray, ok: np.ndarray) -> float:
+    """Duration [s] of the longest in-control (``ok``) stretch of a run sampled at ``t``."""
+    sl = longest_stretch(ok)
+    return float(t[sl.stop - 1] - t[sl.start]) if sl.stop > sl.start else 0.0
 
 
 def read(X: np.ndarray, t: np.ndarray, ok: np.ndarray, track, window: float = WINDOW) -> dict[str, float]:
@@ -99,12 +100,14 @@ def read(X: np.ndarray, t: np.ndarray, ok: np.ndarray, track, window: float = WI
     X, t = np.asarray(X, float)[sl], np.asarray(t, float)[sl]
     if len(t) < 3 or t[-1] - t[0] < MIN_DURATION:
         return nan
+    from scipy.integrate import cumulative_trapezoid, trapezoid
+
     vx, vy, r, epsi, ey, s = X[:, :6].T
     psi = np.unwrap(track.heading(s) + epsi)
-    bias = (_integral(r, t)[-1] - (psi[-1] - psi[0])) / (t[-1] - t[0])
+    bias = (trapezoid(r, t) - (psi[-1] - psi[0])) / (t[-1] - t[0])
     px, py = track.to_global(s, ey)
     P = px + 1j * py
-    Q = _integral(np.exp(1j * psi) * (vx + 1j * vy), t)
+    Q = cumulative_trapezoid(np.exp(1j * psi) * (vx + 1j * vy), t, initial=0.0)
     per = max(int(round(window / max(float(np.median(np.diff(t))), 1e-9))), 1)
     idx = np.arange(0, len(t), per)
     dP, dQ = np.diff(P[idx]), np.diff(Q[idx])
@@ -117,7 +120,12 @@ def read(X: np.ndarray, t: np.ndarray, ok: np.ndarray, track, window: float = WI
 
 def calibration(X: np.ndarray, t: np.ndarray, ok: np.ndarray, track) -> SensorCalibration:
     """The :class:`SensorCalibration` a run shows (:func:`read`), each part only beyond its dead band."""
-    est = read(X, t, ok, track)
+    return dead_banded(read(X, t, ok, track))
+
+
+def dead_banded(est: dict[str, float]) -> SensorCalibration:
+    """The readings ``est`` (:func:`read`) as a :class:`SensorCalibration`: each part only beyond its
+    dead band (:data:`DEAD_BAND`), none where it could not be read (NaN)."""
     return SensorCalibration(**{name: est[name] if np.isfinite(est[name]) and abs(est[name]) > band else 0.0
                                 for name, band in DEAD_BAND.items()})
 

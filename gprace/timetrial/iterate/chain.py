@@ -133,11 +133,8 @@ def _sensor_run(runs: dict):
     calibration and held-out runs (driven before the first lap) the one with the longest stretch in
     control: the reference controller spins some cars of the randomized family within
     20 s on one of them (docs/decisions.md, issue 37, stop 71)."""
-    from gprace.mpc.sensors import longest_stretch
+    from gprace.mpc.sensors import held_seconds
     from gprace.timetrial.learning import in_control
 
-    def held(run) -> float:
-        sl = longest_stretch(in_control(run.states()))
-        return float(run["t"][sl.stop - 1] - run["t"][sl.start]) if sl.stop > sl.start else 0.0
-
-    return max((r for r in (runs.get("calib"), runs.get("heldout")) if r is not None), key=held)
+    return max((r for r in (runs.get("calib"), runs.get("heldout")) if r is not None),
+               key=lambda run: held_seconds(run["t"], in_control(run.states())))
