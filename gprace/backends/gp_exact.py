@@ -10,7 +10,11 @@ length scales and variances, being properties of the function rather than of the
 change little. A fit whose optimum explains the data no better than white noise (length scales
 collapsed to their lower bound, :func:`noise_lml`) is optimised again from a smooth start and the
 better optimum kept: L-BFGS-B from the default start ends there on some subsamples of data that
-have a clear signal (docs/decisions.md, issue 37, stop 64).
+have a clear signal (docs/decisions.md, issue 37, stop 64). With ``smooth_start`` (the time trial's
+fits) the smooth start is always optimised as well, and its optimum replaces one above white noise
+where it is better by more than ``SMOOTH_MARGIN``: from the default start L-BFGS-B also ends in
+wiggly optima with short length scales that predict held-out laps barely better than the mean
+(stops 71 and 72).
 
 Prediction never calls scikit-learn: the Cholesky factor ``L`` of ``K + sn2 I`` and
 ``alpha = (K + sn2 I)^-1 y`` are cached per output; a query costs one kernel block
@@ -39,6 +43,7 @@ _FEW = 8  # queries answered by the fast path of the variance
 
 NOISE_GAIN = 0.01   # log marginal likelihood per target value a fit must gain over white noise
 SMOOTH_START = (3.0, 1.0, 0.1)  # (length scales, signal, noise) of the second start, normalised units
+SMOOTH_MARGIN = 5.0  # log marginal likelihood by which the smooth start's optimum must win (smooth_start=True)
 
 
 def noise_lml(y: np.ndarray) -> float:
@@ -56,15 +61,19 @@ class ExactGP(GPBackend):
     NAME = "exact"
 
     def __init__(self, *args: Any, max_fit_points: int = 800, n_restarts: int = 0, shared_kernel: bool = False,
-                 **base: Any) -> None:
+                 smooth_start: bool = False, **base: Any) -> None:
         """``max_fit_points``: hyperparameters are fitted on at most this many random points (the
         posterior uses all); ``n_restarts``: scikit-learn's optimiser restarts; ``shared_kernel``:
-        one kernel and noise for all (normalised) outputs. The base settings (``kernel``,
+        one kernel and noise for all (normalised) outputs; ``smooth_start``: always optimise from
+        :data:`SMOOTH_START` as well and keep its optimum where its log marginal likelihood is
+        better by more than :data:`SMOOTH_MARGIN` (a wiggly local optimum above white noise, which
+        the noise check below misses: docs/decisions.md, issue 37, stops 71 and 72). The base settings (``kernel``,
         ``noise``, ...) as in :class:`~gprace.gp.base.GPBackend`."""
         super().__init__(*args, **base)
         self.max_fit_points = max_fit_points
         self.n_restarts = n_restarts
         self.shared_kernel = shared_kernel
+        self.smooth_start = smooth_start
 
     # -- hyperparameters (scikit-learn) ------------------------------------------------------------
     def _sk_kernel(self, ls0: np.ndarray, sf20: float, sn20: float):
@@ -93,7 +102,8 @@ class ExactGP(GPBackend):
             y = Ys[:, g] if len(g) > 1 else Ys[:, o]
             th = best_start(self.kernel, np.concatenate([log_ls[o], [log_sf2[o], log_sn2[o]]]), Zs, y)
             kf, lml = self._optimise(Zs, y, th, rng)
-            if lml < noise_lml(y) + NOISE_GAIN * y.size:
+            noise_like = lml < noise_lml(y) + NOISE_GAIN * y.size
+            if self.smooth_start or noise_like:
                 # the optimum that explains the data as noise (length scales at their lower bound):
                 # measured on the planning data of a randomized BMW's first lap, one subsample of
                 # four led L-BFGS-B there from the default start (log marginal likelihood -2265
@@ -102,7 +112,7 @@ class ExactGP(GPBackend):
                 ls0, sf20, sn20 = SMOOTH_START
                 th2 = np.log(np.r_[np.full(d, ls0), sf20, sn20])
                 kf2, lml2 = self._optimise(Zs, y, th2, rng)
-                if lml2 > lml:
+                if lml2 > lml + (0.0 if noise_like else SMOOTH_MARGIN):
                     kf = kf2
             ls = np.broadcast_to(np.asarray(kf.k1.k2.length_scale, dtype=float), (Zn.shape[1],))
             for q in g:

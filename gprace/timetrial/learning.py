@@ -279,8 +279,10 @@ def fit_hyper(Z: np.ndarray, Y: np.ndarray, seed: int = 0, max_fit_points: int =
 
     kw = {"kernel": "se", "optimize": True, "seed": seed}
     if backend == "exact":
-        # one kernel for both outputs: one Cholesky factor, half the prediction cost in the MPC loop
-        kw.update(max_fit_points=max_fit_points, shared_kernel=True)
+        # one kernel for both outputs: one Cholesky factor, half the prediction cost in the MPC loop;
+        # a smooth second start: a wiggly optimum made every plan of a trial "novel" and stalled it
+        # at 68.45 s where the smooth fit reaches 59.70 s (docs/decisions.md, issue 37, stops 71-72)
+        kw.update(max_fit_points=max_fit_points, shared_kernel=True, smooth_start=True)
     return make_gp(backend, **kw).fit(Z, Y)
 
 
