@@ -108,7 +108,10 @@ class ExactGP(GPBackend):
                 # measured on the planning data of a randomized BMW's first lap, one subsample of
                 # four led L-BFGS-B there from the default start (log marginal likelihood -2265
                 # against -1378 for the smooth optimum the others found; held-out error 1.00
-                # against 0.59). A second start from a smooth function decides; the better wins
+                # against 0.59). A second start from a smooth function decides; the better wins.
+                # With smooth_start the second start always runs, and above white noise it must win
+                # by SMOOTH_MARGIN: a wiggly optimum there (-692 against -443 for the smooth one)
+                # made every plan of a trial novel and stalled it (issue 37, stops 71 and 72)
                 ls0, sf20, sn20 = SMOOTH_START
                 th2 = np.log(np.r_[np.full(d, ls0), sf20, sn20])
                 kf2, lml2 = self._optimise(Zs, y, th2, rng)
